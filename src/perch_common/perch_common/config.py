@@ -1,0 +1,139 @@
+"""ROS-parameter YAML (`node_name: ros__parameters: ...`) into typed config dataclasses.
+
+A dataclass field may carry `metadata={"description": ..., "unit": ...}`; the node adapters
+(perch_common.ros.params) declare one ROS parameter per field from it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from pathlib import Path
+from typing import Any, TypeVar
+
+import yaml
+
+T = TypeVar("T")
+
+WILDCARD = "/**"
+
+
+class ConfigError(ValueError):
+    """A configuration file or value that cannot be used."""
+
+
+def default_config_path() -> Path:
+    """config/perch.yaml of the workspace (PERCH_CONFIG overrides)."""
+    if os.environ.get("PERCH_CONFIG"):
+        return Path(os.environ["PERCH_CONFIG"])
+    here = Path(__file__).resolve()
+    for parent in here.parents:
+        candidate = parent / "config" / "perch.yaml"
+        if candidate.is_file():
+            return candidate
+    raise ConfigError("config/perch.yaml not found; set PERCH_CONFIG to your parameter file")
+
+
+def load_yaml(path: str | Path) -> dict:
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+    except (OSError, yaml.YAMLError) as exc:
+        raise ConfigError(f"{path}: cannot read parameters ({exc})") from exc
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: expected a mapping of node names to ros__parameters")
+    return data
+
+
+def node_names(path: str | Path | None = None) -> list[str]:
+    """Node sections of a parameter file, in file order (the wildcard excluded)."""
+    return [k.lstrip("/") for k in load_yaml(path or default_config_path()) if k != WILDCARD]
+
+
+def node_parameters(node_name: str, path: str | Path | None = None) -> dict[str, Any]:
+    """Flat parameters of one node: the `/**` wildcard section overlaid by the node's own.
+
+    Nested mappings are flattened with dots, as ROS does (`camera.width`).
+    """
+    data = load_yaml(path or default_config_path())
+    merged: dict[str, Any] = {}
+    for key in (WILDCARD, node_name, "/" + node_name):
+        section = data.get(key) or {}
+        merged.update(flatten(section.get("ros__parameters") or {}))
+    return merged
+
+
+def flatten(mapping: dict, prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in mapping.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            out.update(flatten(value, name + "."))
+        else:
+            out[name] = value
+    return out
+
+
+def from_parameters(cls: type[T], params: dict[str, Any], prefix: str = "", strict: bool = False) -> T:
+    """Build dataclass `cls` from flat parameters; nested dataclass fields use `field.` prefixes.
+
+    Values are coerced to the field's default type; `strict` rejects unknown keys under `prefix`.
+    """
+    kwargs: dict[str, Any] = {}
+    known: set[str] = set()
+    for f in dataclasses.fields(cls):
+        key = prefix + f.name
+        default = _default_of(f)
+        if dataclasses.is_dataclass(default):
+            kwargs[f.name] = from_parameters(type(default), params, key + ".", strict)
+            known.update(k for k in params if k.startswith(key + "."))
+            continue
+        known.add(key)
+        if key in params:
+            kwargs[f.name] = _coerce(params[key], default, key)
+    if strict:
+        unknown = [k for k in params if k.startswith(prefix) and k not in known]
+        if unknown:
+            raise ConfigError(f"unknown parameter(s) for {cls.__name__}: {', '.join(sorted(unknown))}")
+    return cls(**kwargs)
+
+
+def to_parameters(obj: Any, prefix: str = "") -> dict[str, Any]:
+    """Flat parameters of a config dataclass (inverse of from_parameters)."""
+    out: dict[str, Any] = {}
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        if dataclasses.is_dataclass(value):
+            out.update(to_parameters(value, prefix + f.name + "."))
+        else:
+            out[prefix + f.name] = list(value) if isinstance(value, tuple) else value
+    return out
+
+
+def _default_of(f: dataclasses.Field) -> Any:
+    if f.default is not dataclasses.MISSING:
+        return f.default
+    if f.default_factory is not dataclasses.MISSING:  # type: ignore[misc]
+        return f.default_factory()  # type: ignore[misc]
+    return None
+
+
+def _coerce(value: Any, default: Any, key: str) -> Any:
+    try:
+        if isinstance(default, bool):
+            if isinstance(value, str):
+                return value.strip().lower() in ("1", "true", "yes", "on")
+            return bool(value)
+        if isinstance(default, int):
+            if isinstance(value, float) and not value.is_integer():
+                raise ValueError("not a whole number")
+            return int(value)
+        if isinstance(default, float):
+            return float(value)
+        if isinstance(default, (list, tuple)):
+            return type(default)(value)
+        if isinstance(default, str):
+            return str(value)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"parameter {key}={value!r}: {exc}") from exc
+    return value

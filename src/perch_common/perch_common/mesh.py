@@ -1,0 +1,184 @@
+"""Triangle mesh model, validation and file I/O (PLY/OBJ/GLB/STL)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+
+class MeshError(ValueError):
+    """A mesh that cannot be used, with a message saying why and what to do."""
+
+
+@dataclass
+class Mesh:
+    """Vertices (V,3) float64 metres, faces (F,3) int64, optional per-vertex data."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    vertex_colors: np.ndarray | None = None   # (V,3) uint8
+    vertex_normals: np.ndarray | None = None  # (V,3) float
+    frame_id: str = "map"
+    _cache: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        self.vertices = np.asarray(self.vertices, dtype=np.float64).reshape(-1, 3)
+        self.faces = np.asarray(self.faces, dtype=np.int64).reshape(-1, 3)
+        if self.vertex_colors is not None:
+            self.vertex_colors = np.asarray(self.vertex_colors, dtype=np.uint8).reshape(-1, 3)
+        if self.vertex_normals is not None:
+            self.vertex_normals = np.asarray(self.vertex_normals, dtype=np.float64).reshape(-1, 3)
+
+    @property
+    def num_faces(self) -> int:
+        return int(self.faces.shape[0])
+
+    @property
+    def num_vertices(self) -> int:
+        return int(self.vertices.shape[0])
+
+    def triangles(self) -> np.ndarray:
+        """(F,3,3) corner coordinates."""
+        return self.vertices[self.faces]
+
+    def _cross(self) -> np.ndarray:
+        if "cross" not in self._cache:
+            t = self.triangles()
+            self._cache["cross"] = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+        return self._cache["cross"]
+
+    def face_areas(self) -> np.ndarray:
+        return 0.5 * np.linalg.norm(self._cross(), axis=1)
+
+    def face_normals(self) -> np.ndarray:
+        """Unit normals by right-hand winding; zero for degenerate faces."""
+        c = self._cross()
+        n = np.linalg.norm(c, axis=1, keepdims=True)
+        return np.divide(c, n, out=np.zeros_like(c), where=n > 0)
+
+    def face_centroids(self) -> np.ndarray:
+        return self.triangles().mean(axis=1)
+
+    def face_colors(self) -> np.ndarray | None:
+        """(F,3) mean vertex colour in [0,1], or None without colours."""
+        if self.vertex_colors is None:
+            return None
+        return self.vertex_colors[self.faces].astype(np.float64).mean(axis=1) / 255.0
+
+    def bounds(self) -> np.ndarray:
+        """(2,3) min and max corner."""
+        if self.num_vertices == 0:
+            return np.zeros((2, 3))
+        return np.stack([self.vertices.min(axis=0), self.vertices.max(axis=0)])
+
+    def submesh(self, face_mask_or_indices: np.ndarray) -> "Mesh":
+        """The given faces with only the vertices they use, colours kept."""
+        faces = self.faces[face_mask_or_indices]
+        used, inverse = np.unique(faces, return_inverse=True)
+        return Mesh(
+            vertices=self.vertices[used],
+            faces=inverse.reshape(-1, 3),
+            vertex_colors=None if self.vertex_colors is None else self.vertex_colors[used],
+            vertex_normals=None if self.vertex_normals is None else self.vertex_normals[used],
+            frame_id=self.frame_id,
+        )
+
+    def transformed(self, matrix: np.ndarray) -> "Mesh":
+        """Copy under a 4x4 rigid transform."""
+        r, t = matrix[:3, :3], matrix[:3, 3]
+        normals = None if self.vertex_normals is None else self.vertex_normals @ r.T
+        return replace(self, vertices=self.vertices @ r.T + t, vertex_normals=normals, _cache={})
+
+
+@dataclass
+class MeshProblems:
+    """What `inspect_mesh` found; fatal problems make a mesh unusable."""
+
+    fatal: list[str]
+    warnings: list[str]
+    degenerate_faces: int = 0
+    duplicate_faces: int = 0
+
+
+def inspect_mesh(mesh: Mesh, area_epsilon: float = 1e-12) -> MeshProblems:
+    fatal: list[str] = []
+    warnings: list[str] = []
+    if mesh.num_faces == 0 or mesh.num_vertices == 0:
+        fatal.append(f"mesh is empty ({mesh.num_vertices} vertices, {mesh.num_faces} faces)")
+        return MeshProblems(fatal, warnings)
+    bad_vertices = ~np.isfinite(mesh.vertices).all(axis=1)
+    if bad_vertices.any():
+        first = int(np.flatnonzero(bad_vertices)[0])
+        fatal.append(f"{int(bad_vertices.sum())} vertices are NaN or infinite (first: vertex {first})")
+    out_of_range = (mesh.faces < 0) | (mesh.faces >= mesh.num_vertices)
+    if out_of_range.any():
+        face = int(np.flatnonzero(out_of_range.any(axis=1))[0])
+        fatal.append(
+            f"{int(out_of_range.any(axis=1).sum())} faces index vertices outside 0..{mesh.num_vertices - 1}"
+            f" (first: face {face} = {mesh.faces[face].tolist()})")
+    if mesh.vertex_colors is not None and len(mesh.vertex_colors) != mesh.num_vertices:
+        fatal.append(f"{len(mesh.vertex_colors)} vertex colours for {mesh.num_vertices} vertices")
+    if mesh.vertex_normals is not None and len(mesh.vertex_normals) != mesh.num_vertices:
+        fatal.append(f"{len(mesh.vertex_normals)} vertex normals for {mesh.num_vertices} vertices")
+    if fatal:
+        return MeshProblems(fatal, warnings)
+    degenerate = int((mesh.face_areas() <= area_epsilon).sum())
+    if degenerate:
+        warnings.append(f"{degenerate} degenerate (zero-area) faces")
+    duplicates = mesh.num_faces - len(np.unique(np.sort(mesh.faces, axis=1), axis=0))
+    if duplicates:
+        warnings.append(f"{duplicates} duplicate faces")
+    if degenerate == mesh.num_faces:
+        fatal.append("every face is degenerate (zero area)")
+    return MeshProblems(fatal, warnings, degenerate, duplicates)
+
+
+def validate_mesh(mesh: Mesh, what: str = "mesh") -> Mesh:
+    """Raise MeshError naming every fatal problem; return the mesh unchanged otherwise."""
+    problems = inspect_mesh(mesh)
+    if problems.fatal:
+        raise MeshError(f"{what}: " + "; ".join(problems.fatal))
+    return mesh
+
+
+SUPPORTED_SUFFIXES = (".ply", ".obj", ".glb", ".gltf", ".stl", ".off")
+
+
+def load_mesh(path: str | Path, validate: bool = True) -> Mesh:
+    """Load a triangle mesh (a scene file is flattened into one mesh)."""
+    import trimesh
+
+    path = Path(path)
+    if not path.is_file():
+        raise MeshError(f"{path}: no such file")
+    if path.suffix.lower() not in SUPPORTED_SUFFIXES:
+        raise MeshError(f"{path}: unsupported format '{path.suffix}' (use one of {', '.join(SUPPORTED_SUFFIXES)})")
+    try:
+        loaded = trimesh.load(path, process=False, force="mesh")
+    except Exception as exc:  # trimesh raises many types for corrupt files
+        raise MeshError(f"{path}: cannot be read as a mesh ({exc})") from exc
+    if not isinstance(loaded, trimesh.Trimesh):
+        raise MeshError(f"{path}: holds no triangle mesh")
+    colors = None
+    visual = getattr(loaded, "visual", None)
+    if visual is not None and getattr(visual, "kind", None) == "vertex":
+        colors = np.asarray(visual.vertex_colors)[:, :3]
+    elif visual is not None and getattr(visual, "kind", None) == "texture":
+        colors = np.asarray(visual.to_color().vertex_colors)[:, :3]
+    mesh = Mesh(np.asarray(loaded.vertices), np.asarray(loaded.faces), colors)
+    return validate_mesh(mesh, str(path)) if validate else mesh
+
+
+def save_mesh(path: str | Path, mesh: Mesh, face_colors: np.ndarray | None = None) -> Path:
+    """Write a mesh; face_colors (F,3) uint8 overrides vertex colours (for labelled output)."""
+    import trimesh
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    out = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False,
+                          vertex_colors=None if face_colors is not None else mesh.vertex_colors,
+                          face_colors=face_colors)
+    out.export(path)
+    return path

@@ -1,0 +1,90 @@
+"""Batched ray casting against a mesh (Open3D RaycastingScene), shared by the stages."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from perch_common.mesh import Mesh
+
+# Open3D's OpenMP pool has hung in a futex when left to size itself; pin it.
+os.environ.setdefault("OMP_NUM_THREADS", str(min(os.cpu_count() or 1, 4)))
+
+MISS = -1
+
+
+@dataclass
+class RayHits:
+    """First hits: distance along the (unit) ray, face index (MISS when none), unit face normal."""
+
+    distance: np.ndarray
+    face: np.ndarray
+    normal: np.ndarray
+
+    @property
+    def hit(self) -> np.ndarray:
+        return self.face != MISS
+
+
+class RayScene:
+    """A mesh prepared for ray queries; build once, query many times."""
+
+    def __init__(self, mesh: Mesh):
+        import open3d as o3d
+
+        self.mesh = mesh
+        self._scene = o3d.t.geometry.RaycastingScene()
+        self._scene.add_triangles(
+            o3d.core.Tensor(np.ascontiguousarray(mesh.vertices, dtype=np.float32)),
+            o3d.core.Tensor(np.ascontiguousarray(mesh.faces, dtype=np.uint32)))
+        self._o3d = o3d
+
+    def _rays(self, origins: np.ndarray, directions: np.ndarray):
+        rays = np.concatenate([np.asarray(origins, np.float32).reshape(-1, 3),
+                               np.asarray(directions, np.float32).reshape(-1, 3)], axis=1)
+        return self._o3d.core.Tensor(np.ascontiguousarray(rays))
+
+    def cast(self, origins: np.ndarray, directions: np.ndarray) -> RayHits:
+        """First hit of each ray; directions need not be unit (distance is in their units)."""
+        if len(origins) == 0:
+            return RayHits(np.zeros(0), np.zeros(0, np.int64), np.zeros((0, 3)))
+        ans = self._scene.cast_rays(self._rays(origins, directions))
+        face = ans["primitive_ids"].numpy().astype(np.int64)
+        face[face == np.iinfo(np.uint32).max] = MISS
+        distance = ans["t_hit"].numpy().astype(np.float64)
+        return RayHits(distance, face, ans["primitive_normals"].numpy().astype(np.float64))
+
+    def occluded(self, origins: np.ndarray, targets: np.ndarray, epsilon: float = 1e-3) -> np.ndarray:
+        """True where the segment origin->target hits the mesh, ignoring `epsilon` metres at both ends."""
+        origins = np.asarray(origins, np.float64).reshape(-1, 3)
+        targets = np.asarray(targets, np.float64).reshape(-1, 3)
+        if len(origins) == 0:
+            return np.zeros(0, bool)
+        delta = targets - origins
+        length = np.linalg.norm(delta, axis=1, keepdims=True)
+        unit = np.divide(delta, length, out=np.zeros_like(delta), where=length > 0)
+        usable = np.maximum(length - 2 * epsilon, 0.0)
+        # Shorten each segment by epsilon at both ends, then test t in [0, 1].
+        start = origins + unit * epsilon
+        blocked = self._scene.test_occlusions(self._rays(start, unit * usable), tnear=0.0, tfar=1.0)
+        result = blocked.numpy().astype(bool)
+        result[usable[:, 0] <= 0] = False
+        return result
+
+    def closest_points(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Closest mesh point, its face and the distance for each query point."""
+        pts = np.asarray(points, np.float32).reshape(-1, 3)
+        if len(pts) == 0:
+            return np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0)
+        ans = self._scene.compute_closest_points(self._o3d.core.Tensor(np.ascontiguousarray(pts)))
+        closest = ans["points"].numpy().astype(np.float64)
+        face = ans["primitive_ids"].numpy().astype(np.int64)
+        return closest, face, np.linalg.norm(closest - pts, axis=1)
+
+    def count_crossings(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
+        """Number of surface crossings along each ray (odd: origin inside a closed surface)."""
+        if len(origins) == 0:
+            return np.zeros(0, np.int64)
+        return self._scene.count_intersections(self._rays(origins, directions)).numpy().astype(np.int64)

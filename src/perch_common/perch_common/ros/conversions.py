@@ -1,0 +1,227 @@
+"""numpy <-> perch_interfaces messages, through buffers (no per-element Python loops)."""
+
+from __future__ import annotations
+
+import array
+
+import numpy as np
+from geometry_msgs.msg import Point, Pose, Quaternion, Vector3
+from perch_interfaces import msg as pm
+
+from perch_common.mesh import Mesh, MeshError
+from perch_common.target import TargetVolume
+from perch_common.transforms import matrix_from_quaternion, quaternion_from_matrix
+from perch_common.types import (CameraPlacement, ExclusionZone, FilterRemoval, PerchRegion, PlaneFrame,
+                                Surface, SurfaceClass)
+
+_TYPECODES = {np.float32: "f", np.float64: "d", np.uint32: "I", np.uint8: "B", np.int32: "i"}
+
+
+def to_array(values: np.ndarray, dtype: type) -> array.array:
+    """A numpy array as the array.array rclpy stores sequence fields in (one memcpy)."""
+    out = array.array(_TYPECODES[dtype])
+    out.frombytes(np.ascontiguousarray(values, dtype=dtype).tobytes())
+    return out
+
+
+def from_array(values, dtype: type, columns: int | None = None) -> np.ndarray:
+    """A sequence field as a numpy array (zero-copy view for array.array), optionally (N, columns)."""
+    arr = np.frombuffer(values, dtype=dtype) if len(values) else np.zeros(0, dtype)
+    return arr.reshape(-1, columns) if columns else arr
+
+
+# --- geometry -------------------------------------------------------------------------------
+
+def point_msg(p: np.ndarray) -> Point:
+    return Point(x=float(p[0]), y=float(p[1]), z=float(p[2]))
+
+
+def vector_msg(v: np.ndarray) -> Vector3:
+    return Vector3(x=float(v[0]), y=float(v[1]), z=float(v[2]))
+
+
+def xyz(m) -> np.ndarray:
+    """Point or Vector3 as a numpy array."""
+    return np.array([m.x, m.y, m.z], dtype=np.float64)
+
+
+def pose_msg(matrix: np.ndarray) -> Pose:
+    q = quaternion_from_matrix(matrix[:3, :3])
+    return Pose(position=point_msg(matrix[:3, 3]), orientation=Quaternion(x=q[0], y=q[1], z=q[2], w=q[3]))
+
+
+def pose_matrix(pose: Pose) -> np.ndarray:
+    o = pose.orientation
+    out = np.eye(4)
+    out[:3, :3] = matrix_from_quaternion(np.array([o.x, o.y, o.z, o.w]))
+    out[:3, 3] = xyz(pose.position)
+    return out
+
+
+# --- mesh -----------------------------------------------------------------------------------
+
+def mesh_to_msg(mesh: Mesh, stamp=None) -> pm.TriangleMesh:
+    msg = pm.TriangleMesh()
+    msg.header.frame_id = mesh.frame_id
+    if stamp is not None:
+        msg.header.stamp = stamp
+    msg.vertices = to_array(mesh.vertices, np.float32)
+    msg.triangles = to_array(mesh.faces, np.uint32)
+    if mesh.vertex_colors is not None:
+        msg.vertex_colors = to_array(mesh.vertex_colors, np.uint8)
+    if mesh.vertex_normals is not None:
+        msg.vertex_normals = to_array(mesh.vertex_normals, np.float32)
+    return msg
+
+
+def mesh_from_msg(msg: pm.TriangleMesh, what: str = "mesh") -> Mesh:
+    """The message's mesh; raises MeshError when its arrays are inconsistent."""
+    n_v, n_t = len(msg.vertices), len(msg.triangles)
+    if n_v % 3 or n_t % 3:
+        raise MeshError(f"{what}: vertices ({n_v}) and triangles ({n_t}) must be multiples of 3")
+    vertices = from_array(msg.vertices, np.float32, 3).astype(np.float64)
+    colors = from_array(msg.vertex_colors, np.uint8, 3) if len(msg.vertex_colors) else None
+    normals = from_array(msg.vertex_normals, np.float32, 3) if len(msg.vertex_normals) else None
+    for name, arr in (("vertex_colors", colors), ("vertex_normals", normals)):
+        if arr is not None and len(arr) != len(vertices):
+            raise MeshError(f"{what}: {name} has {len(arr)} entries for {len(vertices)} vertices")
+    return Mesh(vertices, from_array(msg.triangles, np.uint32, 3).astype(np.int64),
+                None if colors is None else colors.copy(), normals, frame_id=msg.header.frame_id or "map")
+
+
+# --- planes and polygons -----------------------------------------------------------------------
+
+def frame_to_msg(frame: PlaneFrame) -> pm.PlaneFrame:
+    return pm.PlaneFrame(origin=point_msg(frame.origin), axis_u=vector_msg(frame.axis_u),
+                         axis_v=vector_msg(frame.axis_v), normal=vector_msg(frame.normal))
+
+
+def frame_from_msg(msg: pm.PlaneFrame) -> PlaneFrame:
+    return PlaneFrame(xyz(msg.origin), xyz(msg.axis_u), xyz(msg.axis_v), xyz(msg.normal))
+
+
+def polygons_to_msg(polygons: list) -> pm.PlanarPolygons:
+    rings = [np.asarray(ring, np.float64).reshape(-1, 2) for poly in polygons for ring in poly]
+    owner = [i for i, poly in enumerate(polygons) for _ in poly]
+    sizes = np.array([len(r) for r in rings], dtype=np.int64)
+    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]]) if len(rings) else np.zeros(0)
+    msg = pm.PlanarPolygons()
+    msg.points_xy = to_array(np.concatenate(rings) if rings else np.zeros((0, 2)), np.float32)
+    msg.ring_starts = to_array(starts, np.uint32)
+    msg.ring_polygon = to_array(np.asarray(owner), np.uint32)
+    return msg
+
+
+def polygons_from_msg(msg: pm.PlanarPolygons) -> list:
+    points = from_array(msg.points_xy, np.float32, 2).astype(np.float64)
+    starts = from_array(msg.ring_starts, np.uint32).astype(np.int64)
+    owner = from_array(msg.ring_polygon, np.uint32).astype(np.int64)
+    if len(starts) != len(owner):
+        raise ValueError("polygons: ring_starts and ring_polygon differ in length")
+    ends = np.append(starts[1:], len(points))
+    polygons: list = [[] for _ in range(int(owner.max()) + 1 if len(owner) else 0)]
+    for start, end, poly in zip(starts, ends, owner):
+        polygons[poly].append(points[start:end])
+    return polygons
+
+
+def surface_to_msg(surface: Surface) -> pm.Surface:
+    msg = pm.Surface(id=int(surface.id), surface_class=int(surface.surface_class),
+                     frame=frame_to_msg(surface.frame), area=float(surface.area),
+                     rms_distance=float(surface.rms_distance),
+                     mean_color=np.asarray(surface.mean_color, np.float32),
+                     boundary=polygons_to_msg(surface.boundary))
+    msg.face_indices = to_array(surface.face_indices, np.uint32)
+    return msg
+
+
+def surface_from_msg(msg: pm.Surface) -> Surface:
+    return Surface(id=msg.id, frame=frame_from_msg(msg.frame), area=msg.area,
+                   face_indices=from_array(msg.face_indices, np.uint32).astype(np.int64),
+                   surface_class=SurfaceClass(msg.surface_class), rms_distance=msg.rms_distance,
+                   mean_color=np.asarray(msg.mean_color, np.float64),
+                   boundary=polygons_from_msg(msg.boundary))
+
+
+def region_to_msg(region: PerchRegion) -> pm.PerchRegion:
+    return pm.PerchRegion(id=int(region.id), source_surface=int(region.source_surface),
+                          surface_class=int(region.surface_class), area=float(region.area),
+                          frame=frame_to_msg(region.frame), polygons=polygons_to_msg(region.polygons),
+                          mesh=mesh_to_msg(region.mesh))
+
+
+def region_from_msg(msg: pm.PerchRegion) -> PerchRegion:
+    return PerchRegion(id=msg.id, source_surface=msg.source_surface,
+                       surface_class=SurfaceClass(msg.surface_class), frame=frame_from_msg(msg.frame),
+                       polygons=polygons_from_msg(msg.polygons), mesh=mesh_from_msg(msg.mesh, "region mesh"),
+                       area=msg.area)
+
+
+def removal_to_msg(r: FilterRemoval) -> pm.FilterRemoval:
+    return pm.FilterRemoval(**{k: (int(v) if k == "surface_id" else float(v)) for k, v in vars(r).items()})
+
+
+def removal_from_msg(msg: pm.FilterRemoval) -> FilterRemoval:
+    return FilterRemoval(**{k: getattr(msg, k) for k in FilterRemoval.__dataclass_fields__})
+
+
+# --- target, placements ------------------------------------------------------------------------
+
+def target_to_msg(target: TargetVolume) -> pm.TargetVolume:
+    msg = pm.TargetVolume()
+    if target.is_box:
+        msg.kind = pm.TargetVolume.KIND_BOX
+        pose = np.eye(4)
+        pose[:3, :3], pose[:3, 3] = target.rotation, target.center
+        msg.box = pm.OrientedBox(pose=pose_msg(pose), size=vector_msg(target.size))
+    else:
+        msg.kind = pm.TargetVolume.KIND_EXTRUDED_FOOTPRINT
+        k = len(target.footprint)
+        # The footprint as a flat fan of triangles at the base height.
+        vertices = np.column_stack([target.footprint, np.full(k, target.base)])
+        fan = np.column_stack([np.zeros(k - 2), np.arange(1, k - 1), np.arange(2, k)]).astype(np.int64)
+        msg.footprint = mesh_to_msg(Mesh(vertices, fan))
+        msg.height = float(target.height)
+    return msg
+
+
+def box_from_msg(msg: pm.OrientedBox) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(center, size, rotation) of an OrientedBox."""
+    pose = pose_matrix(msg.pose)
+    return pose[:3, 3], xyz(msg.size), pose[:3, :3]
+
+
+def target_from_msg(msg: pm.TargetVolume) -> TargetVolume | None:
+    """The target volume, or None for KIND_DEFAULT (the serving node decides)."""
+    if msg.kind == pm.TargetVolume.KIND_DEFAULT:
+        return None
+    if msg.kind == pm.TargetVolume.KIND_BOX:
+        center, size, rotation = box_from_msg(msg.box)
+        return TargetVolume(center=center, size=size, rotation=rotation)
+    if msg.kind == pm.TargetVolume.KIND_EXTRUDED_FOOTPRINT:
+        return TargetVolume.from_footprint_mesh(mesh_from_msg(msg.footprint, "target footprint"), msg.height)
+    raise ValueError(f"target volume: unknown kind {msg.kind}")
+
+
+def placement_to_msg(p: CameraPlacement) -> pm.CameraPlacement:
+    return pm.CameraPlacement(
+        drone_index=int(p.drone_index), region_id=int(p.region_id), drone_pose=pose_msg(p.drone_pose),
+        camera_pose=pose_msg(p.camera_pose), pan=float(p.pan), tilt=float(p.tilt), zoom=float(p.zoom),
+        marginal_gain=float(p.marginal_gain), fitness=float(p.fitness), coverage=float(p.coverage),
+        mean_uncertainty=float(p.mean_uncertainty))
+
+
+def placement_from_msg(msg: pm.CameraPlacement) -> CameraPlacement:
+    return CameraPlacement(
+        drone_index=msg.drone_index, region_id=msg.region_id, drone_pose=pose_matrix(msg.drone_pose),
+        camera_pose=pose_matrix(msg.camera_pose), pan=msg.pan, tilt=msg.tilt, zoom=msg.zoom,
+        marginal_gain=msg.marginal_gain, fitness=msg.fitness, coverage=msg.coverage,
+        mean_uncertainty=msg.mean_uncertainty)
+
+
+def exclusion_to_msg(zone: ExclusionZone) -> pm.ExclusionZone:
+    return pm.ExclusionZone(center=point_msg(zone.center), radius=float(zone.radius))
+
+
+def exclusion_from_msg(msg: pm.ExclusionZone) -> ExclusionZone:
+    return ExclusionZone(xyz(msg.center), msg.radius)

@@ -1,0 +1,26 @@
+"""The `main()` every Perch node uses: init, spin until Ctrl-C or shutdown, clean up."""
+
+from __future__ import annotations
+
+import sys
+from typing import Callable
+
+import rclpy
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+
+
+def run_node(factory: Callable[[], Node], args: list[str] | None = None, threads: int = 2) -> int:
+    """Create the node inside an rclpy context and spin it; returns the process exit code."""
+    with rclpy.init(args=args if args is not None else sys.argv):
+        node = factory()
+        executor = MultiThreadedExecutor(num_threads=threads)
+        executor.add_node(node)
+        try:
+            executor.spin()
+        except (KeyboardInterrupt, ExternalShutdownException):
+            pass
+        finally:
+            executor.shutdown()
+            node.destroy_node()
+    return 0

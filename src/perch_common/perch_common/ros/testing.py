@@ -1,0 +1,78 @@
+"""Helpers for cross-process ROS tests: start a node process, call its services with timeouts."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any, Iterator
+
+import rclpy
+from rclpy.node import Node
+
+
+def isolated_ros_env(domain_id: int | None = None) -> dict[str, str]:
+    """Environment for a test graph on loopback only, on its own DDS domain."""
+    env = dict(os.environ)
+    env["ROS_DOMAIN_ID"] = str(domain_id if domain_id is not None else 100 + os.getpid() % 100)
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
+    env.setdefault("OMP_NUM_THREADS", "2")
+    return env
+
+
+def use_isolated_ros_env(domain_id: int | None = None) -> None:
+    """Apply isolated_ros_env to this process (call before rclpy.init)."""
+    os.environ.update(isolated_ros_env(domain_id))
+
+
+@contextlib.contextmanager
+def node_process(module: str, params: dict[str, Any] | None = None, params_file: str | Path | None = None,
+                 log_path: str | Path | None = None) -> Iterator[subprocess.Popen]:
+    """Run `python -m module --ros-args ...` for the duration of the block; stop it with SIGINT."""
+    cmd = [sys.executable, "-m", module, "--ros-args"]
+    if params_file:
+        cmd += ["--params-file", str(params_file)]
+    for key, value in (params or {}).items():
+        text = str(value).lower() if isinstance(value, bool) else str(value)
+        cmd += ["-p", f"{key}:={text}"]
+    log = open(log_path, "w") if log_path else subprocess.DEVNULL
+    proc = subprocess.Popen(cmd, env=dict(os.environ), stdout=log, stderr=subprocess.STDOUT)
+    try:
+        yield proc
+    finally:
+        stop_process(proc)
+        if log_path:
+            log.close()
+
+
+def stop_process(proc: subprocess.Popen, timeout: float = 10.0) -> int | None:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+    return proc.returncode
+
+
+def call_service(node: Node, srv_type, name: str, request, timeout: float = 30.0, wait: float = 30.0):
+    """Wait for the service, call it and return the response; raise TimeoutError naming what hung."""
+    client = node.create_client(srv_type, name)
+    try:
+        if not client.wait_for_service(timeout_sec=wait):
+            raise TimeoutError(f"service {name} did not appear within {wait:.0f} s")
+        future = client.call_async(request)
+        deadline = time.monotonic() + timeout
+        while not future.done() and time.monotonic() < deadline:
+            rclpy.spin_until_future_complete(node, future, timeout_sec=0.1)
+        if not future.done():
+            raise TimeoutError(f"service {name} did not answer within {timeout:.0f} s")
+        return future.result()
+    finally:
+        node.destroy_client(client)

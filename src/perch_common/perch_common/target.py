@@ -1,0 +1,141 @@
+"""The target volume the cameras observe: an oriented box or an extruded footprint (z up)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from perch_common.mesh import Mesh, MeshError
+
+
+@dataclass
+class TargetVolume:
+    """Either an oriented box (center, size, rotation) or a footprint polygon extruded upwards.
+
+    For a footprint, `footprint` is a (K,2) xy outline, extruded from z=`base` to z=`base`+`height`.
+    """
+
+    center: np.ndarray | None = None
+    size: np.ndarray | None = None
+    rotation: np.ndarray | None = None
+    footprint: np.ndarray | None = None
+    base: float = 0.0
+    height: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.footprint is None:
+            if self.center is None or self.size is None:
+                raise ValueError("target volume needs a box (center and size) or a footprint")
+            self.center = np.asarray(self.center, np.float64).reshape(3)
+            self.size = np.asarray(self.size, np.float64).reshape(3)
+            self.rotation = np.eye(3) if self.rotation is None else np.asarray(self.rotation, np.float64)
+            if not np.all(np.isfinite(self.size)) or np.any(self.size <= 0):
+                raise ValueError(f"target box size must be positive, got {self.size.tolist()}")
+        else:
+            self.footprint = np.asarray(self.footprint, np.float64).reshape(-1, 2)
+            if len(self.footprint) < 3 or self.height <= 0:
+                raise ValueError("target footprint needs >= 3 points and a positive height")
+
+    @property
+    def is_box(self) -> bool:
+        return self.footprint is None
+
+    @staticmethod
+    def from_footprint_mesh(mesh: Mesh, height: float) -> "TargetVolume":
+        """Project a (z-up) mesh onto the floor, take its outline and extrude it by height."""
+        import shapely
+        from shapely.ops import unary_union
+
+        if mesh.num_faces == 0:
+            raise MeshError("target footprint mesh is empty")
+        tris = mesh.triangles()[:, :, :2]
+        area2 = np.abs(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]))
+        polys = shapely.polygons(tris[area2 > 1e-12])
+        union = unary_union(polys).buffer(0)
+        if union.geom_type == "MultiPolygon":  # keep the largest piece's hull-free outline
+            union = max(union.geoms, key=lambda g: g.area)
+        outline = np.asarray(union.exterior.coords)[:-1]
+        return TargetVolume(footprint=outline, base=float(mesh.vertices[:, 2].min()), height=float(height))
+
+    def bounds(self) -> np.ndarray:
+        """(2,3) axis-aligned bounds."""
+        c = self.corners()
+        return np.stack([c.min(axis=0), c.max(axis=0)])
+
+    def corners(self) -> np.ndarray:
+        """Box: its 8 corners. Footprint: outline at base then at top (2K points)."""
+        if self.is_box:
+            signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], np.float64)
+            return self.center + (signs * self.size / 2) @ self.rotation.T
+        k = len(self.footprint)
+        low = np.column_stack([self.footprint, np.full(k, self.base)])
+        return np.vstack([low, low + [0, 0, self.height]])
+
+    def edges(self) -> np.ndarray:
+        """(E,2,3) line segments outlining the volume, for drawing."""
+        c = self.corners()
+        if self.is_box:
+            pairs = [(a, b) for a in range(8) for b in range(a + 1, 8) if bin(a ^ b).count("1") == 1]
+        else:
+            k = len(self.footprint)
+            pairs = [(i, (i + 1) % k) for i in range(k)] + [(k + i, k + (i + 1) % k) for i in range(k)]
+            pairs += [(i, k + i) for i in range(k)]
+        return np.array([[c[a], c[b]] for a, b in pairs])
+
+    def centroid(self) -> np.ndarray:
+        if self.is_box:
+            return self.center.copy()
+        import shapely
+
+        c = shapely.Polygon(self.footprint).centroid
+        return np.array([c.x, c.y, self.base + self.height / 2])
+
+    def volume(self) -> float:
+        if self.is_box:
+            return float(np.prod(self.size))
+        import shapely
+
+        return float(shapely.Polygon(self.footprint).area * self.height)
+
+    def contains(self, points: np.ndarray) -> np.ndarray:
+        points = np.asarray(points, np.float64).reshape(-1, 3)
+        if self.is_box:
+            local = (points - self.center) @ self.rotation
+            return np.all(np.abs(local) <= self.size / 2 + 1e-9, axis=1)
+        import shapely
+
+        z_ok = (points[:, 2] >= self.base - 1e-9) & (points[:, 2] <= self.base + self.height + 1e-9)
+        inside = shapely.contains_xy(shapely.Polygon(self.footprint), points[:, 0], points[:, 1])
+        return z_ok & inside
+
+    def sample(self, count: int | None = None, seed: int = 0, density: float | None = None) -> np.ndarray:
+        """Stratified, seeded samples: one jittered point per cell of a grid over the volume.
+
+        Give `count` (points) or `density` (points per m^3).
+        """
+        if count is None:
+            if density is None:
+                raise ValueError("give count or density")
+            count = max(1, int(round(density * self.volume())))
+        rng = np.random.default_rng(seed)
+        if self.is_box:
+            extent, origin = self.size, -self.size / 2
+        else:
+            lo, hi = self.bounds()
+            extent, origin = hi - lo, lo
+        # Oversample the bounding box for footprints: a fraction of cells falls outside.
+        fill = 1.0 if self.is_box else max(self.volume() / float(np.prod(extent)), 1e-3)
+        cells = self._grid_shape(extent, count / fill)
+        idx = np.stack(np.meshgrid(*[np.arange(n) for n in cells], indexing="ij"), -1).reshape(-1, 3)
+        local = origin + (idx + rng.random(idx.shape)) * (extent / cells)
+        points = self.center + local @ self.rotation.T if self.is_box else local
+        points = points[self.contains(points)]
+        if len(points) > count:
+            points = points[np.sort(rng.choice(len(points), count, replace=False))]
+        return points
+
+    @staticmethod
+    def _grid_shape(extent: np.ndarray, count: float) -> np.ndarray:
+        cell = (float(np.prod(extent)) / max(count, 1.0)) ** (1 / 3)
+        return np.maximum(1, np.ceil(extent / cell)).astype(int)

@@ -1,0 +1,1 @@
+"""Filtering stage of Perch: surface regions where a drone can safely perch."""

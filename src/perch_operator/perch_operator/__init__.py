@@ -1,0 +1,1 @@
+"""Operator stage of Perch: crop, mission coordination, confirmation, waypoints, recording and replay."""

@@ -1,0 +1,1 @@
+"""Placement stage of Perch: camera simulation, fitness and swarm search for camera perches."""

@@ -1,0 +1,1 @@
+"""Reconstruction stage of Perch: RGB-D bags or topics to a clean gravity-aligned room mesh."""

@@ -1,0 +1,1 @@
+"""Segmentation stage of Perch: planar surfaces of a room mesh."""

