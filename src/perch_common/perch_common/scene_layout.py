@@ -1,0 +1,134 @@
+"""Room layouts on a voxel grid for the scene generator (all sizes in voxels)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+STRUCTURE = 1  # label of walls, floor and ceiling; furniture items are 2, 3, ...
+MARGIN = 2     # solid voxels kept around the rooms
+
+
+@dataclass
+class FurnitureItem:
+    kind: str
+    center: np.ndarray  # voxel units, scene frame
+    size: np.ndarray
+
+
+@dataclass
+class Layout:
+    resolution: float
+    solid: np.ndarray                 # int labels: 0 free, 1 structure, >1 furniture
+    rooms: list[tuple[int, ...]]      # free boxes (x0, y0, z0, x1, y1, z1), main room first
+    floor_z: int
+    furniture: list[FurnitureItem] = field(default_factory=list)
+
+
+def make_layout(kind: str, rng: np.random.Generator, res: float, with_furniture: bool) -> Layout:
+    m = lambda metres: int(round(metres / res))  # noqa: E731 - metres to voxels
+    height = m(rng.uniform(2.4, 3.2))
+    wall = max(1, m(0.2))
+    if kind == "room":
+        w = rng.uniform(4.5, 7.5)
+        boxes = [(0, 0, m(w), m(rng.uniform(20, 60) / w))]
+        doorways = []
+    elif kind == "l_shaped":
+        w1, d1 = rng.uniform(5, 7), rng.uniform(3.5, 4.5)
+        w2, d2 = rng.uniform(3, 4), rng.uniform(3, 4.5)
+        boxes = [(0, 0, m(w1), m(d1)), (0, m(d1), m(w2), m(d1) + m(d2))]
+        doorways = []
+    else:
+        w1, d1 = rng.uniform(5, 6.5), rng.uniform(4, 5.5)
+        w2 = rng.uniform(3, 4.5) if kind == "two_rooms" else rng.uniform(3, 4)
+        x2 = m(w1) + wall
+        boxes = [(0, 0, m(w1), m(d1)), (x2, 0, x2 + m(w2), m(d1))]
+        door_y = int(rng.integers(m(0.6), m(d1) - m(1.5)))
+        doorways = [(m(w1), door_y, x2, door_y + m(0.9))]
+        if kind == "apartment":  # an alcove off the main room makes it L-shaped
+            boxes.append((0, m(d1), m(rng.uniform(2.5, 3.5)), m(d1) + m(rng.uniform(2.0, 3.0))))
+    x_max = max(b[2] for b in boxes)
+    y_max = max(b[3] for b in boxes)
+    z0 = MARGIN
+    shape = (x_max + 2 * MARGIN, y_max + 2 * MARGIN, height + 2 * MARGIN)
+    solid = np.full(shape, STRUCTURE, np.int64)
+    rooms = []
+    for x0, y0, x1, y1 in boxes:
+        room = (x0 + MARGIN, y0 + MARGIN, z0, x1 + MARGIN, y1 + MARGIN, z0 + height)
+        solid[room[0]:room[3], room[1]:room[4], room[2]:room[5]] = 0
+        rooms.append(room)
+    for x0, y0, x1, y1 in doorways:
+        solid[x0 + MARGIN:x1 + MARGIN, y0 + MARGIN:y1 + MARGIN, z0:z0 + m(2.1)] = 0
+    layout = Layout(res, solid, rooms, z0)
+    if with_furniture:
+        blocked = _doorway_mask(shape, doorways, m(0.8))
+        for room in rooms[:2]:
+            _furnish(rng, layout, room, blocked, m)
+    return layout
+
+
+def _doorway_mask(shape, doorways, clearance: int) -> np.ndarray:
+    """Floor cells that must stay free so doorways remain passable."""
+    mask = np.zeros(shape[:2], bool)
+    for x0, y0, x1, y1 in doorways:
+        mask[max(0, x0 + MARGIN - clearance):x1 + MARGIN + clearance, y0 + MARGIN:y1 + MARGIN] = True
+    return mask
+
+
+# kind: (width, depth, height) in metres; "wall" items stand against a wall, others near one.
+FURNITURE = {
+    "table": ((1.2, 0.8, 0.75), False),
+    "chair": ((0.5, 0.5, 0.9), False),
+    "shelf": ((1.0, 0.4, 1.9), True),
+    "cabinet": ((0.9, 0.6, 0.9), True),
+}
+
+
+def _furnish(rng, layout: Layout, room, blocked, m) -> None:
+    x0, y0, z0, x1, y1, _ = room
+    footprint = blocked.copy()
+    for kind in ("table", "chair", "chair", "shelf", "cabinet", "table"):
+        (w, d, h), against = FURNITURE[kind]
+        for _ in range(40):
+            side = int(rng.integers(4))
+            gap = 0 if against else m(rng.uniform(0.2, 0.4))
+            along = (x1 - x0) if side < 2 else (y1 - y0)
+            length, depth = m(w), m(d)
+            if along < length + 4:
+                break
+            s = int(rng.integers(2, along - length - 1))
+            if side == 0:
+                box = (x0 + s, y0 + gap, x0 + s + length, y0 + gap + depth)
+            elif side == 1:
+                box = (x0 + s, y1 - gap - depth, x0 + s + length, y1 - gap)
+            elif side == 2:
+                box = (x0 + gap, y0 + s, x0 + gap + depth, y0 + s + length)
+            else:
+                box = (x1 - gap - depth, y0 + s, x1 - gap, y0 + s + length)
+            bx0, by0, bx1, by1 = box
+            # One voxel of free margin around each item keeps the mesh manifold.
+            if footprint[bx0 - 1:bx1 + 1, by0 - 1:by1 + 1].any():
+                continue
+            label = STRUCTURE + 1 + len(layout.furniture)
+            _build(layout.solid, kind, box, z0, m(h), label, m)
+            footprint[bx0 - 1:bx1 + 1, by0 - 1:by1 + 1] = True
+            layout.furniture.append(FurnitureItem(
+                kind, np.array([(bx0 + bx1) / 2, (by0 + by1) / 2, z0 + m(h) / 2]),
+                np.array([bx1 - bx0, by1 - by0, m(h)], np.float64)))
+            break
+
+
+def _build(solid, kind, box, z0, h, label, m) -> None:
+    bx0, by0, bx1, by1 = box
+    if kind in ("shelf", "cabinet"):
+        solid[bx0:bx1, by0:by1, z0:z0 + h] = label
+        return
+    top = max(1, m(0.05))
+    seat = h if kind == "table" else m(0.45)
+    solid[bx0:bx1, by0:by1, z0 + seat - top:z0 + seat] = label
+    for lx in (bx0, bx1 - 1):
+        for ly in (by0, by1 - 1):
+            solid[lx, ly, z0:z0 + seat] = label
+    if kind == "chair":  # backrest along the +y side
+        solid[bx0:bx1, by1 - 1, z0 + seat:z0 + h] = label
