@@ -17,7 +17,10 @@ setup(
     description="Shared core of Perch: mesh I/O, conversions, ray casting, config, scene generator, CLI.",
     license="Apache-2.0",
     entry_points={
-        "console_scripts": ["perch = perch_common.cli:main"],
+        "console_scripts": [
+            "perch = perch_common.cli:main",
+            "perch_mesh_tools_node = perch_common.mesh_node:main",
+        ],
         "perch.commands": [
             "mesh = perch_common.cli_mesh:register",
             "scene = perch_common.cli_scene:register",
@@ -25,6 +28,6 @@ setup(
             "bench = perch_common.bench:register",
         ],
         "perch.benchmarks": ["transport = perch_common.bench_transport:register"],
-        "perch.nodes": [],
+        "perch.nodes": ["perch_mesh_tools = perch_common.mesh_node:main"],
     },
 )

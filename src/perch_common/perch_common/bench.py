@@ -8,14 +8,14 @@ from __future__ import annotations
 import json
 import resource
 import sys
-from importlib.metadata import entry_points
 
 
 def register(sub) -> None:
     parser = sub.add_parser("bench", help="run a benchmark and print JSON")
     benches = parser.add_subparsers(dest="bench", metavar="BENCHMARK")
-    for ep in sorted(entry_points(group="perch.benchmarks"), key=lambda e: e.name):
-        ep.load()(benches)
+    from perch_common.cli import load_plugins
+
+    load_plugins("perch.benchmarks", benches)
     parser.set_defaults(func=lambda args: parser.print_help() or 2)
 
 

@@ -19,9 +19,17 @@ def build_parser() -> argparse.ArgumentParser:
         description="Perch: where should each camera drone perch? Stages: reconstruct, crop, segment, "
                     "filter, optimise, confirm.")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for ep in sorted(entry_points(group="perch.commands"), key=lambda e: e.name):
-        ep.load()(sub)
+    load_plugins("perch.commands", sub)
     return parser
+
+
+def load_plugins(group: str, subparsers) -> None:
+    """Call every `register(subparsers)` of an entry-point group; a broken plugin only warns."""
+    for ep in sorted(entry_points(group=group), key=lambda e: e.name):
+        try:
+            ep.load()(subparsers)
+        except Exception as exc:  # one broken package must not take the whole CLI down
+            print(f"perch: warning: '{ep.name}' ({ep.value}) failed to load: {exc}", file=sys.stderr)
 
 
 def main(argv: list[str] | None = None) -> int:

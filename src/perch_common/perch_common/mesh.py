@@ -127,7 +127,9 @@ def inspect_mesh(mesh: Mesh, area_epsilon: float = 1e-12) -> MeshProblems:
     degenerate = int((mesh.face_areas() <= area_epsilon).sum())
     if degenerate:
         warnings.append(f"{degenerate} degenerate (zero-area) faces")
-    duplicates = mesh.num_faces - len(np.unique(np.sort(mesh.faces, axis=1), axis=0))
+    # Rows as opaque bytes: unique on a 1-D view is much faster than unique(axis=0).
+    rows = np.ascontiguousarray(np.sort(mesh.faces, axis=1)).view(np.dtype((np.void, 24))).ravel()
+    duplicates = mesh.num_faces - len(np.unique(rows))
     if duplicates:
         warnings.append(f"{duplicates} duplicate faces")
     if degenerate == mesh.num_faces:

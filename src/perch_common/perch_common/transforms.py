@@ -55,7 +55,8 @@ def parse_up_axis(text: str) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
-def estimate_up(normals: np.ndarray, areas: np.ndarray, bins: int = 2000) -> tuple[np.ndarray, float]:
+def estimate_up(normals: np.ndarray, areas: np.ndarray, bins: int = 2000,
+                max_samples: int = 8000) -> tuple[np.ndarray, float]:
     """Up direction from the dominant horizontal planes (floor and ceiling).
 
     Floors and ceilings are the largest areas sharing one normal axis up to sign; walls spread
@@ -69,10 +70,16 @@ def estimate_up(normals: np.ndarray, areas: np.ndarray, bins: int = 2000) -> tup
     normals, areas = normals[ok], areas[ok]
     if len(normals) == 0 or areas.sum() <= 0:
         return np.array([0.0, 0.0, 1.0]), 0.0
-    # Fold antipodal normals together, then take the area-weighted densest direction.
+    # Fold antipodal normals together, then take the area-weighted densest direction. The
+    # search runs on an area-weighted sample (seeded: the answer is deterministic).
+    sample = np.arange(len(normals))
+    if len(normals) > max_samples:
+        rng = np.random.default_rng(0)
+        sample = rng.choice(len(normals), max_samples, replace=True, p=areas / areas.sum())
     fib = _fibonacci_sphere(bins)
     fib = fib[fib[:, 2] >= 0]
-    score = (np.abs(normals @ fib.T) > np.cos(np.radians(10))).T.astype(np.float64) @ areas
+    weights = areas[sample] if len(sample) == len(normals) else np.ones(len(sample))
+    score = weights @ (np.abs(normals[sample] @ fib.T) > np.cos(np.radians(10)))
     best = fib[int(np.argmax(score))]
     near = np.abs(normals @ best) > np.cos(np.radians(10))
     signs = np.sign(normals[near] @ best)

@@ -2,17 +2,28 @@
 
 from __future__ import annotations
 
+import contextlib
 import sys
-from typing import Callable
+from typing import Callable, Iterator
 
 import rclpy
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 
 
+@contextlib.contextmanager
+def ros_context(args: list[str] | None = None) -> Iterator[None]:
+    """rclpy.init ... shutdown as a block (rclpy 7.1's init() is not a context manager)."""
+    rclpy.init(args=args)
+    try:
+        yield
+    finally:
+        rclpy.try_shutdown()
+
+
 def run_node(factory: Callable[[], Node], args: list[str] | None = None, threads: int = 2) -> int:
     """Create the node inside an rclpy context and spin it; returns the process exit code."""
-    with rclpy.init(args=args if args is not None else sys.argv):
+    with ros_context(args if args is not None else sys.argv):
         node = factory()
         executor = MultiThreadedExecutor(num_threads=threads)
         executor.add_node(node)

@@ -1,0 +1,73 @@
+"""`perch bench transport`: mesh <-> message conversion and a cross-process service round trip."""
+
+from __future__ import annotations
+
+import statistics
+import time
+
+import numpy as np
+
+from perch_common.bench import emit, peak_rss_mb
+
+
+def register(sub) -> None:
+    p = sub.add_parser("transport", help="mesh message conversion and cross-process round trip")
+    p.add_argument("--faces", type=int, default=300000)
+    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--json", action="store_true", help="print JSON (the only output format)")
+    p.set_defaults(func=_run)
+
+
+def grid_mesh(faces: int, seed: int = 0):
+    """A coloured, noisy height-field mesh with about `faces` triangles."""
+    from perch_common.mesh import Mesh
+
+    n = max(2, int(np.sqrt(faces / 2)) + 1)
+    rng = np.random.default_rng(seed)
+    x, y = np.meshgrid(np.linspace(0, 10, n), np.linspace(0, 10, n), indexing="ij")
+    vertices = np.stack([x.ravel(), y.ravel(), 0.01 * rng.standard_normal(n * n)], 1)
+    idx = np.arange(n * n).reshape(n, n)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    faces_arr = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])[:faces]
+    return Mesh(vertices, faces_arr, rng.integers(0, 255, (n * n, 3), dtype=np.uint8))
+
+
+def _median_time(fn, repeats: int) -> float:
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times)
+
+
+def _run(args) -> int:
+    import rclpy
+    from perch_interfaces.srv import InspectMesh
+
+    from perch_common.ros.conversions import mesh_from_msg, mesh_to_msg
+    from perch_common.ros.node_main import ros_context
+    from perch_common.ros.testing import call_service, node_process, use_isolated_ros_env
+
+    mesh = grid_mesh(args.faces)
+    msg = mesh_to_msg(mesh)
+    result = {"faces": mesh.num_faces, "vertices": mesh.num_vertices, "repeats": args.repeats,
+              "to_msg_s": _median_time(lambda: mesh_to_msg(mesh), args.repeats),
+              "from_msg_s": _median_time(lambda: mesh_from_msg(msg), args.repeats)}
+    use_isolated_ros_env()
+    request = InspectMesh.Request(mesh=msg, echo=True)
+    with ros_context(), node_process("perch_common.mesh_node"):
+        node = rclpy.create_node("perch_bench_transport")
+        call_service(node, InspectMesh, "/perch/inspect_mesh", request, timeout=60)  # warm-up, discovery
+        times = []
+        for _ in range(args.repeats):
+            start = time.perf_counter()
+            reply = call_service(node, InspectMesh, "/perch/inspect_mesh", request, timeout=60, wait=5)
+            times.append(time.perf_counter() - start)
+            if not reply.success or reply.faces != mesh.num_faces or len(reply.mesh.triangles) != 3 * mesh.num_faces:
+                raise RuntimeError(f"round trip reply is wrong: {reply.message}")
+        node.destroy_node()
+    result.update({"roundtrip_s": statistics.median(times), "roundtrip_min_s": min(times),
+                   "peak_rss_mb": peak_rss_mb(),
+                   "targets": {"to_msg_s": 0.05, "from_msg_s": 0.05, "roundtrip_s": 0.5}})
+    return emit(result)

@@ -1,0 +1,53 @@
+"""`perch mesh info FILE`: size, bounds, up axis and problems of a mesh file."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from perch_common.mesh import inspect_mesh, load_mesh
+from perch_common.transforms import estimate_up
+
+
+def register(sub) -> None:
+    p = sub.add_parser("mesh", help="inspect mesh files")
+    verbs = p.add_subparsers(dest="verb", metavar="VERB")
+    info = verbs.add_parser("info", help="faces, bounds, up axis and problems found")
+    info.add_argument("file")
+    info.add_argument("--json", action="store_true", help="print JSON")
+    info.set_defaults(func=_info)
+    p.set_defaults(func=lambda args: p.print_help() or 2)
+
+
+def mesh_summary(path: str) -> dict:
+    mesh = load_mesh(path, validate=False)
+    problems = inspect_mesh(mesh)
+    summary = {"file": str(path), "vertices": mesh.num_vertices, "faces": mesh.num_faces,
+               "vertex_colors": mesh.vertex_colors is not None, "problems": problems.fatal + problems.warnings}
+    if not problems.fatal:
+        lo, hi = mesh.bounds()
+        up, confidence = estimate_up(mesh.face_normals(), mesh.face_areas())
+        axis = int(np.argmax(np.abs(up)))
+        summary.update({
+            "bounds_min": lo.round(4).tolist(), "bounds_max": hi.round(4).tolist(),
+            "size": (hi - lo).round(4).tolist(), "area_m2": round(float(mesh.face_areas().sum()), 3),
+            "up_estimate": up.round(4).tolist(),
+            "up_axis": ("+" if up[axis] > 0 else "-") + "xyz"[axis] if abs(up[axis]) > 0.95 else "oblique",
+            "up_confidence": round(confidence, 3)})
+    return summary
+
+
+def _info(args) -> int:
+    s = mesh_summary(args.file)
+    if args.json:
+        print(json.dumps(s, indent=2))
+        return 1 if any(p for p in s["problems"] if "empty" in p or "NaN" in p or "outside" in p) else 0
+    print(f"{s['file']}: {s['faces']} faces, {s['vertices']} vertices"
+          f"{', vertex colours' if s['vertex_colors'] else ''}")
+    if "size" in s:
+        print(f"  bounds {s['bounds_min']} .. {s['bounds_max']} (size {s['size']} m, area {s['area_m2']} m^2)")
+        print(f"  up axis {s['up_axis']} (estimate {s['up_estimate']}, "
+              f"{100 * s['up_confidence']:.0f}% of the area is floor/ceiling-like)")
+    print("  problems: " + ("; ".join(s["problems"]) if s["problems"] else "none"))
+    return 0 if "size" in s else 1

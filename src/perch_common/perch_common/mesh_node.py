@@ -1,0 +1,60 @@
+"""perch_mesh_tools node: `/perch/inspect_mesh` validates any mesh a robot node sends."""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass, field
+
+import numpy as np
+from perch_interfaces.srv import InspectMesh
+from rclpy.node import Node
+
+from perch_common.mesh import MeshError, inspect_mesh
+from perch_common.ros.conversions import mesh_from_msg, point_msg, vector_msg
+from perch_common.ros.node_main import run_node
+from perch_common.ros.params import declare_config
+from perch_common.transforms import estimate_up
+
+
+@dataclass
+class MeshToolsConfig:
+    service_name: str = field(default="/perch/inspect_mesh", metadata={"description": "service to offer"})
+
+
+class MeshToolsNode(Node):
+    def __init__(self) -> None:
+        super().__init__("perch_mesh_tools")
+        self.config = declare_config(self, MeshToolsConfig)
+        self.create_service(InspectMesh, self.config.service_name, self.on_inspect)
+        self.get_logger().info(f"serving {self.config.service_name}")
+
+    def on_inspect(self, request: InspectMesh.Request, response: InspectMesh.Response) -> InspectMesh.Response:
+        try:
+            mesh = mesh_from_msg(request.mesh)
+        except MeshError as exc:
+            response.success, response.message, response.problems = False, str(exc), [str(exc)]
+            return response
+        problems = inspect_mesh(mesh)
+        response.problems = problems.fatal + problems.warnings
+        response.faces, response.vertices = mesh.num_faces, mesh.num_vertices
+        response.success = not problems.fatal
+        if problems.fatal:
+            response.message = "unusable mesh: " + "; ".join(problems.fatal)
+        else:
+            lo, hi = mesh.bounds()
+            up, _ = estimate_up(mesh.face_normals(), mesh.face_areas())
+            response.bounds_min, response.bounds_max = point_msg(lo), point_msg(hi)
+            response.up_estimate = vector_msg(up)
+            response.message = f"{mesh.num_faces} faces, {mesh.num_vertices} vertices" + (
+                f" ({len(problems.warnings)} warning(s))" if problems.warnings else "")
+        if request.echo:
+            response.mesh = request.mesh
+        return response
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(MeshToolsNode, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
