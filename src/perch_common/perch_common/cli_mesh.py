@@ -7,7 +7,7 @@ import json
 import numpy as np
 
 from perch_common.mesh import inspect_mesh, load_mesh
-from perch_common.transforms import estimate_up
+from perch_common.transforms import estimate_mesh_up
 
 
 def register(sub) -> None:
@@ -27,7 +27,7 @@ def mesh_summary(path: str) -> dict:
                "vertex_colors": mesh.vertex_colors is not None, "problems": problems.fatal + problems.warnings}
     if not problems.fatal:
         lo, hi = mesh.bounds()
-        up, confidence = estimate_up(mesh.face_normals(), mesh.face_areas())
+        up, confidence = estimate_mesh_up(mesh)
         axis = int(np.argmax(np.abs(up)))
         summary.update({
             "bounds_min": lo.round(4).tolist(), "bounds_max": hi.round(4).tolist(),

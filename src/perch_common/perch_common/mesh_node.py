@@ -13,7 +13,7 @@ from perch_common.mesh import MeshError, inspect_mesh
 from perch_common.ros.conversions import mesh_from_msg, point_msg, vector_msg
 from perch_common.ros.node_main import run_node
 from perch_common.ros.params import declare_config
-from perch_common.transforms import estimate_up
+from perch_common.transforms import estimate_mesh_up
 
 
 @dataclass
@@ -42,7 +42,7 @@ class MeshToolsNode(Node):
             response.message = "unusable mesh: " + "; ".join(problems.fatal)
         else:
             lo, hi = mesh.bounds()
-            up, _ = estimate_up(mesh.face_normals(), mesh.face_areas())
+            up, _ = estimate_mesh_up(mesh)
             response.bounds_min, response.bounds_max = point_msg(lo), point_msg(hi)
             response.up_estimate = vector_msg(up)
             response.message = f"{mesh.num_faces} faces, {mesh.num_vertices} vertices" + (

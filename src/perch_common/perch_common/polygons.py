@@ -7,6 +7,11 @@ import numpy as np
 from perch_common.types import PlaneFrame
 
 
+def cross2d(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """z component of the cross product of 2D vectors (twice the signed triangle area)."""
+    return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+
+
 def faces_outline(frame: PlaneFrame, triangles: np.ndarray, simplify: float = 0.0) -> list:
     """Outline of a set of (roughly coplanar) triangles in the frame's 2D coordinates.
 
@@ -18,7 +23,7 @@ def faces_outline(frame: PlaneFrame, triangles: np.ndarray, simplify: float = 0.
     if len(tris) == 0:
         return []
     uv = frame.to_plane(tris.reshape(-1, 3)).reshape(-1, 3, 2)
-    area2 = np.abs(np.cross(uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]))
+    area2 = np.abs(cross2d(uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]))
     uv = uv[area2 > 1e-12]
     if len(uv) == 0:
         return []

@@ -47,10 +47,12 @@ class TargetVolume:
         import shapely
         from shapely.ops import unary_union
 
+        from perch_common.polygons import cross2d
+
         if mesh.num_faces == 0:
             raise MeshError("target footprint mesh is empty")
         tris = mesh.triangles()[:, :, :2]
-        area2 = np.abs(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]))
+        area2 = np.abs(cross2d(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]))
         polys = shapely.polygons(tris[area2 > 1e-12])
         union = unary_union(polys).buffer(0)
         if union.geom_type == "MultiPolygon":  # keep the largest piece's hull-free outline

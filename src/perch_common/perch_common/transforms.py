@@ -56,40 +56,55 @@ def parse_up_axis(text: str) -> np.ndarray:
 
 
 def estimate_up(normals: np.ndarray, areas: np.ndarray, bins: int = 2000,
-                max_samples: int = 8000) -> tuple[np.ndarray, float]:
-    """Up direction from the dominant horizontal planes (floor and ceiling).
+                max_samples: int = 8000, centroids: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+    """Up direction of a room scan from its dominant planes.
 
-    Floors and ceilings are the largest areas sharing one normal axis up to sign; walls spread
-    around the circle orthogonal to it. Returns (up, confidence in [0, 1]): the share of area whose
-    normals lie within 10 degrees of +-up. The sign is chosen so most of that area faces up
-    (a scanned room sees more floor than ceiling from above; callers may flip with other evidence).
+    Floors, ceilings and walls share three orthogonal axes: the densest normal axis and the densest
+    axis orthogonal to it give all three. Up is the one along which the scan is thinnest (rooms
+    are wider than tall; needs `centroids`, else the densest axis is taken), signed so that most
+    horizontal area (floor, furniture tops; ceilings are often incomplete) lies in the lower half.
+    Without centroids the sign makes most of that area face up. Returns (up, confidence): the
+    share of area whose normals lie within 10 degrees of +-up.
     """
     normals = np.asarray(normals, np.float64)
     areas = np.asarray(areas, np.float64)
     ok = np.linalg.norm(normals, axis=1) > 0.5
     normals, areas = normals[ok], areas[ok]
+    centroids = None if centroids is None else np.asarray(centroids, np.float64)[ok]
     if len(normals) == 0 or areas.sum() <= 0:
         return np.array([0.0, 0.0, 1.0]), 0.0
-    # Fold antipodal normals together, then take the area-weighted densest direction. The
-    # search runs on an area-weighted sample (seeded: the answer is deterministic).
+    cos10 = np.cos(np.radians(10))
+    # Area-weighted sample (seeded, so the answer is deterministic) for the direction search.
     sample = np.arange(len(normals))
+    weights = areas
     if len(normals) > max_samples:
-        rng = np.random.default_rng(0)
-        sample = rng.choice(len(normals), max_samples, replace=True, p=areas / areas.sum())
+        sample = np.random.default_rng(0).choice(len(normals), max_samples, p=areas / areas.sum())
+        weights = np.ones(max_samples)
     fib = _fibonacci_sphere(bins)
     fib = fib[fib[:, 2] >= 0]
-    weights = areas[sample] if len(sample) == len(normals) else np.ones(len(sample))
-    score = weights @ (np.abs(normals[sample] @ fib.T) > np.cos(np.radians(10)))
-    best = fib[int(np.argmax(score))]
-    near = np.abs(normals @ best) > np.cos(np.radians(10))
-    signs = np.sign(normals[near] @ best)
+    first = fib[int(np.argmax(weights @ (np.abs(normals[sample] @ fib.T) > cos10)))]
+    across = fib[np.abs(fib @ first) < np.sin(np.radians(3))]
+    second = across[int(np.argmax(weights @ (np.abs(normals[sample] @ across.T) > cos10)))]
+    second = second - (second @ first) * first
+    axes = [first, second / np.linalg.norm(second), np.cross(first, second / np.linalg.norm(second))]
+    if centroids is not None:
+        extents = [np.ptp(centroids @ a) for a in axes]
+        axis = axes[int(np.argmin(extents))]
+    else:
+        axis = axes[0]
+    near = np.abs(normals @ axis) > cos10
+    signs = np.sign(normals[near] @ axis)
     axis = (normals[near] * signs[:, None] * areas[near, None]).sum(axis=0)
     axis /= np.linalg.norm(axis)
-    up_area = areas[near][normals[near] @ axis > 0].sum()
-    down_area = areas[near][normals[near] @ axis < 0].sum()
-    if down_area > up_area:
-        axis = -axis
-    return axis, float(areas[near].sum() / areas.sum())
+    if centroids is not None:
+        height = centroids[near] @ axis
+        middle = (height.min() + height.max()) / 2
+        lower = areas[near][height < middle].sum()
+        upper = areas[near][height >= middle].sum()
+        flip = upper > lower
+    else:
+        flip = areas[near][normals[near] @ axis < 0].sum() > areas[near][normals[near] @ axis > 0].sum()
+    return (-axis if flip else axis), float(areas[near].sum() / areas.sum())
 
 
 def _fibonacci_sphere(n: int) -> np.ndarray:
@@ -97,3 +112,8 @@ def _fibonacci_sphere(n: int) -> np.ndarray:
     phi = np.arccos(1 - 2 * i / n)
     theta = np.pi * (1 + 5 ** 0.5) * i
     return np.stack([np.cos(theta) * np.sin(phi), np.sin(theta) * np.sin(phi), np.cos(phi)], axis=1)
+
+
+def estimate_mesh_up(mesh) -> tuple[np.ndarray, float]:
+    """estimate_up for a perch_common.mesh.Mesh (uses face positions for axis and sign)."""
+    return estimate_up(mesh.face_normals(), mesh.face_areas(), centroids=mesh.face_centroids())

@@ -1,0 +1,82 @@
+"""The perch CLI and the launcher, as a user runs them."""
+
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from perch_common.config import ConfigError
+from perch_common.launch import GraphProcesses, available_nodes, parse_overrides
+
+PERCH = [sys.executable, "-m", "perch_common.cli"]
+
+
+def run(*args, **kw):
+    return subprocess.run(PERCH + list(args), capture_output=True, text=True, timeout=120, **kw)
+
+
+def test_help_lists_core_commands():
+    out = run("--help")
+    assert out.returncode == 0
+    for command in ("mesh", "scene", "launch", "bench"):
+        assert command in out.stdout
+
+
+def test_scene_generate_writes_mesh_and_labels(tmp_path):
+    import numpy as np
+
+    from perch_common.mesh import load_mesh
+    out = run("scene", "generate", "--seed", "1", "--kind", "apartment", "-o", str(tmp_path / "room.ply"))
+    assert out.returncode == 0, out.stderr
+    mesh = load_mesh(tmp_path / "room.ply")
+    labels = np.load(tmp_path / "room.labels.npz")
+    assert len(labels["face_plane"]) == mesh.num_faces and mesh.vertex_colors is not None
+
+
+def test_mesh_info_reports_and_fails_clearly(tmp_path):
+    from perch_common.mesh import Mesh, save_mesh
+    save_mesh(tmp_path / "tri.ply", Mesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]]))
+    out = run("mesh", "info", str(tmp_path / "tri.ply"))
+    assert out.returncode == 0 and "1 faces" in out.stdout
+    out = run("mesh", "info", str(tmp_path / "nope.ply"))
+    assert out.returncode == 1 and "perch: error:" in out.stderr and "no such file" in out.stderr
+    assert "Traceback" not in out.stderr
+
+
+def test_overrides_parse():
+    assert parse_overrides(["perch_placement:num_cameras:=3", "up_axis:=+y"]) == {
+        "perch_placement": ["num_cameras:=3"], "*": ["up_axis:=+y"]}
+    with pytest.raises(ConfigError, match="node:param:=value"):
+        parse_overrides(["num_cameras=3"])
+
+
+def test_launch_lists_installed_listed_nodes(tmp_path):
+    config = tmp_path / "p.yaml"
+    config.write_text("/**:\n  ros__parameters:\n    up_axis: '+z'\n"
+                      "perch_mesh_tools:\n  ros__parameters: {}\nnot_installed_node:\n  ros__parameters: {}\n")
+    assert "perch_mesh_tools" in available_nodes()
+    graph = GraphProcesses(config, overrides=["perch_mesh_tools:service_name:=/x"])
+    assert graph.nodes == ["perch_mesh_tools"]
+    assert graph.command("perch_mesh_tools")[-2:] == ["-p", "service_name:=/x"]
+    with pytest.raises(ConfigError, match="unknown node"):
+        GraphProcesses(config, nodes=["nope"])
+
+
+@pytest.mark.ros
+def test_launch_starts_and_stops_cleanly_on_ctrl_c(tmp_path):
+    import signal
+
+    from perch_common.ros.testing import isolated_ros_env
+    config = tmp_path / "p.yaml"
+    config.write_text("perch_mesh_tools:\n  ros__parameters:\n    service_name: /perch/inspect_mesh\n")
+    proc = subprocess.Popen(PERCH + ["launch", "--config", str(config), "--log-dir", str(tmp_path / "logs")],
+                            env=isolated_ros_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(4)
+    assert proc.poll() is None
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=20)
+    assert proc.returncode == 0, err
+    assert "starting perch_mesh_tools" in out and "stopped" in out
+    assert "serving /perch/inspect_mesh" in (Path(tmp_path / "logs" / "perch_mesh_tools.log").read_text())

@@ -1,0 +1,108 @@
+"""Config loading, target volumes and rotations."""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pytest
+
+from perch_common.config import ConfigError, from_parameters, node_names, node_parameters, to_parameters
+from perch_common.target import TargetVolume
+from perch_common.transforms import estimate_mesh_up, matrix_from_quaternion, parse_up_axis, quaternion_from_matrix, rotation_between
+
+
+@dataclass
+class Inner:
+    width: int = 1280
+    fov_deg: float = 87.0
+
+
+@dataclass
+class Outer:
+    enabled: bool = True
+    name: str = "d435"
+    camera: Inner = field(default_factory=Inner)
+
+
+def test_yaml_sections_merge_wildcard_and_flatten(tmp_path):
+    path = tmp_path / "p.yaml"
+    path.write_text("/**:\n  ros__parameters:\n    up_axis: '+y'\n    enabled: false\n"
+                    "my_node:\n  ros__parameters:\n    enabled: true\n    camera:\n      width: 640\n")
+    assert node_names(path) == ["my_node"]
+    params = node_parameters("my_node", path)
+    assert params == {"up_axis": "+y", "enabled": True, "camera.width": 640}
+    cfg = from_parameters(Outer, params)
+    assert cfg.enabled is True and cfg.camera.width == 640 and cfg.camera.fov_deg == 87.0
+    assert to_parameters(cfg)["camera.width"] == 640
+
+
+def test_bad_values_and_unknown_keys_are_named():
+    with pytest.raises(ConfigError, match=r"camera.width=2.5"):
+        from_parameters(Outer, {"camera.width": 2.5})
+    with pytest.raises(ConfigError, match="unknown parameter.*camera.height"):
+        from_parameters(Outer, {"camera.height": 3}, strict=True)
+
+
+def test_project_config_parses():
+    from perch_common.config import default_config_path, load_yaml
+    assert "/**" in load_yaml(default_config_path())
+
+
+def test_box_target_sampling_is_stratified_and_seeded():
+    rot = rotation_between(np.array([1.0, 0, 0]), np.array([1.0, 1.0, 0]))
+    box = TargetVolume(center=[1, 1, 1], size=[2, 1, 0.5], rotation=rot)
+    pts = box.sample(100, seed=3)
+    assert len(pts) == 100 and box.contains(pts).all()
+    assert np.array_equal(pts, box.sample(100, seed=3)) and not np.array_equal(pts, box.sample(100, seed=4))
+    local = (pts - box.center) @ rot
+    # Stratified: each half of the long axis holds half the points (+-10%).
+    assert abs((local[:, 0] > 0).mean() - 0.5) < 0.1
+    assert box.volume() == pytest.approx(1.0)
+    assert len(box.sample(density=1000)) == pytest.approx(1000, rel=0.15)
+
+
+def test_footprint_target_from_mesh():
+    from perch_common.mesh import Mesh
+    footprint = Mesh([[0, 0, 0.2], [2, 0, 0.2], [2, 1, 0.2], [0, 1, 0.2]], [[0, 1, 2], [0, 2, 3]])
+    target = TargetVolume.from_footprint_mesh(footprint, 1.2)
+    assert target.volume() == pytest.approx(2.4) and target.base == pytest.approx(0.2)
+    assert np.allclose(target.centroid(), [1, 0.5, 0.8])
+    assert target.contains(np.array([[1, 0.5, 1.0], [1, 0.5, 1.5], [3, 0.5, 1.0]])).tolist() == [True, False, False]
+    assert len(target.edges()) == 12
+
+
+def test_rotations():
+    r = rotation_between(np.array([0, 0, 1.0]), np.array([0, 0, -1.0]))
+    assert np.allclose(r @ [0, 0, 1], [0, 0, -1]) and np.isclose(np.linalg.det(r), 1)
+    q = quaternion_from_matrix(rotation_between(np.array([1.0, 0, 0]), np.array([0, 1.0, 0])))
+    assert np.allclose(matrix_from_quaternion(q) @ [1, 0, 0], [0, 1, 0])
+    assert np.allclose(matrix_from_quaternion(np.zeros(4)), np.eye(3))
+
+
+def test_up_axis_parsing():
+    assert parse_up_axis("+y").tolist() == [0, 1, 0] and parse_up_axis("-z").tolist() == [0, 0, -1]
+    assert np.allclose(parse_up_axis("0 0 2"), [0, 0, 1])
+    with pytest.raises(ValueError, match="up axis 'sideways'"):
+        parse_up_axis("sideways")
+
+
+@pytest.mark.parametrize("kind, ceiling", [("room", False), ("room", True), ("apartment", True)])
+def test_up_estimate_on_tilted_generated_rooms(kind, ceiling):
+    from perch_common.scene_generator import generate_scene
+    scene = generate_scene(1, kind, ceiling=ceiling)
+    tilt = np.eye(4)
+    tilted_up = np.array([0.0, 1.0, 0.3]) / np.linalg.norm([0, 1, 0.3])
+    tilt[:3, :3] = rotation_between(np.array([0, 0, 1.0]), tilted_up)
+    up, confidence = estimate_mesh_up(scene.mesh.transformed(tilt))
+    assert np.degrees(np.arccos(up @ tilted_up)) < 1.0
+    assert confidence > 0.2
+
+
+def test_up_estimate_on_the_real_apartment():
+    from perch_common.data import shared_file
+    from perch_common.mesh import load_mesh
+    path = shared_file("meshes", "apartment.ply")
+    if path is None:
+        pytest.skip("../shared/data/meshes/apartment.ply not found (real data is optional)")
+    mesh = load_mesh(path)
+    up, _ = estimate_mesh_up(mesh)
+    assert up[2] > np.cos(np.radians(3))

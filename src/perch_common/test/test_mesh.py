@@ -1,0 +1,63 @@
+"""Mesh model, validation errors and file I/O."""
+
+import numpy as np
+import pytest
+
+from perch_common.mesh import Mesh, MeshError, inspect_mesh, load_mesh, save_mesh, validate_mesh
+
+
+def square() -> Mesh:
+    return Mesh([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], [[0, 1, 2], [0, 2, 3]],
+                vertex_colors=[[255, 0, 0]] * 4)
+
+
+def test_geometry_of_unit_square():
+    m = square()
+    assert m.face_areas() == pytest.approx([0.5, 0.5])
+    assert np.allclose(m.face_normals(), [[0, 0, 1], [0, 0, 1]])
+    assert np.allclose(m.bounds(), [[0, 0, 0], [1, 1, 0]])
+    assert np.allclose(m.face_colors(), [[1, 0, 0], [1, 0, 0]])
+
+
+def test_submesh_keeps_only_used_vertices_and_colours():
+    sub = square().submesh(np.array([1]))
+    assert sub.num_vertices == 3 and sub.num_faces == 1
+    assert np.allclose(sub.vertices[sub.faces[0]], [[0, 0, 0], [1, 1, 0], [0, 1, 0]])
+    assert sub.vertex_colors.shape == (3, 3)
+
+
+@pytest.mark.parametrize("vertices, faces, expected", [
+    (np.zeros((0, 3)), np.zeros((0, 3)), "mesh is empty"),
+    ([[0, 0, np.nan], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], "1 vertices are NaN or infinite (first: vertex 0)"),
+    ([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 3]], "faces index vertices outside 0..2"),
+    ([[0, 0, 0], [1, 0, 0], [2, 0, 0]], [[0, 1, 2]], "every face is degenerate"),
+])
+def test_validation_names_the_problem(vertices, faces, expected):
+    with pytest.raises(MeshError, match="mesh:.*" + expected.replace("(", r"\(").replace(")", r"\)").replace(".", r"\.")):
+        validate_mesh(Mesh(vertices, faces))
+
+
+def test_warnings_count_degenerate_and_duplicate_faces():
+    m = Mesh([[0, 0, 0], [1, 0, 0], [0, 1, 0], [2, 0, 0]], [[0, 1, 2], [2, 1, 0], [0, 1, 3]])
+    problems = inspect_mesh(m)
+    assert problems.fatal == []
+    assert problems.duplicate_faces == 1 and problems.degenerate_faces == 1
+
+
+def test_save_and_load_round_trip(tmp_path):
+    m = square()
+    for suffix in (".ply", ".obj", ".stl", ".glb"):
+        loaded = load_mesh(save_mesh(tmp_path / f"sq{suffix}", m))
+        assert loaded.face_areas().sum() == pytest.approx(1.0)
+    assert np.array_equal(load_mesh(tmp_path / "sq.ply").vertex_colors, m.vertex_colors)
+
+
+def test_load_errors_are_precise(tmp_path):
+    with pytest.raises(MeshError, match="no such file"):
+        load_mesh(tmp_path / "missing.ply")
+    (tmp_path / "x.txt").write_text("hello")
+    with pytest.raises(MeshError, match="unsupported format '.txt'"):
+        load_mesh(tmp_path / "x.txt")
+    (tmp_path / "bad.ply").write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 99\n")
+    with pytest.raises(MeshError, match="bad.ply"):
+        load_mesh(tmp_path / "bad.ply")

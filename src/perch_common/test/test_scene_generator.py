@@ -1,0 +1,98 @@
+"""Generator invariants: watertight, fully labelled, realistic scale, reproducible."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from perch_common.scene_generator import KINDS, SemanticClass, generate_scene
+
+
+@pytest.fixture(scope="module", params=KINDS)
+def scene(request):
+    return generate_scene(7, request.param)
+
+
+def test_watertight_with_normals_into_free_space(scene):
+    tm = trimesh.Trimesh(scene.mesh.vertices, scene.mesh.faces, process=False)
+    assert tm.is_watertight and tm.is_winding_consistent
+    assert tm.volume < 0  # normals point inwards, into the rooms
+    # Points just in front of faces are free; just behind are solid.
+    centre, normal = scene.mesh.face_centroids(), scene.mesh.face_normals()
+    pick = np.random.default_rng(0).choice(len(centre), 500, replace=False)
+    assert scene.free_space.is_free(centre[pick] + 0.03 * normal[pick]).mean() > 0.99
+    assert (~scene.free_space.is_free(centre[pick] - 0.03 * normal[pick])).mean() > 0.99
+
+
+def test_every_face_labelled_and_planes_consistent(scene):
+    assert (scene.face_plane >= 0).all() and len(scene.face_plane) == scene.mesh.num_faces
+    assert set(np.unique(scene.face_class)) <= {c.value for c in SemanticClass if c != SemanticClass.NONE}
+    areas = scene.mesh.face_areas()
+    normals = scene.mesh.face_normals()
+    for plane in scene.planes:
+        faces = scene.face_plane == plane.id
+        assert areas[faces].sum() == pytest.approx(plane.area)
+        assert np.allclose(normals[faces], plane.normal, atol=1e-6)
+        assert len(np.unique(scene.face_class[faces])) == 1
+
+
+def test_realistic_scale(scene):
+    areas = scene.mesh.face_areas()
+    floor = areas[scene.face_class == SemanticClass.FLOOR].sum()
+    furniture_footprint = sum(b.size[0] * b.size[1] for b in scene.furniture)
+    assert 20 <= floor + furniture_footprint <= 62
+    ceiling_z = scene.mesh.face_centroids()[scene.face_class == SemanticClass.CEILING][:, 2]
+    assert 2.4 - 1e-6 <= np.median(ceiling_z) <= 3.2 + 1e-6
+    assert scene.mesh.vertices[:, 2].min() == pytest.approx(0.0)
+
+
+def test_openings_are_flush_and_coloured_differently(scene):
+    doors = scene.face_class == SemanticClass.DOOR
+    walls = scene.face_class == SemanticClass.WALL
+    assert doors.any() and (scene.face_class == SemanticClass.WINDOW).any()
+    colors = scene.mesh.face_colors()
+    assert np.linalg.norm(np.median(colors[doors], 0) - np.median(colors[walls], 0)) > 0.3
+    door_plane = scene.planes[int(scene.face_plane[np.flatnonzero(doors)[0]])]
+    coplanar_walls = [p for p in scene.planes if p.semantic_class == SemanticClass.WALL
+                      and p.normal @ door_plane.normal > 0.999 and abs(p.offset - door_plane.offset) < 1e-6]
+    assert coplanar_walls, "a door lies in the plane of a wall"
+
+
+def test_seeds_reproducible_and_distinct():
+    a, b, c = generate_scene(3, "two_rooms"), generate_scene(3, "two_rooms"), generate_scene(4, "two_rooms")
+    assert np.array_equal(a.mesh.vertices, b.mesh.vertices) and np.array_equal(a.face_plane, b.face_plane)
+    assert a.mesh.num_faces != c.mesh.num_faces or not np.allclose(a.mesh.vertices, c.mesh.vertices)
+
+
+def test_options_noise_holes_ceiling():
+    clean = generate_scene(5, "room")
+    noisy = generate_scene(5, "room", noise=0.005)
+    assert noisy.mesh.num_faces == clean.mesh.num_faces
+    assert np.std(noisy.mesh.vertices - clean.mesh.vertices) == pytest.approx(0.005, rel=0.1)
+    holed = generate_scene(5, "room", holes=3)
+    assert holed.mesh.num_faces < clean.mesh.num_faces
+    assert not trimesh.Trimesh(holed.mesh.vertices, holed.mesh.faces, process=False).is_watertight
+    open_top = generate_scene(5, "room", ceiling=False)
+    assert not (open_top.face_class == SemanticClass.CEILING).any()
+
+
+def test_ground_truth_surfaces_cover_planes():
+    scene = generate_scene(2, "l_shaped")
+    surfaces = scene.ground_truth_surfaces(min_area=0.5)
+    big = [p for p in scene.planes if p.area >= 0.5]
+    assert len(surfaces) == len(big)
+    from perch_common.polygons import polygons_area
+    for s in surfaces:
+        assert polygons_area(s.boundary) == pytest.approx(s.area, rel=1e-6)
+        assert np.allclose(np.cross(s.frame.axis_u, s.frame.axis_v), s.frame.normal)
+
+
+def test_target_inside_main_room():
+    scene = generate_scene(9, "apartment")
+    points = scene.target.sample(200, seed=1)
+    assert len(points) == 200 and scene.target.contains(points).all()
+    assert scene.free_space.is_free(points).mean() > 0.7  # furniture may intrude a little
+
+
+def test_unknown_kind_rejected():
+    with pytest.raises(ValueError, match="unknown scene kind 'castle'"):
+        generate_scene(0, "castle")
