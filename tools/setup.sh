@@ -58,14 +58,14 @@ fi
 
 # 5. perch_interfaces (rosidl) built with colcon, installed into the venv prefix so that
 #    `import perch_interfaces.msg` works without sourcing anything.
-ifc=$(digest $(find src/perch_interfaces -type f | sort))
+ifc=$(digest colcon.meta $(find src/perch_interfaces -type f | sort))
 if ! fresh interfaces "$ifc"; then
   say "building perch_interfaces with colcon (about a minute)"
-  rm -rf build/perch_interfaces
+  rm -rf build/perch_interfaces && mkdir -p build
   if ! AMENT_PREFIX_PATH=$VENV CMAKE_PREFIX_PATH=$VENV PATH=$VENV/bin:$PATH \
-      "$VENV/bin/colcon" --log-base build/log build --base-paths src/perch_interfaces \
+      "$VENV/bin/colcon" --log-base build/log build --metas colcon.meta --base-paths src/perch_interfaces \
       --build-base build --install-base "$VENV" --merge-install \
-      --cmake-args -DPython3_EXECUTABLE="$VENV/bin/python" -DBUILD_TESTING=OFF > build/colcon.log 2>&1; then
+      --cmake-args -DPython3_EXECUTABLE="$VENV/bin/python" > build/colcon.log 2>&1; then
     tail -30 build/colcon.log >&2
     die "colcon build of perch_interfaces failed (full log: build/colcon.log)"
   fi

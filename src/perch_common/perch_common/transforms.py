@@ -117,3 +117,12 @@ def _fibonacci_sphere(n: int) -> np.ndarray:
 def estimate_mesh_up(mesh) -> tuple[np.ndarray, float]:
     """estimate_up for a perch_common.mesh.Mesh (uses face positions for axis and sign)."""
     return estimate_up(mesh.face_normals(), mesh.face_areas(), centroids=mesh.face_centroids())
+
+
+def resolve_up_axis(text: str, mesh=None) -> np.ndarray:
+    """The configured up axis; "auto" estimates it from the mesh's dominant planes."""
+    if text.strip().lower() == "auto":
+        if mesh is None:
+            raise ValueError("up axis 'auto' needs a mesh to estimate it from")
+        return estimate_mesh_up(mesh)[0]
+    return parse_up_axis(text)

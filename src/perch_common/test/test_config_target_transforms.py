@@ -78,6 +78,15 @@ def test_rotations():
     assert np.allclose(matrix_from_quaternion(np.zeros(4)), np.eye(3))
 
 
+def test_up_axis_auto_uses_the_mesh():
+    from perch_common.scene_generator import generate_scene
+    from perch_common.transforms import resolve_up_axis
+    assert np.allclose(resolve_up_axis("auto", generate_scene(0, "room").mesh), [0, 0, 1], atol=1e-6)
+    assert resolve_up_axis("-y").tolist() == [0, -1, 0]
+    with pytest.raises(ValueError, match="needs a mesh"):
+        resolve_up_axis("auto")
+
+
 def test_up_axis_parsing():
     assert parse_up_axis("+y").tolist() == [0, 1, 0] and parse_up_axis("-z").tolist() == [0, 0, -1]
     assert np.allclose(parse_up_axis("0 0 2"), [0, 0, 1])
