@@ -22,6 +22,14 @@ class ConfigError(ValueError):
     """A configuration file or value that cannot be used."""
 
 
+def param(default: Any, description: str, unit: str | None = None) -> Any:
+    """A config dataclass field whose description (and unit) become the ROS parameter's."""
+    metadata = {"description": description, **({"unit": unit} if unit else {})}
+    if isinstance(default, (list, dict)):
+        return dataclasses.field(default_factory=lambda: type(default)(default), metadata=metadata)
+    return dataclasses.field(default=default, metadata=metadata)
+
+
 def default_config_path() -> Path:
     """config/perch.yaml of the workspace (PERCH_CONFIG overrides)."""
     if os.environ.get("PERCH_CONFIG"):

@@ -16,6 +16,7 @@ from importlib.metadata import entry_points
 from pathlib import Path
 
 from perch_common.config import ConfigError, default_config_path, node_names
+from perch_common.processes import stop_process
 
 
 def available_nodes() -> dict[str, str]:
@@ -83,14 +84,8 @@ class GraphProcesses:
 
     def stop_node(self, name: str, timeout: float = 10.0) -> None:
         proc = self.processes.get(name)
-        if proc is None or proc.poll() is not None:
-            return
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        if proc is not None:
+            stop_process(proc, timeout)
 
     def restart(self, name: str) -> subprocess.Popen:
         self.stop_node(name)

@@ -9,10 +9,11 @@ import numpy as np
 from perch_interfaces.srv import InspectMesh
 from rclpy.node import Node
 
-from perch_common.mesh import MeshError, inspect_mesh
+from perch_common.mesh import inspect_mesh
 from perch_common.ros.conversions import mesh_from_msg, point_msg, vector_msg
 from perch_common.ros.node_main import run_node
 from perch_common.ros.params import declare_config
+from perch_common.ros.service import answering
 from perch_common.transforms import estimate_mesh_up
 
 
@@ -28,12 +29,9 @@ class MeshToolsNode(Node):
         self.create_service(InspectMesh, self.config.service_name, self.on_inspect)
         self.get_logger().info(f"serving {self.config.service_name}")
 
+    @answering
     def on_inspect(self, request: InspectMesh.Request, response: InspectMesh.Response) -> InspectMesh.Response:
-        try:
-            mesh = mesh_from_msg(request.mesh)
-        except MeshError as exc:
-            response.success, response.message, response.problems = False, str(exc), [str(exc)]
-            return response
+        mesh = mesh_from_msg(request.mesh)  # a malformed message raises: answered success=false
         problems = inspect_mesh(mesh)
         response.problems = problems.fatal + problems.warnings
         response.faces, response.vertices = mesh.num_faces, mesh.num_vertices

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -13,6 +12,8 @@ from typing import Any, Iterator
 
 import rclpy
 from rclpy.node import Node
+
+from perch_common.processes import stop_process
 
 
 def isolated_ros_env(domain_id: int | None = None) -> dict[str, str]:
@@ -48,17 +49,6 @@ def node_process(module: str, params: dict[str, Any] | None = None, params_file:
         stop_process(proc)
         if log_path:
             log.close()
-
-
-def stop_process(proc: subprocess.Popen, timeout: float = 10.0) -> int | None:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-    return proc.returncode
 
 
 def call_service(node: Node, srv_type, name: str, request, timeout: float = 30.0, wait: float = 30.0):

@@ -1,0 +1,37 @@
+"""Service callbacks that always answer: expected errors become success=false with their message,
+unexpected ones are logged with a traceback and answered as internal errors; the node keeps serving."""
+
+from __future__ import annotations
+
+import functools
+import time
+import traceback
+from typing import Callable
+
+from perch_common.errors import EXPECTED
+
+
+def answering(callback: Callable) -> Callable:
+    """Decorate `callback(self, request, response) -> response` of a Node.
+
+    The response type must have `success` and `message`; a `seconds` field, when present, is set
+    to the callback's duration.
+    """
+
+    @functools.wraps(callback)
+    def wrapper(self, request, response):
+        started = time.perf_counter()
+        try:
+            response = callback(self, request, response)
+        except EXPECTED as exc:
+            response.success, response.message = False, str(exc)
+        except Exception as exc:  # keep serving; the traceback goes to the log
+            self.get_logger().error(traceback.format_exc())
+            response.success, response.message = False, f"internal error: {type(exc).__name__}: {exc}"
+        if hasattr(response, "seconds"):
+            response.seconds = time.perf_counter() - started
+        log = self.get_logger().info if response.success else self.get_logger().warning
+        log(f"{callback.__name__}: {response.message}")
+        return response
+
+    return wrapper

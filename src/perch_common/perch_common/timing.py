@@ -1,0 +1,23 @@
+"""Lap timing for stage reports (seconds per step)."""
+
+from __future__ import annotations
+
+import time
+
+
+class Laps:
+    """Call lap(name) after each step; laps maps step name to its seconds."""
+
+    def __init__(self) -> None:
+        self.laps: dict[str, float] = {}
+        self._start = self._last = time.perf_counter()
+
+    def lap(self, name: str) -> float:
+        now = time.perf_counter()
+        self.laps[name] = self.laps.get(name, 0.0) + now - self._last
+        self._last = now
+        return self.laps[name]
+
+    @property
+    def total(self) -> float:
+        return time.perf_counter() - self._start
