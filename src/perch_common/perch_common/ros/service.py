@@ -30,8 +30,11 @@ def answering(callback: Callable) -> Callable:
             response.success, response.message = False, f"internal error: {type(exc).__name__}: {exc}"
         if hasattr(response, "seconds"):
             response.seconds = time.perf_counter() - started
-        log = self.get_logger().info if response.success else self.get_logger().warning
-        log(f"{callback.__name__}: {response.message}")
+        # rclpy ties a severity to each logging call site: one line per severity.
+        if response.success:
+            self.get_logger().info(f"{callback.__name__}: {response.message}")
+        else:
+            self.get_logger().warning(f"{callback.__name__}: {response.message}")
         return response
 
     return wrapper

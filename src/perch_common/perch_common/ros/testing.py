@@ -51,18 +51,26 @@ def node_process(module: str, params: dict[str, Any] | None = None, params_file:
             log.close()
 
 
+_clients: dict[tuple[int, str, str], object] = {}
+
+
 def call_service(node: Node, srv_type, name: str, request, timeout: float = 30.0, wait: float = 30.0):
-    """Wait for the service, call it and return the response; raise TimeoutError naming what hung."""
-    client = node.create_client(srv_type, name)
-    try:
-        if not client.wait_for_service(timeout_sec=wait):
-            raise TimeoutError(f"service {name} did not appear within {wait:.0f} s")
-        future = client.call_async(request)
-        deadline = time.monotonic() + timeout
-        while not future.done() and time.monotonic() < deadline:
-            rclpy.spin_until_future_complete(node, future, timeout_sec=0.1)
-        if not future.done():
-            raise TimeoutError(f"service {name} did not answer within {timeout:.0f} s")
-        return future.result()
-    finally:
-        node.destroy_client(client)
+    """Wait for the service, call it and return the response; raise TimeoutError naming what hung.
+
+    One client per (node, service) is kept: a client created just before its first call can lose
+    the reply while discovery still matches it to the server.
+    """
+    key = (id(node), srv_type.__name__, name)
+    client = _clients.get(key)
+    if client is None or client not in node.clients:
+        client = _clients[key] = node.create_client(srv_type, name)
+    if not client.wait_for_service(timeout_sec=wait):
+        raise TimeoutError(f"service {name} did not appear within {wait:.0f} s")
+    future = client.call_async(request)
+    deadline = time.monotonic() + timeout
+    while not future.done() and time.monotonic() < deadline:
+        rclpy.spin_until_future_complete(node, future, timeout_sec=0.1)
+    if not future.done():
+        client.remove_pending_request(future)
+        raise TimeoutError(f"service {name} did not answer within {timeout:.0f} s")
+    return future.result()
