@@ -56,6 +56,7 @@ class GraphProcesses:
         self.log_dir = Path(log_dir) if log_dir else None
         self.env = dict(os.environ if env is None else env)
         self.env.setdefault("OMP_NUM_THREADS", "2")
+        self.env.setdefault("OPENBLAS_NUM_THREADS", "1")
         self.processes: dict[str, subprocess.Popen] = {}
 
     def command(self, name: str) -> list[str]:

@@ -2,15 +2,11 @@
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 
 import numpy as np
 
 from perch_common.mesh import Mesh
-
-# Open3D's OpenMP pool has hung in a futex when left to size itself; pin it.
-os.environ.setdefault("OMP_NUM_THREADS", str(min(os.cpu_count() or 1, 4)))
 
 MISS = -1
 
