@@ -1,0 +1,95 @@
+"""`perch filter MESH --surfaces S --target-mesh T --target-height H -o OUT`: the filtering stage offline."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from perch_common.mesh import Mesh, load_mesh
+from perch_common.target import TargetVolume
+from perch_common.transforms import parse_up_axis
+from perch_filtering.config import FilterConfig
+
+
+def register(sub) -> None:
+    p = sub.add_parser("filter", help="keep the surface regions where a drone can safely perch",
+                       description="Run the filtering stage on a mesh and its segmented surfaces; writes "
+                                   "OUT/regions.json (regions, per-filter removed area), OUT/surfaces.json "
+                                   "(oriented, classed surfaces) and OUT/regions.ply.")
+    p.add_argument("mesh", help="environment mesh (z-up unless --up says otherwise)")
+    p.add_argument("--surfaces", required=True,
+                   help="surfaces JSON ({'surfaces': [...]}, as written to OUT/surfaces.json), or 'segment' "
+                        "to segment the mesh first with perch_segmentation")
+    add_target_arguments(p)
+    p.add_argument("--up", default=None, help="up axis (+z, -y, or 'x y z'); default: the config's up_axis")
+    p.add_argument("--config", default=None, help="parameter YAML (default: config/perch.yaml)")
+    p.add_argument("-p", "--param", action="append", default=[], metavar="NAME=VALUE",
+                   help="override one filter parameter, e.g. -p allow_floor=true")
+    p.add_argument("-o", "--output", required=True, help="output folder")
+    p.set_defaults(func=run)
+
+
+def add_target_arguments(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("target volume (one of)")
+    g.add_argument("--target-mesh", help="footprint mesh, projected onto the floor and extruded")
+    g.add_argument("--target-height", type=float, default=1.2, help="extrusion of --target-mesh (m)")
+    g.add_argument("--target-box", nargs="+", type=float, metavar="V",
+                   help="cx cy cz sx sy sz [yaw_deg]: a box (yaw about z)")
+
+
+def target_from_args(args) -> TargetVolume:
+    if args.target_box:
+        v = args.target_box
+        if len(v) not in (6, 7):
+            raise ValueError(f"--target-box takes 6 or 7 numbers (cx cy cz sx sy sz [yaw_deg]), got {len(v)}")
+        yaw = np.radians(v[6]) if len(v) == 7 else 0.0
+        rot = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1.0]])
+        return TargetVolume(center=v[:3], size=v[3:6], rotation=rot)
+    if args.target_mesh:
+        return TargetVolume.from_footprint_mesh(load_mesh(args.target_mesh), args.target_height)
+    raise ValueError("give a target: --target-mesh PATH [--target-height H] or --target-box cx cy cz sx sy sz")
+
+
+def load_config(path: str | None, overrides: list[str]) -> tuple[FilterConfig, str]:
+    """The perch_filtering section of the parameter file (+ overrides) and the up_axis parameter."""
+    from perch_common.config import from_parameters, node_parameters
+
+    params = node_parameters("perch_filtering", path)
+    for item in overrides:
+        if "=" not in item:
+            raise ValueError(f"-p {item}: use NAME=VALUE")
+        key, value = item.split("=", 1)
+        if key not in FilterConfig.__dataclass_fields__:
+            raise ValueError(f"-p {key}: unknown filter parameter")
+        params[key] = value
+    return from_parameters(FilterConfig, params).validate(), str(params.get("up_axis", "+z"))
+
+
+def segment_surfaces(mesh: Mesh) -> list:
+    try:
+        from perch_segmentation.core import SegmentationConfig, segment_mesh
+    except ImportError as exc:
+        raise ValueError("--surfaces segment needs perch_segmentation installed") from exc
+    return segment_mesh(mesh, SegmentationConfig()).surfaces
+
+
+def run(args) -> int:
+    from perch_filtering.core import filter_surfaces
+    from perch_filtering.files import read_surfaces, write_result
+
+    config, up_axis = load_config(args.config, args.param)
+    mesh = load_mesh(args.mesh)
+    surfaces = segment_surfaces(mesh) if args.surfaces == "segment" else read_surfaces(args.surfaces)
+    target = target_from_args(args)
+    up = parse_up_axis(args.up or up_axis)
+    result = filter_surfaces(mesh, surfaces, target, up, config)
+    paths = write_result(Path(args.output), result)
+    print(result.message)
+    for name, path in paths.items():
+        print(f"  {name}: {path}")
+    removed = ", ".join(f"{k.replace('_', ' ')} {v:.2f}" for k, v in result.removed_area().items())
+    print(f"  removed (m^2): {removed}; {result.seconds:.2f} s", file=sys.stderr)
+    return 0

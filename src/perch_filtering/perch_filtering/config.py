@@ -1,0 +1,77 @@
+"""What makes a perch safe: the filter's configuration (PerchSpec fields plus raster/grid settings)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+
+def _f(default, description: str, unit: str | None = None):
+    meta = {"description": description}
+    if unit:
+        meta["unit"] = unit
+    return field(default=default, metadata=meta)
+
+
+@dataclass
+class FilterConfig:
+    """Defaults follow the original system (thesis) unless the description says otherwise."""
+
+    allow_walls: bool = _f(True, "perch on walls")
+    allow_ceiling: bool = _f(True, "perch on ceilings")
+    allow_floor: bool = _f(False, "land on floors (and other upward-facing surfaces)")
+    allow_intermediate: bool = _f(False, "perch on surfaces between the class angles")
+    class_angle_deg: float = _f(15.0, "tolerance of the floor / wall / ceiling classes", "deg")
+    min_recovery_height: float = _f(0.5, "free fall needed below a perch to recover", "m")
+    clearance_radius: float = _f(0.5, "no other geometry within this distance in front of a perch", "m")
+    window_width: float = _f(0.5, "perch window, horizontal side on walls", "m")
+    window_height: float = _f(0.5, "perch window, vertical side on walls (along gravity)", "m")
+    window_ellipse: bool = _f(False, "elliptic perch window instead of a rectangle")
+    raster_density: float = _f(50.0, "raster resolution of each surface", "px/m")
+    drone_radius: float = _f(0.35, "drone radius for flight clearance and the fall corridor", "m")
+    standoff: float = _f(0.5, "point in front of a perch (along its normal) that must be reachable", "m")
+    voxel_size: float = _f(0.05, "voxel size of the flight-reachability occupancy grid", "m")
+    los_offset: float = _f(0.02, "line-of-sight rays start this far in front of the surface", "m")
+    plane_tolerance: float = _f(0.03, "geometry closer to a surface's plane than this is the surface itself", "m")
+    floor_merge_tolerance: float = _f(0.1, "floor pieces within this height of the lowest are one floor", "m")
+    min_floor_area: float = _f(1.0, "smallest horizontal surface that may be the floor", "m^2")
+    min_region_area: float = _f(0.005, "regions smaller than this are dropped", "m^2")
+    max_cells_per_surface: int = _f(4_000_000, "refuse rasters larger than this (absurd density)")
+    max_voxels: int = _f(60_000_000, "refuse occupancy grids larger than this (absurd voxel size)")
+    seed: int = _f(0, "seed of the random samples used to orient surfaces")
+
+    @property
+    def class_angle(self) -> float:
+        return math.radians(self.class_angle_deg)
+
+    @property
+    def cell(self) -> float:
+        return 1.0 / self.raster_density
+
+    def validate(self) -> "FilterConfig":
+        """Raise ValueError naming every absurd value."""
+        problems = []
+        positive = ("raster_density", "voxel_size", "window_width", "window_height", "drone_radius")
+        for name in positive:
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                problems.append(f"{name}={value} must be > 0")
+        for name in ("min_recovery_height", "clearance_radius", "standoff", "los_offset", "plane_tolerance",
+                     "floor_merge_tolerance", "min_floor_area", "min_region_area"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                problems.append(f"{name}={value} must be >= 0")
+        if not (0 < self.class_angle_deg < 45):
+            problems.append(f"class_angle_deg={self.class_angle_deg} must be in (0, 45)")
+        if self.raster_density > 1000:
+            problems.append(f"raster_density={self.raster_density} px/m is absurd (max 1000)")
+        if self.voxel_size > 1.0:
+            problems.append(f"voxel_size={self.voxel_size} m is absurd (max 1.0)")
+        if self.voxel_size > self.drone_radius:
+            problems.append(f"voxel_size={self.voxel_size} m must not exceed drone_radius={self.drone_radius} m")
+        if self.standoff < self.drone_radius:
+            problems.append(f"standoff={self.standoff} m must be at least drone_radius={self.drone_radius} m "
+                            "(the drone's centre hovers there)")
+        if problems:
+            raise ValueError("filter configuration: " + "; ".join(problems))
+        return self

@@ -1,0 +1,107 @@
+"""perch_filtering node: serves /perch/filter (perch_interfaces/srv/Filter)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import sys
+import time
+import traceback
+from dataclasses import dataclass, field
+
+import numpy as np
+from perch_interfaces import srv
+from rclpy.node import Node
+from rclpy.qos import qos_profile_services_default
+from rclpy.service_introspection import ServiceIntrospectionState
+
+from perch_common.errors import EXPECTED
+from perch_common.ros.conversions import (mesh_from_msg, region_to_msg, removal_to_msg, surface_from_msg,
+                                          surface_to_msg, target_from_msg, xyz)
+from perch_common.ros.node_main import run_node
+from perch_common.ros.params import declare_config, read_config
+from perch_common.transforms import parse_up_axis
+from perch_filtering.config import FilterConfig
+from perch_filtering.core import filter_surfaces
+
+
+@dataclass
+class FilterNodeConfig(FilterConfig):
+    up_axis: str = field(default="+z", metadata={"description": "up axis when a request leaves `up` zero"})
+    introspection: bool = field(default=True, metadata={"description": "publish service events (recorder)"})
+
+    def filter_config(self) -> FilterConfig:
+        return FilterConfig(**{f.name: getattr(self, f.name) for f in dataclasses.fields(FilterConfig)})
+
+
+def config_from_spec(spec, base: FilterConfig) -> FilterConfig:
+    """The request's PerchSpec over the node's configuration (specified=false: the node's as is)."""
+    if not spec.specified:
+        return base
+    return dataclasses.replace(
+        base, allow_walls=bool(spec.allow_walls), allow_ceiling=bool(spec.allow_ceiling),
+        allow_floor=bool(spec.allow_floor), allow_intermediate=bool(spec.allow_intermediate),
+        class_angle_deg=math.degrees(spec.class_angle), min_recovery_height=spec.min_recovery_height,
+        clearance_radius=spec.clearance_radius, window_width=spec.window_width,
+        window_height=spec.window_height, window_ellipse=bool(spec.window_ellipse),
+        raster_density=spec.raster_density, drone_radius=spec.drone_radius, standoff=spec.standoff)
+
+
+class FilterNode(Node):
+    def __init__(self) -> None:
+        super().__init__("perch_filtering")
+        config = declare_config(self, FilterNodeConfig)
+        config.filter_config().validate()  # fail at start-up on a broken configuration
+        parse_up_axis(config.up_axis)
+        self._warm_up()
+        self.service = self.create_service(srv.Filter, "/perch/filter", self._filter)
+        if config.introspection:
+            self.service.configure_introspection(self.get_clock(), qos_profile_services_default,
+                                                 ServiceIntrospectionState.CONTENTS)
+        self.get_logger().info("ready: /perch/filter")
+
+    @staticmethod
+    def _warm_up() -> None:
+        """Open3D initialises its ray caster on first use (~0.8 s); pay that before the first request."""
+        from perch_common.mesh import Mesh
+        from perch_common.raycast import RayScene
+
+        RayScene(Mesh(np.eye(3), np.array([[0, 1, 2]]))).occluded(np.zeros((1, 3)), np.ones((1, 3)))
+
+    def _filter(self, request: srv.Filter.Request, response: srv.Filter.Response) -> srv.Filter.Response:
+        started = time.perf_counter()
+        try:
+            node_config = read_config(self, FilterNodeConfig)
+            try:
+                config = config_from_spec(request.spec, node_config.filter_config()).validate()
+            except ValueError as exc:
+                raise ValueError(f"perch spec: {exc}") from exc
+            target = target_from_msg(request.target)
+            if target is None:
+                raise ValueError("target volume kind DEFAULT: the filter needs an explicit target "
+                                 "(box or extruded footprint)")
+            up = xyz(request.up)
+            if not np.any(up):
+                up = parse_up_axis(node_config.up_axis)
+            surfaces = [surface_from_msg(s) for s in request.surfaces]
+            result = filter_surfaces(mesh_from_msg(request.mesh, "environment mesh"), surfaces, target, up, config)
+            response.regions = [region_to_msg(r) for r in result.regions]
+            response.removals = [removal_to_msg(r) for r in result.removals]
+            response.surfaces = [surface_to_msg(s) for s in result.surfaces]
+            response.success, response.message = True, result.message
+        except EXPECTED as exc:
+            response.success, response.message = False, str(exc)
+        except Exception as exc:  # keep serving; the traceback goes to the log
+            self.get_logger().error(traceback.format_exc())
+            response.success, response.message = False, f"internal error: {type(exc).__name__}: {exc}"
+        response.seconds = time.perf_counter() - started
+        self.get_logger().info(response.message)
+        return response
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(lambda: FilterNode(), args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,48 @@
+"""Precise errors for malformed filter input (the node turns them into success=false replies)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from perch_common.mesh import Mesh
+from perch_common.target import TargetVolume
+from perch_common.types import Surface
+
+
+def validate_inputs(mesh: Mesh, surfaces: list[Surface], target: TargetVolume | None, up: np.ndarray) -> np.ndarray:
+    """Check surfaces, target and up axis against the mesh; return the unit up vector."""
+    up = np.asarray(up, np.float64).reshape(-1)
+    if up.shape != (3,) or not np.isfinite(up).all() or np.linalg.norm(up) < 1e-9:
+        raise ValueError(f"up axis {up.tolist()} must be a finite, non-zero 3-vector")
+    up = up / np.linalg.norm(up)
+    if target is None:
+        raise ValueError("target volume: none given (the filter needs a box or footprint target)")
+    lo, hi = mesh.bounds()
+    centre = target.centroid()
+    if not np.isfinite(centre).all() or np.any(centre < lo - 1e-6) or np.any(centre > hi + 1e-6):
+        raise ValueError(f"target volume: its centre {np.round(centre, 3).tolist()} lies outside the mesh bounds "
+                         f"{np.round(lo, 3).tolist()} .. {np.round(hi, 3).tolist()}")
+    seen: set[int] = set()
+    for k, s in enumerate(surfaces):
+        name = f"surface {s.id} (input #{k})"
+        if s.id in seen:
+            raise ValueError(f"{name}: duplicate surface id {s.id}")
+        seen.add(s.id)
+        f = s.frame
+        parts = np.concatenate([np.ravel(f.origin), np.ravel(f.normal), np.ravel(f.axis_u), np.ravel(f.axis_v)])
+        if parts.shape != (12,) or not np.isfinite(parts).all():
+            raise ValueError(f"{name}: frame has NaN, infinite or missing components")
+        if abs(np.linalg.norm(f.normal) - 1.0) > 1e-3:
+            raise ValueError(f"{name}: frame normal has length {np.linalg.norm(f.normal):.4f}, expected 1")
+        faces = np.asarray(s.face_indices)
+        if len(faces) and (faces.min() < 0 or faces.max() >= mesh.num_faces):
+            raise ValueError(f"{name}: face indices {int(faces.min())}..{int(faces.max())} outside the mesh's "
+                             f"0..{mesh.num_faces - 1}")
+        if not s.boundary and not len(faces):
+            raise ValueError(f"{name}: has neither a boundary nor faces")
+        for poly in s.boundary:
+            for ring in poly:
+                ring = np.asarray(ring, np.float64)
+                if ring.ndim != 2 or ring.shape[1] != 2 or not np.isfinite(ring).all():
+                    raise ValueError(f"{name}: boundary ring of shape {ring.shape} is not finite (K,2)")
+    return up

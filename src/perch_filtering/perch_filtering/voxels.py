@@ -1,0 +1,120 @@
+"""Voxel occupancy grid of the environment: free space seen from the target and flight reachability."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from perch_common.target import TargetVolume
+from perch_common.transforms import rotation_between
+from perch_filtering.sampling import project
+
+SIX_CONNECTED = ndimage.generate_binary_structure(3, 1)
+
+
+@dataclass
+class FlightGrid:
+    """Occupancy in a gravity-aligned local frame (local = rotation @ world); index = floor((local-origin)/voxel).
+
+    `open_space`: voxels at least ~1.5 voxels from geometry connected to the target (where the room
+    was observed from). `reachable`: voxels where the drone's centre fits (drone radius) connected
+    to the target by flight. `hover`: reachable voxels whose every point is a drone radius from
+    geometry (centre distance >= radius + half a voxel diagonal). Outside the grid counts as blocked.
+    """
+
+    rotation: np.ndarray
+    origin: np.ndarray
+    voxel: float
+    occupied: np.ndarray
+    open_space: np.ndarray
+    reachable: np.ndarray
+    hover: np.ndarray | None = None
+
+    def indices(self, points: np.ndarray) -> np.ndarray:
+        local = project(np.asarray(points, np.float64).reshape(-1, 3), self.rotation)
+        return np.floor((local - self.origin) / self.voxel).astype(np.int64)
+
+    def lookup(self, grid: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """Value of a bool grid at each point; False outside the grid."""
+        idx = self.indices(points)
+        inside = np.all((idx >= 0) & (idx < np.array(grid.shape)), axis=1)
+        out = np.zeros(len(idx), bool)
+        ii = idx[inside]
+        out[inside] = grid[ii[:, 0], ii[:, 1], ii[:, 2]]
+        return out
+
+
+def grid_rotation(up: np.ndarray, wall_normals: np.ndarray | None = None,
+                  wall_weights: np.ndarray | None = None) -> np.ndarray:
+    """Rotation taking `up` to +z and, when walls are known, their dominant direction to +x."""
+    rot = rotation_between(up, np.array([0.0, 0.0, 1.0]))
+    if wall_normals is None or len(wall_normals) == 0:
+        return rot
+    local = wall_normals @ rot.T
+    angle = np.arctan2(local[:, 1], local[:, 0])
+    # Dominant direction modulo 90 degrees: average on the circle of 4 * angle.
+    w = np.ones(len(angle)) if wall_weights is None else wall_weights
+    mean4 = np.arctan2((w * np.sin(4 * angle)).sum(), (w * np.cos(4 * angle)).sum()) / 4
+    c, s = np.cos(-mean4), np.sin(-mean4)
+    yaw = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return yaw @ rot
+
+
+def build_flight_grid(points: np.ndarray, rotation: np.ndarray, target: TargetVolume, voxel: float,
+                      drone_radius: float, max_voxels: int, seed: int = 0) -> FlightGrid:
+    """Occupancy from surface samples (spacing <= voxel), padded by one blocked layer."""
+    local = project(points, rotation)
+    lo = local.min(axis=0) - voxel  # one voxel of blocked shell around the mesh bounds
+    shape = np.floor((local.max(axis=0) - lo) / voxel).astype(np.int64) + 2
+    if int(np.prod(shape)) > max_voxels:
+        raise ValueError(f"occupancy grid of {shape.tolist()} voxels exceeds max_voxels={max_voxels}: "
+                         f"raise voxel_size ({voxel} m) or crop the mesh")
+    occupied = np.zeros(tuple(shape), bool)
+    idx = np.floor((local - lo) / voxel).astype(np.int64)
+    occupied[idx[:, 0], idx[:, 1], idx[:, 2]] = True
+    occupied[[0, -1], :, :] = occupied[:, [0, -1], :] = True
+    occupied[:, :, [0, -1]] = True
+    # In voxels, from free voxel centres to occupied centres (exact up to just past the drone radius).
+    distance = free_distance(occupied, reach=int(np.ceil(drone_radius / voxel)) + 3)
+    grid = FlightGrid(rotation, lo, voxel, occupied, occupied, occupied)
+    seeds = grid.indices(target.sample(count=4000, seed=seed))
+    seeds = seeds[np.all((seeds >= 0) & (seeds < shape), axis=1)]
+    grid.open_space = _connected_to(distance > 1.5, seeds)
+    grid.reachable = _connected_to(distance >= drone_radius / voxel, seeds)
+    grid.hover = grid.reachable & (distance >= drone_radius / voxel + np.sqrt(3.0) / 2)
+    return grid
+
+
+def free_distance(occupied: np.ndarray, reach: int = 16) -> np.ndarray:
+    """Exact Euclidean distance (voxels) from each voxel centre to the nearest occupied centre.
+
+    scipy's 3D EDT is slow at these sizes; this runs OpenCV's exact 2D transform per z slice and
+    combines the slices (d^2 = min over dz of d2d(z+dz)^2 + dz^2); distances beyond `reach` are
+    reported as `reach`.
+    """
+    import cv2
+
+    nx, ny, nz = occupied.shape
+    sep = reach + 2
+    # Stack the slices into one tall image, separated by free rows so they cannot see each other.
+    stack = np.ones((nz, nx + sep, ny), np.uint8)
+    stack[:, :nx, :] = ~np.moveaxis(occupied, 2, 0)
+    d2 = cv2.distanceTransform(stack.reshape(-1, ny), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    d2 = np.minimum(d2.reshape(nz, nx + sep, ny)[:, :nx, :], reach).astype(np.float32) ** 2
+    best = d2.copy()
+    for dz in range(1, reach + 1):
+        shifted = d2[dz:] + dz * dz
+        np.minimum(best[:-dz], shifted, out=best[:-dz])
+        np.minimum(best[dz:], d2[:-dz] + dz * dz, out=best[dz:])
+    return np.moveaxis(np.sqrt(best), 0, 2)
+
+
+def _connected_to(free: np.ndarray, seeds: np.ndarray) -> np.ndarray:
+    labels, _ = ndimage.label(free, structure=SIX_CONNECTED)
+    hit = np.unique(labels[seeds[:, 0], seeds[:, 1], seeds[:, 2]]) if len(seeds) else np.zeros(0, int)
+    hit = hit[hit > 0]
+    if len(hit) == 0:
+        return np.zeros_like(free)
+    return np.isin(labels, hit)

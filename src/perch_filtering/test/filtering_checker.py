@@ -1,0 +1,218 @@
+"""Independent validity oracle for perch points on generated scenes (shares no code with the filter).
+
+It decides from the scene's ground truth (plane normals into free space, solid voxel grid, floor)
+and direct geometric tests on the mesh (ray casts and closest points), point by point:
+  class      plane class from the ground-truth normal (angle to up) is enabled;
+  recovery   at least h_min above the floor, and nothing in the fall corridor: walls, the box
+             [0, 2 rho] deep and +-rho wide in front of the wall from the point's height down h_min;
+             ceilings, the +-rho square column below the point, h_min deep;
+  clearance  no other geometry in front of the plane (deeper than TOL) within clearance_radius;
+  sight      the segment from the point (offset 2 cm) to the target centre misses the mesh;
+  window     every point of the perch window centred on the point is on the same ground-truth
+             plane and passes the four tests above;
+  reach      the standoff point is at least rho from the mesh, and its voxel is 6-connected to the
+             target volume through voxels whose centre is at least rho from solid voxel centres.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from perch_common.mesh import Mesh
+from perch_common.raycast import RayScene
+from perch_common.scene_generator import GeneratedScene, SemanticClass
+from perch_common.types import PlaneFrame
+
+TOL = 0.01          # m: geometry closer to a plane than this is the plane itself
+CORRIDOR_RAYS = 6   # per side of the corridor's top face (5 along the depth of a wall's corridor)
+WINDOW_POINTS = 7   # per side of the perch window
+
+
+@dataclass
+class Spec:
+    allow_walls: bool = True
+    allow_ceiling: bool = True
+    allow_floor: bool = False
+    allow_intermediate: bool = False
+    class_angle_deg: float = 15.0
+    min_recovery_height: float = 0.5
+    clearance_radius: float = 0.5
+    window_width: float = 0.5
+    window_height: float = 0.5
+    drone_radius: float = 0.35
+    standoff: float = 0.5
+
+
+class SceneOracle:
+    def __init__(self, scene: GeneratedScene, spec: Spec):
+        self.scene, self.spec = scene, spec
+        self.mesh = scene.mesh
+        self.rays = RayScene(self.mesh)
+        self.up = np.asarray(scene.up, np.float64)
+        self.centre = scene.target.centroid()
+        floors = [p for p in scene.planes if p.semantic_class == SemanticClass.FLOOR]
+        self.floor_z = min(float(p.centroid @ self.up) for p in floors)
+        self._others: dict[int, RayScene] = {}
+        self.drone_free = self._reachable_voxels()
+
+    # --- per plane -----------------------------------------------------------------------------
+    def plane_class(self, plane_id: int) -> str:
+        n = self.scene.planes[plane_id].normal
+        c = float(n @ self.up)
+        a = np.radians(self.spec.class_angle_deg)
+        if c >= np.cos(a):
+            return "floor"
+        if c <= -np.cos(a):
+            return "ceiling"
+        return "wall" if abs(c) <= np.sin(a) else "intermediate"
+
+    def enabled(self, plane_id: int) -> bool:
+        sem = self.scene.planes[plane_id].semantic_class
+        if sem in (SemanticClass.DOOR, SemanticClass.WINDOW):
+            return False
+        s = self.spec
+        return {"wall": s.allow_walls, "ceiling": s.allow_ceiling, "floor": s.allow_floor,
+                "intermediate": s.allow_intermediate}[self.plane_class(plane_id)]
+
+    def frame(self, plane_id: int) -> PlaneFrame:
+        p = self.scene.planes[plane_id]
+        return PlaneFrame.from_normal(p.centroid, p.normal, self.up)
+
+    def _other_geometry(self, plane_id: int) -> RayScene | None:
+        """Faces of other planes reaching more than TOL in front of this plane (none behind it)."""
+        if plane_id not in self._others:
+            p = self.scene.planes[plane_id]
+            depth = (self.mesh.triangles() - p.centroid) @ p.normal
+            keep = (self.scene.face_plane != plane_id) & (depth.max(axis=1) > TOL) & (depth.min(axis=1) > -TOL)
+            self._others[plane_id] = RayScene(self.mesh.submesh(keep)) if keep.any() else None
+        return self._others[plane_id]
+
+    # --- tests ---------------------------------------------------------------------------------
+    def pointwise(self, plane_id: int, points: np.ndarray) -> np.ndarray:
+        """Class, recovery, clearance and line of sight for points on one plane."""
+        points = np.asarray(points, np.float64).reshape(-1, 3)
+        if not self.enabled(plane_id) or len(points) == 0:
+            return np.zeros(len(points), bool)
+        n = self.scene.planes[plane_id].normal
+        ok = self._recovery(plane_id, points) & self._clearance(plane_id, points)
+        return ok & self._sight(points, n)
+
+    def on_plane(self, plane_id: int, points: np.ndarray) -> np.ndarray:
+        n = self.scene.planes[plane_id].normal
+        hits = self.rays.cast(points + 0.05 * n, np.repeat(-n[None], len(points), axis=0))
+        plane = np.where(hits.hit, self.scene.face_plane[np.maximum(hits.face, 0)], -1)
+        return (plane == plane_id) & (np.abs(hits.distance - 0.05) < 0.01)
+
+    def _recovery(self, plane_id: int, points: np.ndarray) -> np.ndarray:
+        s, up = self.spec, self.up
+        kind = self.plane_class(plane_id)
+        ok = points @ up >= self.floor_z + s.min_recovery_height
+        if kind == "floor":
+            return np.ones(len(points), bool)
+        f = self.frame(plane_id)
+        a = np.linspace(-s.drone_radius, s.drone_radius, CORRIDOR_RAYS)
+        if kind == "ceiling":
+            grid = [(x, y) for x in a for y in a]
+            tops = np.concatenate([points + x * f.axis_u + y * f.axis_v - TOL * up for x, y in grid])
+        else:  # in front of the wall: lateral +-rho, depth 0..2 rho (TOL off the wall)
+            side = np.cross(up, f.normal)
+            side /= np.linalg.norm(side)
+            depth = np.linspace(TOL, 2 * s.drone_radius, CORRIDOR_RAYS - 1)
+            tops = np.concatenate([points + x * side + d * f.normal for x in a for d in depth])
+        down = np.repeat(-up[None], len(tops), axis=0)
+        hits = self.rays.cast(tops, down)
+        blocked = (hits.distance < s.min_recovery_height) | self._solid(tops)
+        return ok & ~blocked.reshape(-1, len(points)).any(axis=0)
+
+    def _clearance(self, plane_id: int, points: np.ndarray) -> np.ndarray:
+        others = self._other_geometry(plane_id)
+        if others is None:
+            return np.ones(len(points), bool)
+        _, _, distance = others.closest_points(points)
+        return distance >= self.spec.clearance_radius
+
+    def _sight(self, points: np.ndarray, normal: np.ndarray) -> np.ndarray:
+        facing = (self.centre - points) @ normal > 0
+        blocked = self.rays.occluded(points + 0.02 * normal, np.repeat(self.centre[None], len(points), axis=0))
+        return facing & ~blocked
+
+    def window_ok(self, plane_id: int, points: np.ndarray) -> np.ndarray:
+        """The whole perch window around each point lies on the plane and passes `pointwise`."""
+        f = self.frame(plane_id)
+        s = self.spec
+        us = np.linspace(-s.window_width / 2, s.window_width / 2, WINDOW_POINTS)
+        vs = np.linspace(-s.window_height / 2, s.window_height / 2, WINDOW_POINTS)
+        offsets = [u * f.axis_u + v * f.axis_v for u in us for v in vs]
+        around = np.concatenate([points + o for o in offsets])
+        ok = self.on_plane(plane_id, around) & self.pointwise(plane_id, around)
+        return ok.reshape(len(offsets), len(points)).all(axis=0)
+
+    def _voxel(self, points: np.ndarray) -> np.ndarray:
+        """Ground-truth voxel index of world points (written out: BLAS matmul is slow under load)."""
+        grid = self.scene.free_space
+        inv = np.linalg.inv(grid.world_from_grid)
+        local = sum(points[:, k, None] * inv[:3, k] for k in range(3)) + inv[:3, 3]
+        return np.floor((local - grid.origin) / grid.voxel_size).astype(np.int64)
+
+    def _solid(self, points: np.ndarray) -> np.ndarray:
+        occupied = self.scene.free_space.occupied
+        idx = self._voxel(points)
+        inside = np.all((idx >= 0) & (idx < occupied.shape), axis=1)
+        out = np.ones(len(points), bool)
+        out[inside] = occupied[tuple(idx[inside].T)]
+        return out
+
+    def reachable(self, plane_id: int, points: np.ndarray) -> np.ndarray:
+        stand = points + self.spec.standoff * self.scene.planes[plane_id].normal
+        idx = self._voxel(stand)
+        inside = np.all((idx >= 0) & (idx < self.drone_free.shape), axis=1)
+        out = np.zeros(len(points), bool)
+        out[inside] = self.drone_free[tuple(idx[inside].T)]
+        if out.any():
+            _, _, distance = self.rays.closest_points(stand[out])
+            out[out] = distance >= self.spec.drone_radius
+        return out
+
+    def valid(self, plane_id: int, points: np.ndarray) -> np.ndarray:
+        points = np.asarray(points, np.float64).reshape(-1, 3)
+        if not self.enabled(plane_id) or len(points) == 0:
+            return np.zeros(len(points), bool)
+        return self.window_ok(plane_id, points) & self.reachable(plane_id, points)
+
+    def _reachable_voxels(self) -> np.ndarray:
+        """Voxels whose centre is >= rho from solid voxel centres, 6-connected to the target."""
+        grid = self.scene.free_space
+        free = ~grid.occupied
+        clearance = ndimage.distance_transform_edt(free, sampling=grid.voxel_size)
+        fits = free & (clearance >= self.spec.drone_radius)
+        labels, _ = ndimage.label(fits)
+        idx = self._voxel(self.scene.target.sample(count=3000, seed=1))
+        idx = idx[np.all((idx >= 0) & (idx < fits.shape), axis=1)]
+        ids = np.unique(labels[tuple(idx.T)])
+        return np.isin(labels, ids[ids > 0])
+
+
+def sample_plane(scene: GeneratedScene, plane_id: int, spacing: float, rng: np.random.Generator) -> np.ndarray:
+    """Uniform random points on a ground-truth plane's faces, about one per spacing^2."""
+    faces = np.flatnonzero(scene.face_plane == plane_id)
+    areas = scene.mesh.face_areas()[faces]
+    count = max(1, int(round(areas.sum() / spacing ** 2)))
+    pick = rng.choice(faces, size=count, p=areas / areas.sum())
+    return _in_triangles(scene.mesh.triangles()[pick], rng)
+
+
+def sample_mesh_surface(mesh: Mesh, count: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Uniform random points on a mesh (region meshes) and the face of each."""
+    areas = mesh.face_areas()
+    pick = rng.choice(mesh.num_faces, size=count, p=areas / areas.sum())
+    return _in_triangles(mesh.triangles()[pick], rng), pick
+
+
+def _in_triangles(tris: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    r1, r2 = rng.random(len(tris)), rng.random(len(tris))
+    flip = r1 + r2 > 1
+    r1[flip], r2[flip] = 1 - r1[flip], 1 - r2[flip]
+    return tris[:, 0] + r1[:, None] * (tris[:, 1] - tris[:, 0]) + r2[:, None] * (tris[:, 2] - tris[:, 0])

@@ -1,0 +1,36 @@
+"""The real apartment scan (../shared/data), segmented by perch_segmentation, through the filter."""
+
+import numpy as np
+import pytest
+
+from perch_common.data import shared_file
+
+pytestmark = pytest.mark.data
+
+
+def test_real_apartment_regions_see_the_target_from_the_free_side():
+    mesh_path = shared_file("meshes", "apartment.ply")
+    target_path = shared_file("meshes", "apartment_target.ply")
+    if mesh_path is None or target_path is None:
+        pytest.skip("../shared/data not found: meshes/apartment.ply and apartment_target.ply")
+    segmentation = pytest.importorskip("perch_segmentation.core")
+    from perch_common.mesh import load_mesh
+    from perch_common.raycast import RayScene
+    from perch_common.target import TargetVolume
+    from perch_filtering.core import filter_surfaces
+
+    mesh = load_mesh(mesh_path)
+    target = TargetVolume.from_footprint_mesh(load_mesh(target_path), 1.2)
+    surfaces = segmentation.segment_mesh(mesh, segmentation.SegmentationConfig()).surfaces
+    result = filter_surfaces(mesh, surfaces, target, np.array([0.0, 0.0, 1.0]))
+    assert result.regions, result.message
+    # The floor is the scan's lowest large horizontal surface (the scan's floor lies near z = 0).
+    assert -0.1 < result.floor_height < 0.15
+    assert {r.surface_class.name for r in result.regions} <= {"WALL", "CEILING"}
+    scene = RayScene(mesh)
+    centre = target.centroid()
+    for r in result.regions:
+        points = r.mesh.vertices + 0.05 * r.frame.normal
+        assert np.all((centre - points) @ r.frame.normal > 0)
+        assert not scene.occluded(points, np.repeat(centre[None], len(points), axis=0)).any()
+        assert r.frame.origin[2] - result.floor_height > 0.5
