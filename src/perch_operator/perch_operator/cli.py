@@ -1,0 +1,163 @@
+"""`perch plan` (one mission from a mesh, bag or generated scene) and `perch demo` (`make demo`)."""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from perch_common.errors import PerchError
+
+DEMO_SEED = 7
+
+
+def register_plan(sub) -> None:
+    p = sub.add_parser("plan", help="run one mission: where should the drones perch? (launches what it needs)")
+    source = p.add_mutually_exclusive_group(required=True)
+    source.add_argument("--mesh", type=Path, help="environment mesh (PLY/OBJ/GLB/STL, z-up)")
+    source.add_argument("--bag", type=Path, help="RGB-D bag to reconstruct first")
+    source.add_argument("--scene", type=int, metavar="SEED", help="a generated scene with this seed")
+    p.add_argument("--kind", default="apartment", help="generated scene kind (room, l_shaped, two_rooms, apartment)")
+    p.add_argument("--target", default=None, metavar="SPEC",
+                   help="floor (the cropped floor area, default for --mesh/--bag) | "
+                        "box:CX,CY,CZ,SX,SY,SZ[,YAW_DEG] | FOOTPRINT_MESH[:HEIGHT] (extruded, default 1.2 m); "
+                        "--scene defaults to the scene's own target")
+    p.add_argument("--cameras", type=int, default=0, help="number of cameras (0: the placement node's default)")
+    p.add_argument("--seed", type=int, default=-1, help="optimiser seed (negative: the node's default)")
+    p.add_argument("--auto-accept", action="store_true", help="accept every proposal (else: perch operator ...)")
+    _common(p)
+    p.set_defaults(func=_plan)
+
+
+def register_demo(sub) -> None:
+    p = sub.add_parser("demo", help="the demo: a seeded apartment, auto-accepted, outputs in out/demo/")
+    p.add_argument("--seed", type=int, default=DEMO_SEED, help="scene seed")
+    p.add_argument("--cameras", type=int, default=0, help="number of cameras (0: the placement node's default)")
+    p.set_defaults(func=_demo, out=Path("out/demo"), config=None, param=[], timeout=600.0, no_launch=False,
+                   quiet=False)
+
+
+def _common(p) -> None:
+    p.add_argument("-o", "--out", type=Path, required=True, help="output folder")
+    p.add_argument("--config", type=Path, help="parameter file for the nodes it launches")
+    p.add_argument("-p", "--param", action="append", default=[], metavar="NODE:PARAM:=VALUE",
+                   help="parameter override for the nodes it launches (repeatable)")
+    p.add_argument("--no-launch", action="store_true", help="use the running graph only")
+    p.add_argument("--timeout", type=float, default=900.0, help="mission time limit (s)")
+    p.add_argument("--quiet", action="store_true", help="no progress display")
+
+
+def parse_target(spec: str | None):
+    """The TargetVolume message for --target (None: the scene's / crop's default)."""
+    from perch_interfaces import msg as pm
+
+    from perch_common.mesh import load_mesh
+    from perch_common.ros.conversions import target_to_msg
+    from perch_common.target import TargetVolume
+
+    if spec is None or spec == "floor":
+        return pm.TargetVolume(kind=pm.TargetVolume.KIND_DEFAULT)
+    if spec.startswith("box:"):
+        try:
+            values = [float(v) for v in spec[4:].split(",")]
+        except ValueError:
+            raise ValueError(f"--target {spec}: numbers expected after box:") from None
+        if len(values) not in (6, 7):
+            raise ValueError(f"--target {spec}: give CX,CY,CZ,SX,SY,SZ and optionally YAW_DEG")
+        yaw = math.radians(values[6]) if len(values) == 7 else 0.0
+        rotation = np.array([[math.cos(yaw), -math.sin(yaw), 0], [math.sin(yaw), math.cos(yaw), 0], [0, 0, 1]])
+        return target_to_msg(TargetVolume(center=values[:3], size=values[3:6], rotation=rotation))
+    path, height = spec, 1.2
+    head, sep, tail = spec.rpartition(":")
+    if sep and tail.replace(".", "", 1).isdigit():
+        path, height = head, float(tail)
+    return target_to_msg(TargetVolume.from_footprint_mesh(load_mesh(Path(path)), height))
+
+
+def _plan(args) -> int:
+    from perch_interfaces.action import PlanPerches
+
+    from perch_common.ros.conversions import mesh_to_msg, target_to_msg
+
+    goal = PlanPerches.Goal(num_cameras=max(0, args.cameras), seed=args.seed, auto_accept=args.auto_accept)
+    goal.target = parse_target(args.target)
+    describe = {"cameras_asked": args.cameras, "seed": args.seed}
+    if args.mesh:
+        from perch_common.mesh import load_mesh
+
+        goal.mesh = mesh_to_msg(load_mesh(args.mesh))
+        describe["source"] = f"mesh {args.mesh}"
+    elif args.bag:
+        if not args.bag.exists():
+            raise FileNotFoundError(f"{args.bag}: no such bag")
+        goal.bag_path = str(args.bag.resolve())
+        describe["source"] = f"bag {args.bag}"
+    else:
+        from perch_common.scene_generator import generate_scene
+
+        scene = generate_scene(args.scene, args.kind)
+        goal.mesh = mesh_to_msg(scene.mesh)
+        if args.target is None:
+            goal.target = target_to_msg(scene.target)
+        describe["source"] = f"generated {args.kind} scene, seed {args.scene}"
+    return run_plan(goal, args, describe)
+
+
+def run_plan(goal, args, describe: dict) -> int:
+    """Launch what is missing, run and record the mission, write the outputs, print the summary."""
+    import rclpy
+
+    from perch_operator.runner import client_context, ensure_graph, use_fast_liveliness
+
+    use_fast_liveliness()
+    started = time.monotonic()
+    with client_context():
+        node = rclpy.create_node("perch_plan")
+        graph = None if args.no_launch else ensure_graph(node, args.config, args.param, args.out / "logs")
+        try:
+            return _mission_and_outputs(node, goal, args, describe, started)
+        finally:
+            if graph is not None:
+                graph.stop()
+
+
+def _mission_and_outputs(node, goal, args, describe: dict, started: float) -> int:
+    from perch_operator.runner import run_recorded_mission, summary_table, write_outputs
+
+    outputs = run_recorded_mission(node, goal, args.out, progress=not args.quiet, timeout=args.timeout,
+                                   describe=describe)
+    result = outputs.result
+    if not result.success:
+        raise PerchError(f"mission failed: {result.message} (recording: {outputs.mcap})")
+    write_outputs(outputs)
+    print(f"\n{describe.get('source', 'mission')}: {result.message}")
+    print(summary_table(result))
+    print(f"outputs in {args.out}/: waypoints.yaml, run.mcap, run.rrd, report.html  "
+          f"({time.monotonic() - started:.1f} s in all, mission {outputs.mission_seconds:.1f} s)")
+    return 0
+
+
+def _demo(args) -> int:
+    """`make demo`: launch the graph, plan on the seeded apartment with auto-accept, print the summary."""
+    from perch_interfaces.action import PlanPerches
+
+    from perch_common.ros.conversions import mesh_to_msg, target_to_msg
+    from perch_common.scene_generator import generate_scene
+
+    # The demo's graph talks on this machine only; it never disturbs (or joins) a networked graph.
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    os.environ.setdefault("OMP_NUM_THREADS", "2")
+    started = time.monotonic()
+    scene = generate_scene(args.seed, "apartment")
+    goal = PlanPerches.Goal(mesh=mesh_to_msg(scene.mesh), target=target_to_msg(scene.target),
+                            num_cameras=max(0, args.cameras), auto_accept=True, seed=-1)
+    print(f"perch demo: generated apartment (seed {args.seed}): {scene.mesh.num_faces:,} faces, "
+          f"target {scene.target.volume():.1f} m^3", file=sys.stderr)
+    code = run_plan(goal, args, {"source": f"generated apartment scene, seed {args.seed}", "demo": True})
+    print(f"perch demo: done in {time.monotonic() - started:.1f} s; open {args.out}/report.html "
+          f"or `perch view {args.out}/run.rrd`")
+    return code

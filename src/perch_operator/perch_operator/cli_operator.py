@@ -1,0 +1,211 @@
+"""`perch operator accept|reject|failed|list`, `perch replay RUN.mcap [--check]`, `perch view RUN.rrd`,
+`perch record OUT.mcap`, `perch dispatch`."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from perch_common.errors import PerchError
+
+
+def register(sub) -> None:
+    p = sub.add_parser("operator", help="decide on proposed perches of the running mission")
+    actions = p.add_subparsers(dest="operator_action", metavar="ACTION")
+    for name, help_text in (("accept", "accept a proposal"), ("reject", "reject a proposal (re-plans that drone)"),
+                            ("failed", "report an accepted perch that failed in flight (re-plans it)")):
+        a = actions.add_parser(name, help=help_text)
+        a.add_argument("id", type=int, help="proposal id (see `perch operator list`)")
+        a.add_argument("--reason", default="", help="why (recorded with the decision)")
+        a.set_defaults(func=_decide, decision=name)
+    lst = actions.add_parser("list", help="show the proposals of the current mission")
+    lst.add_argument("--wait", type=float, default=2.0, help="seconds to collect proposals")
+    lst.set_defaults(func=_list)
+    p.set_defaults(func=lambda args: p.print_help() or 2)
+
+
+def _with_node(name: str, body):
+    import rclpy
+
+    from perch_operator.runner import client_context
+
+    with client_context():
+        return body(rclpy.create_node(name))
+
+
+def _decide(args) -> int:
+    from perch_interfaces.srv import Confirm
+
+    from perch_common.ros.testing import call_service
+
+    code = {"accept": Confirm.Request.ACCEPT, "reject": Confirm.Request.REJECT,
+            "failed": Confirm.Request.FAILED_IN_FLIGHT}[args.decision]
+    request = Confirm.Request(proposal_id=args.id, decision=code, reason=args.reason)
+
+    def body(node) -> int:
+        try:
+            reply = call_service(node, Confirm, "/perch/confirm", request, timeout=60, wait=10)
+        except TimeoutError as exc:
+            raise PerchError(f"{exc}; is the graph running (`perch launch`)?") from None
+        if not reply.success:
+            raise PerchError(reply.message)
+        print(reply.message)
+        if reply.replacement.id:
+            print(_proposal_line(reply.replacement))
+        return 0
+
+    return _with_node("perch_operator_cli", body)
+
+
+def _proposal_line(p) -> str:
+    from perch_operator.proposals import Status
+
+    pos = p.placement.drone_pose.position
+    return (f"proposal {p.id:>4}  drone {p.placement.drone_index}  {Status(p.status).name.lower():<8} "
+            f"at ({pos.x:.2f}, {pos.y:.2f}, {pos.z:.2f}) m  gain {p.placement.marginal_gain:.4f}"
+            + (f"  ({p.reason})" if p.reason else ""))
+
+
+def _list(args) -> int:
+    from perch_interfaces.msg import Proposal
+
+    from perch_operator.node import LATCHED
+    from perch_operator.runner import spin_for
+
+    def body(node) -> int:
+        latest: dict[int, Proposal] = {}
+        node.create_subscription(Proposal, "/perch/proposals", lambda m: latest.__setitem__(m.id, m), LATCHED)
+        spin_for(node, args.wait)
+        if not latest:
+            print("no proposals (is a mission running? `perch plan ...`)")
+        for pid in sorted(latest):
+            print(_proposal_line(latest[pid]))
+        return 0
+
+    return _with_node("perch_operator_list", body)
+
+
+def register_replay(sub) -> None:
+    p = sub.add_parser("replay", help="re-send a recorded mission's stage requests to the live graph")
+    p.add_argument("recording", type=Path, help="run.mcap written by perch plan / perch demo")
+    p.add_argument("--check", action="store_true", help="compare every reply with the recorded one; "
+                                                        "exit 1 on any difference")
+    p.add_argument("--stages", help="comma-separated subset (clean,crop,segment,filter,optimise,reconstruct)")
+    p.add_argument("--rtol", type=float, default=1e-4, help="relative tolerance for numbers")
+    p.add_argument("--atol", type=float, default=1e-5, help="absolute tolerance for numbers")
+    p.add_argument("--launch", action="store_true", help="start the graph for the replay (else use the running one)")
+    p.add_argument("--config", type=Path, help="parameter file for --launch")
+    p.add_argument("-p", "--param", action="append", default=[], metavar="NODE:PARAM:=VALUE",
+                   help="parameter override for --launch (repeatable)")
+    p.set_defaults(func=_replay)
+
+
+def _replay(args) -> int:
+    from perch_operator.diff import Tolerance
+    from perch_operator.replay import replay, summary_line
+    from perch_operator.runner import ensure_graph
+
+    if not args.recording.is_file():
+        raise FileNotFoundError(f"{args.recording}: no such recording")
+
+    def body(node) -> int:
+        logs = Path(tempfile.mkdtemp(prefix="perch_replay_logs_"))
+        graph = ensure_graph(node, args.config, args.param, logs) if args.launch else None
+        try:
+            outcomes = replay(node, args.recording, check=args.check, tol=Tolerance(args.rtol, args.atol),
+                              stages=args.stages.split(",") if args.stages else None)
+        finally:
+            if graph is not None:
+                graph.stop()
+        line = summary_line(outcomes, args.check)
+        print(line)
+        return 1 if args.check and "FAILED" in line else 0
+
+    return _with_node("perch_replay", body)
+
+
+def register_dispatch(sub) -> None:
+    p = sub.add_parser("dispatch", help="receive accepted perch waypoints (a minimal drone dispatcher)")
+    p.add_argument("--output", type=Path, help="keep this YAML file of the latest waypoint per drone")
+    p.set_defaults(func=_dispatch)
+
+
+def _dispatch(args) -> int:
+    from perch_operator.dispatcher import main
+
+    return main(args.output)
+
+
+def register_record(sub) -> None:
+    p = sub.add_parser("record", help="record every /perch topic and stage call to an MCAP file until Ctrl-C "
+                                      "(for missions started by another client)")
+    p.add_argument("output", type=Path, help="MCAP file to write")
+    p.add_argument("--duration", type=float, default=0.0, help="stop after this many seconds (0: at Ctrl-C)")
+    p.set_defaults(func=_record)
+
+
+def _record(args) -> int:
+    from perch_operator.recorder import MissionRecorder
+    from perch_operator.runner import spin_for
+
+    def body(node) -> int:
+        recorder = MissionRecorder(node, args.output)
+        started = time.monotonic()
+        print(f"perch record: recording /perch to {args.output} (Ctrl-C stops)", file=sys.stderr)
+        try:
+            while not args.duration or time.monotonic() - started < args.duration:
+                recorder.refresh()  # topics and services that appeared since
+                spin_for(node, 1.0)
+        except KeyboardInterrupt:
+            pass
+        recorder.close()
+        print(f"perch record: {sum(recorder.counts.values())} messages on {len(recorder.counts)} topic(s)",
+              file=sys.stderr)
+        return 0
+
+    return _with_node("perch_record", body)
+
+
+def register_view(sub) -> None:
+    p = sub.add_parser("view", help="open a mission's rerun recording (run.rrd) in the rerun viewer")
+    p.add_argument("recording", type=Path, help="run.rrd written by perch plan / perch demo")
+    p.add_argument("--web", action="store_true", help="serve the web viewer (open the printed URL in a browser)")
+    p.set_defaults(func=_view)
+
+
+def viewer_command(recording: Path, web: bool) -> list[str] | None:
+    exe = shutil.which("rerun") or (str(Path(sys.executable).with_name("rerun"))
+                                    if Path(sys.executable).with_name("rerun").exists() else None)
+    if exe is None:
+        return None
+    return [exe, *(["--web-viewer"] if web else []), str(recording)]
+
+
+def has_display() -> bool:
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")) or sys.platform in ("darwin", "win32")
+
+
+def _view(args) -> int:
+    if not args.recording.is_file():
+        raise FileNotFoundError(f"{args.recording}: no such recording")
+    cmd = viewer_command(args.recording, args.web)
+    if cmd is None:
+        raise PerchError("the rerun viewer is not installed here (pip install rerun-sdk); or copy "
+                         f"{args.recording} to a machine that has it and run `rerun {args.recording.name}`")
+    if not args.web and not has_display():
+        print(f"perch view: no display here (DISPLAY/WAYLAND_DISPLAY unset), so the desktop viewer cannot open.\n"
+              f"  - serve it to a browser:  perch view {args.recording} --web   (then open the printed URL)\n"
+              f"  - or copy {args.recording} to a machine with a display and run:  rerun {args.recording.name}\n"
+              f"  - the static report beside it needs only a browser: {args.recording.with_name('report.html')}")
+        return 1
+    print(f"perch view: {' '.join(cmd)}")
+    started = time.monotonic()
+    code = subprocess.call(cmd)
+    if code and time.monotonic() - started < 3:
+        raise PerchError(f"the viewer exited at once (code {code}); try `perch view {args.recording} --web`")
+    return code

@@ -1,0 +1,195 @@
+"""One PlanPerches mission: (reconstruct | clean) -> crop -> segment -> filter -> optimise -> confirm.
+
+Each stage is called through its service (StageCaller), so stages can live in other processes
+or hosts. The operator part (proposals, decisions, re-optimising one slot) lives in `Operator`,
+which outlives the mission so that a perch failing in flight can still be re-planned.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+from perch_interfaces import srv
+from perch_interfaces.action import PlanPerches
+
+from perch_common.mesh import load_mesh
+from perch_common.ros.conversions import (exclusion_to_msg, mesh_to_msg, placement_from_msg, placement_to_msg,
+                                          vector_msg)
+from perch_operator.proposals import Decision, Proposal, ProposalBook
+from perch_operator.stages import MissionCancelled, StageCaller
+
+# Rough share of a mission's time per stage, for the feedback fraction.
+STAGE_WEIGHTS = {"reconstruct": 0.30, "clean": 0.05, "crop": 0.02, "segment": 0.20, "filter": 0.25,
+                 "optimise": 0.40, "confirm": 0.05}
+
+
+@dataclass
+class MissionOptions:
+    auto_accept: bool
+    exclusion_radius: float
+    clean_given_mesh: bool
+    optimise_on_full_mesh: bool
+    confirm_timeout: float
+    up: np.ndarray
+    frame_id: str
+
+
+@dataclass
+class Operator:
+    """What deciding on proposals needs once optimise has run; kept by the node after the mission."""
+
+    book: ProposalBook
+    optimise_request: srv.Optimise.Request
+    auto_accept: bool
+    scores: tuple[float, float, float] = (0.0, 0.0, 0.0)   # fitness, coverage, mean uncertainty
+    replan_seconds: list[float] = field(default_factory=list)
+
+
+class Mission:
+    """Runs one goal; `publish` hooks let the node publish proposals and waypoints as they happen."""
+
+    def __init__(self, caller: StageCaller, options: MissionOptions, first_proposal_id: int,
+                 feedback: Callable[[str, float, str], None], cancelled: Callable[[], bool],
+                 on_proposal: Callable[[Proposal], None], on_operator: Callable[[Operator], None]):
+        self.caller = caller
+        self.options = options
+        self.first_proposal_id = first_proposal_id
+        self.feedback = feedback
+        self.cancelled = cancelled
+        self.on_proposal = on_proposal
+        self.on_operator = on_operator
+        self.stage_names: list[str] = []
+        self.stage_seconds: list[float] = []
+        self._planned = [s for s in STAGE_WEIGHTS]
+        self._done_weight = 0.0
+
+    def _call(self, stage: str, request):
+        self.feedback(stage, self._fraction(), f"running {stage}")
+        reply = self.caller.call(stage, request, self.cancelled)
+        self._finish(stage, float(reply.seconds))
+        return reply
+
+    def _fraction(self) -> float:
+        total = sum(STAGE_WEIGHTS[s] for s in self._planned)
+        return min(1.0, self._done_weight / total)
+
+    def _finish(self, stage: str, seconds: float) -> None:
+        self.stage_names.append(stage)
+        self.stage_seconds.append(seconds)
+        self._done_weight += STAGE_WEIGHTS[stage]
+
+    def run(self, goal: PlanPerches.Goal) -> PlanPerches.Result:
+        started = time.monotonic()
+        mesh_msg = self._acquire_mesh(goal)
+        crop = self._call("crop", srv.Crop.Request(mesh=mesh_msg, keep_boxes=goal.keep_boxes,
+                                                   remove_boxes=goal.remove_boxes, target=goal.target))
+        segment = self._call("segment", srv.Segment.Request(mesh=crop.mesh))
+        filtered = self._call("filter", srv.Filter.Request(mesh=crop.mesh, surfaces=segment.surfaces,
+                                                           target=crop.target, up=vector_msg(self.options.up)))
+        if not filtered.regions:
+            raise ValueError(f"filter left no perch regions on {len(segment.surfaces)} surface(s); nothing to "
+                             f"optimise. Area removed by each filter: {removal_summary(filtered.removals)}")
+        request = srv.Optimise.Request(
+            mesh=mesh_msg if self.options.optimise_on_full_mesh else crop.mesh, regions=filtered.regions,
+            target=crop.target, num_cameras=goal.num_cameras, method="", seed=goal.seed)
+        optimised = self._call("optimise", request)
+        if not optimised.placements:
+            raise ValueError(f"optimise placed no camera: {optimised.message}")
+        operator = Operator(ProposalBook(self.options.exclusion_radius, self.first_proposal_id), request,
+                            self.options.auto_accept or goal.auto_accept,
+                            (optimised.fitness, optimised.coverage, optimised.mean_uncertainty))
+        self.on_operator(operator)
+        confirmed = self._confirm(operator, optimised.placements)
+        self._finish("confirm", confirmed)
+        result = self._result(operator)
+        result.stage_names.append("total")
+        result.stage_seconds.append(time.monotonic() - started)
+        return result
+
+    def _acquire_mesh(self, goal: PlanPerches.Goal):
+        given = [bool(goal.mesh_path), bool(goal.bag_path), len(goal.mesh.triangles) > 0]
+        if sum(given) != 1:
+            raise ValueError("a mission needs exactly one of mesh_path, bag_path or mesh "
+                             f"(got {sum(given)})")
+        if goal.bag_path:
+            self._planned.remove("clean")
+            return self._call("reconstruct", srv.Reconstruct.Request(bag_path=goal.bag_path, use_poses=True)).mesh
+        self._planned.remove("reconstruct")
+        mesh_msg = goal.mesh if len(goal.mesh.triangles) else mesh_to_msg(load_mesh(goal.mesh_path))
+        if not mesh_msg.header.frame_id:
+            mesh_msg.header.frame_id = self.options.frame_id
+        if not self.options.clean_given_mesh:
+            self._planned.remove("clean")
+            return mesh_msg
+        # The mesh is already gravity-aligned (up_axis): gravity points along -up, so cleaning keeps its frame.
+        gravity = vector_msg(-np.asarray(self.options.up, np.float64))
+        return self._call("clean", srv.CleanMesh.Request(mesh=mesh_msg, gravity=gravity)).mesh
+
+    def _confirm(self, operator: Operator, placements) -> float:
+        """Propose every placement and wait until each slot is accepted; returns the seconds spent."""
+        started = time.monotonic()
+        self.feedback("confirm", self._fraction(), f"proposing {len(placements)} perch(es)"
+                      + (" (auto_accept)" if operator.auto_accept else ""))
+        for slot, placement in enumerate(placements):
+            proposal = operator.book.propose(slot, placement_from_msg(placement))
+            self.on_proposal(proposal)
+            if operator.auto_accept:
+                self.on_proposal(operator.book.decide(proposal.id, Decision.ACCEPT, "auto_accept policy"))
+        timeout = self.options.confirm_timeout
+        while not operator.book.wait_settled(0.25):
+            waited = time.monotonic() - started
+            if self.cancelled():
+                raise MissionCancelled("mission cancelled while waiting for operator decisions")
+            if timeout > 0 and waited > timeout:
+                raise TimeoutError(f"no operator decision on proposal(s) {self._open_ids(operator)} within "
+                                   f"{timeout:g} s (parameter confirm_timeout)")
+            self.feedback("confirm", self._fraction(),
+                          f"waiting for decisions on proposal(s) {self._open_ids(operator)} "
+                          "(perch operator accept|reject ID)")
+        return time.monotonic() - started
+
+    @staticmethod
+    def _open_ids(operator: Operator) -> list[int]:
+        return [p.id for p in operator.book.current() if p.slot in operator.book.open_slots()]
+
+    def _result(self, operator: Operator) -> PlanPerches.Result:
+        from perch_operator.messages import placement_msg
+
+        accepted = operator.book.accepted()
+        result = PlanPerches.Result(success=True, stage_names=list(self.stage_names),
+                                    stage_seconds=list(self.stage_seconds))
+        result.placements = [placement_msg(p) for p in accepted]
+        result.fitness, result.coverage, result.mean_uncertainty = operator.scores
+        result.message = f"{len(accepted)} perch(es) accepted"
+        return result
+
+
+def removal_summary(removals) -> str:
+    """'orientation 12.3 m^2, recovery_height 4.0 m^2, ...' over all surfaces (non-zero filters only)."""
+    names = ("orientation", "recovery_height", "obstacle_clearance", "line_of_sight", "perch_window",
+             "reachability")
+    totals = {n: sum(float(getattr(r, n)) for r in removals) for n in names}
+    text = ", ".join(f"{n} {a:.1f} m^2" for n, a in totals.items() if a > 0)
+    return text or "none (no surfaces reached the filter)"
+
+
+def replan_slot(caller: StageCaller, operator: Operator, slot: int) -> Proposal | None:
+    """Re-optimise one camera slot keeping every other slot's placement; None when nothing fits."""
+    base = operator.optimise_request
+    request = srv.Optimise.Request(
+        mesh=base.mesh, regions=base.regions, target=base.target, camera=base.camera, drone=base.drone,
+        num_cameras=1, method=base.method, seed=base.seed,
+        fixed=[placement_to_msg(p) for p in operator.book.fixed_for(slot)],
+        exclusions=[exclusion_to_msg(z) for z in operator.book.exclusions()])
+    started = time.monotonic()
+    reply = caller.call("optimise", request)
+    operator.replan_seconds.append(time.monotonic() - started)
+    if not reply.placements:
+        operator.book.leave_empty(slot)
+        return None
+    operator.scores = (reply.fitness, reply.coverage, reply.mean_uncertainty)
+    return operator.book.propose(slot, placement_from_msg(reply.placements[0]))
+

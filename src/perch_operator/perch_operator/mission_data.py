@@ -1,0 +1,138 @@
+"""What a recorded mission contains, in pure-Python form: read once from run.mcap for the views.
+
+The recording is the single source: the report and the rerun file can be rebuilt from it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from perch_common.mesh import Mesh
+from perch_common.target import TargetVolume
+from perch_common.types import CameraPlacement, FilterRemoval, PerchRegion, Surface
+from perch_operator.proposals import Status
+
+MISSION_METADATA = "perch_mission"
+
+
+@dataclass
+class MissionData:
+    mesh: Mesh | None = None                 # the environment the cameras were placed in
+    cropped: Mesh | None = None              # what segmentation saw
+    surfaces: list[Surface] = field(default_factory=list)
+    regions: list[PerchRegion] = field(default_factory=list)
+    removals: list[FilterRemoval] = field(default_factory=list)
+    target: TargetVolume | None = None
+    placements: list[CameraPlacement] = field(default_factory=list)   # accepted, by drone index
+    rejected: list[tuple[CameraPlacement, str]] = field(default_factory=list)
+    waypoints: list[dict] = field(default_factory=list)
+    summary: dict = field(default_factory=dict)   # stage times, scores (metadata record)
+
+
+def load_mission(path: str | Path) -> MissionData:
+    """Read the stage replies, proposals and waypoints of one recorded mission."""
+    from perch_common.ros.conversions import (mesh_from_msg, placement_from_msg, region_from_msg,
+                                              removal_from_msg, surface_from_msg, target_from_msg)
+    from perch_operator.runfile import iter_messages, metadata, stage_calls
+
+    data = MissionData()
+    for call in stage_calls(path):
+        reply = call.response
+        if reply is None or not reply.success:
+            continue
+        if call.stage in ("clean", "reconstruct"):
+            data.mesh = mesh_from_msg(reply.mesh)
+        elif call.stage == "crop":
+            data.cropped = mesh_from_msg(reply.mesh)
+            data.target = target_from_msg(reply.target)
+            if data.mesh is None and call.request is not None:
+                data.mesh = mesh_from_msg(call.request.mesh)
+        elif call.stage == "segment" and not data.surfaces:
+            data.surfaces = [surface_from_msg(s) for s in reply.surfaces]
+        elif call.stage == "filter":
+            data.surfaces = [surface_from_msg(s) for s in reply.surfaces] or data.surfaces
+            data.regions = [region_from_msg(r) for r in reply.regions]
+            data.removals = [removal_from_msg(r) for r in reply.removals]
+        elif call.stage == "optimise" and data.mesh is None and call.request is not None:
+            data.mesh = mesh_from_msg(call.request.mesh)
+    latest: dict[int, object] = {}
+    for topic, msg, _ in iter_messages(path, ["/perch/proposals", "/perch/waypoints"]):
+        if topic == "/perch/proposals":
+            latest[msg.id] = msg
+        else:
+            data.waypoints.append(waypoint_dict(msg))
+    by_slot: dict[int, CameraPlacement] = {}
+    for proposal in latest.values():
+        placement = placement_from_msg(proposal.placement)
+        if proposal.status == Status.ACCEPTED:
+            by_slot[placement.drone_index] = placement
+        elif proposal.status in (Status.REJECTED, Status.FAILED):
+            data.rejected.append((placement, proposal.reason))
+    data.placements = [by_slot[k] for k in sorted(by_slot)]
+    data.summary = metadata(path).get(MISSION_METADATA, {})
+    if data.mesh is None:
+        data.mesh = data.cropped
+    return data
+
+
+def waypoint_dict(msg) -> dict:
+    p, q, a = msg.pose.pose.position, msg.pose.pose.orientation, msg.approach
+    return {"drone_index": int(msg.drone_index), "proposal_id": int(msg.proposal_id),
+            "frame_id": msg.pose.header.frame_id,
+            "position": [round(float(v), 6) for v in (p.x, p.y, p.z)],
+            "orientation_xyzw": [round(float(v), 6) for v in (q.x, q.y, q.z, q.w)],
+            "approach": [round(float(v), 6) for v in (a.x, a.y, a.z)],
+            "pan": round(float(msg.pan), 6), "tilt": round(float(msg.tilt), 6), "zoom": round(float(msg.zoom), 6)}
+
+
+def write_waypoints_yaml(path: str | Path, waypoints: list[dict]) -> Path:
+    """waypoints.yaml: the latest accepted waypoint per drone, for a dispatcher without ROS."""
+    import yaml
+
+    latest = {w["drone_index"]: w for w in waypoints}
+    doc = {"frame_id": next(iter(latest.values()))["frame_id"] if latest else "map",
+           "units": "metres, radians; orientation is the drone body (z along the perch normal)",
+           "waypoints": [latest[k] for k in sorted(latest)]}
+    path = Path(path)
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return path
+
+
+def target_point_scores(data: MissionData) -> tuple[np.ndarray, np.ndarray] | None:
+    """Target sample points and their score (0 unseen .. 1 certain) under the accepted cameras.
+
+    Uses the placement stage's own evaluator and its configured camera, so the colours mean what
+    the optimiser maximised. None when perch_placement is not installed.
+    """
+    import importlib.util
+
+    if data.target is None or data.mesh is None or importlib.util.find_spec("perch_placement") is None:
+        return None
+    from perch_placement.camera import point_score
+    from perch_placement.fitness import Evaluator
+
+    from perch_common.raycast import RayScene
+
+    config = placement_config()
+    points = data.target.sample(config.target_points, seed=config.seed)
+    evaluator = Evaluator(RayScene(data.mesh), points, config.camera, config.occlusion_epsilon)
+    for p in data.placements:
+        pose = np.asarray(p.camera_pose)
+        evaluator.commit(pose[:3, 3], pose[:3, :3], max(float(p.zoom), 1.0))
+    scores, _ = point_score(evaluator.info, evaluator.seen)
+    return points, np.asarray(scores, np.float64)
+
+
+def placement_config():
+    """The placement stage's configuration as the graph runs it (config/perch.yaml)."""
+    from perch_placement.config import PlacementConfig
+
+    from perch_common.config import ConfigError, from_parameters, node_parameters
+
+    try:
+        return from_parameters(PlacementConfig, node_parameters("perch_placement")).resolved()
+    except (ConfigError, OSError):
+        return PlacementConfig().resolved()

@@ -1,0 +1,203 @@
+"""perch_operator node: /perch/crop, the /perch/plan_perches coordinator, /perch/confirm, waypoints.
+
+One process hosts all three because the confirm service acts on the coordinator's live
+proposals (a rejection re-optimises with the mission's regions and target), and crop is
+light; crop is still called through its service so it is recorded and replayable like any stage.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+
+import numpy as np
+from geometry_msgs.msg import PoseArray
+from perch_interfaces import msg as pm
+from perch_interfaces import srv
+from perch_interfaces.action import PlanPerches
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_services_default
+from rclpy.service_introspection import ServiceIntrospectionState
+
+from perch_common.errors import PerchError
+from perch_common.mesh import MeshError, validate_mesh
+from perch_common.ros.conversions import mesh_from_msg, mesh_to_msg, target_from_msg, target_to_msg, to_array
+from perch_common.ros.node_main import run_node
+from perch_common.ros.params import declare_config, read_config
+from perch_common.transforms import parse_up_axis
+from perch_operator.config import OperatorConfig
+from perch_operator.crop import crop_mesh
+from perch_operator.messages import box_from_ros, pose_array_msg, proposal_msg, waypoint_msg
+from perch_operator.mission import Mission, MissionOptions, Operator, replan_slot
+from perch_operator.proposals import Decision, Proposal, ProposalError, Status
+from perch_operator.stages import MissionCancelled, StageCaller, StageError
+
+# Late joiners (a dispatcher started after the mission, a UI) still get every waypoint/proposal.
+LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+LATCHED_LAST = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+class OperatorNode(Node):
+    def __init__(self) -> None:
+        super().__init__("perch_operator")
+        self.config = declare_config(self, OperatorConfig)
+        self.declare_parameter("up_axis", "+z")
+        self.declare_parameter("frame_id", "map")
+        group = ReentrantCallbackGroup()
+        self.stages = StageCaller(self, group, self.config.service_wait, self.config.stage_timeout,
+                                  self.config.gone_grace)
+        self.crop_service = self.create_service(srv.Crop, "/perch/crop", self._crop, callback_group=group)
+        if self.config.introspection:
+            self.crop_service.configure_introspection(self.get_clock(), qos_profile_services_default,
+                                                      ServiceIntrospectionState.CONTENTS)
+        self.confirm_service = self.create_service(srv.Confirm, "/perch/confirm", self._confirm,
+                                                   callback_group=group)
+        self.proposals_pub = self.create_publisher(pm.Proposal, "/perch/proposals", LATCHED)
+        self.waypoints_pub = self.create_publisher(pm.PerchWaypoint, "/perch/waypoints", LATCHED)
+        self.poses_pub = self.create_publisher(PoseArray, "/perch/waypoint_poses", LATCHED_LAST)
+        self.action = ActionServer(self, PlanPerches, "/perch/plan_perches", self._execute, callback_group=group,
+                                   goal_callback=self._on_goal, cancel_callback=lambda _: CancelResponse.ACCEPT)
+        self.operator: Operator | None = None
+        self._busy = threading.Lock()
+        self._next_proposal_id = 1
+        self.get_logger().info("ready: /perch/crop, /perch/plan_perches, /perch/confirm")
+
+    # --- crop ---------------------------------------------------------------------------------
+
+    def _crop(self, request: srv.Crop.Request, response: srv.Crop.Response) -> srv.Crop.Response:
+        started = time.perf_counter()
+        try:
+            config = read_config(self, OperatorConfig).crop
+            mesh = validate_mesh(mesh_from_msg(request.mesh, "crop mesh"), "crop mesh")
+            keep = [box_from_ros(b, f"keep box {i}") for i, b in enumerate(request.keep_boxes)]
+            remove = [box_from_ros(b, f"remove box {i}") for i, b in enumerate(request.remove_boxes)]
+            result = crop_mesh(mesh, keep, remove, target_from_msg(request.target), config)
+            response.mesh = mesh_to_msg(result.mesh, stamp=request.mesh.header.stamp)
+            response.kept_faces = to_array(result.kept_faces, np.uint32)
+            response.target = target_to_msg(result.target)
+            response.success = True
+            kind = "box" if result.target.is_box else f"footprint x {result.target.height:.2f} m"
+            response.message = (f"kept {result.mesh.num_faces} of {mesh.num_faces} faces; target {kind}, "
+                                f"{result.target.volume():.2f} m^3")
+        except (MeshError, PerchError, ValueError) as exc:
+            response.success, response.message = False, str(exc)
+        response.seconds = time.perf_counter() - started
+        return response
+
+    # --- mission ------------------------------------------------------------------------------
+
+    def _on_goal(self, goal) -> GoalResponse:
+        if self._busy.locked():
+            self.get_logger().warning("rejecting a goal: a mission is already running")
+            return GoalResponse.REJECT
+        return GoalResponse.ACCEPT
+
+    def _execute(self, goal_handle) -> PlanPerches.Result:
+        with self._busy:
+            try:
+                return self._run_mission(goal_handle)
+            finally:
+                # The action server keeps finished goals (with their requests) for result_timeout;
+                # drop the mesh so that memory does not grow with every mission. Re-planning keeps
+                # its own reference to what it needs.
+                goal_handle.request.mesh = pm.TriangleMesh()
+
+    def _run_mission(self, goal_handle) -> PlanPerches.Result:
+        config = read_config(self, OperatorConfig)
+        options = MissionOptions(
+            auto_accept=config.auto_accept, exclusion_radius=config.exclusion_radius,
+            clean_given_mesh=config.clean_given_mesh, optimise_on_full_mesh=config.optimise_on_full_mesh,
+            confirm_timeout=config.confirm_timeout, frame_id=self._frame_id(),
+            up=parse_up_axis(self.get_parameter("up_axis").value))
+
+        def feedback(stage: str, fraction: float, message: str) -> None:
+            goal_handle.publish_feedback(PlanPerches.Feedback(stage=stage, fraction=fraction, message=message))
+
+        def adopt(operator: Operator) -> None:
+            self.operator = operator
+
+        self.stages.service_wait, self.stages.timeout = config.service_wait, config.stage_timeout
+        self.stages.gone_grace = config.gone_grace
+        mission = Mission(self.stages, options, self._next_proposal_id, feedback,
+                          lambda: goal_handle.is_cancel_requested, self._publish_proposal, adopt)
+        try:
+            result = mission.run(goal_handle.request)
+            result.waypoints = [self._waypoint(p) for p in self.operator.book.accepted()]
+            goal_handle.succeed()
+            self.get_logger().info(f"mission done: {result.message}, "
+                                   + ", ".join(f"{n} {s:.2f} s" for n, s in zip(result.stage_names,
+                                                                                 result.stage_seconds)))
+            return result
+        except MissionCancelled as exc:
+            goal_handle.canceled()
+            return self._failed(mission, str(exc))
+        except (StageError, PerchError, MeshError, ValueError, TimeoutError, OSError) as exc:
+            goal_handle.abort()
+            self.get_logger().error(f"mission failed: {exc}")
+            return self._failed(mission, str(exc))
+        finally:
+            if self.operator is not None:
+                self._next_proposal_id = self.operator.book.next_id
+
+    @staticmethod
+    def _failed(mission: Mission, message: str) -> PlanPerches.Result:
+        return PlanPerches.Result(success=False, message=message, stage_names=mission.stage_names,
+                                  stage_seconds=mission.stage_seconds)
+
+    # --- operator -----------------------------------------------------------------------------
+
+    def _confirm(self, request: srv.Confirm.Request, response: srv.Confirm.Response) -> srv.Confirm.Response:
+        operator = self.operator
+        try:
+            if operator is None:
+                raise ProposalError("no mission has proposed anything yet")
+            decided = operator.book.decide(request.proposal_id, Decision(request.decision), request.reason)
+            self._publish_proposal(decided)
+            response.success = True
+            response.message = f"proposal {decided.id} {decided.status.name.lower()}"
+            if decided.status != Status.ACCEPTED:
+                replacement = replan_slot(self.stages, operator, decided.slot)
+                if replacement is None:
+                    response.message += "; no alternative perch found, the slot stays empty"
+                else:
+                    self._publish_proposal(replacement)
+                    if operator.auto_accept:
+                        replacement = operator.book.decide(replacement.id, Decision.ACCEPT, "auto_accept policy")
+                        self._publish_proposal(replacement)
+                    response.replacement = proposal_msg(replacement)
+                    response.message += (f"; replacement proposal {replacement.id} for drone {replacement.slot} "
+                                         f"in {operator.replan_seconds[-1]:.2f} s")
+        except (ProposalError, ValueError) as exc:
+            response.success, response.message = False, str(exc)
+        except (StageError, PerchError, TimeoutError) as exc:
+            response.success, response.message = False, f"re-optimising failed: {exc}"
+        return response
+
+    def _publish_proposal(self, proposal: Proposal) -> None:
+        self.proposals_pub.publish(proposal_msg(proposal))
+        if proposal.status == Status.ACCEPTED:
+            self.waypoints_pub.publish(self._waypoint(proposal))
+            if self.operator is not None:
+                stamp = self.get_clock().now().to_msg()
+                self.poses_pub.publish(pose_array_msg(self.operator.book.accepted(), self._frame_id(), stamp))
+
+    def _waypoint(self, proposal: Proposal) -> pm.PerchWaypoint:
+        config = read_config(self, OperatorConfig)
+        return waypoint_msg(proposal, config.approach_distance, self._frame_id(), self.get_clock().now().to_msg())
+
+    def _frame_id(self) -> str:
+        return str(self.get_parameter("frame_id").value)
+
+
+def main(args: list[str] | None = None) -> int:
+    # Enough threads for: the mission, a confirm call re-optimising, and the replies they wait on.
+    return run_node(lambda: OperatorNode(), args, threads=6)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

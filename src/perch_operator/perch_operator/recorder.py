@@ -1,0 +1,114 @@
+"""Record a mission to one MCAP file: every /perch topic and the stage services' introspection events.
+
+Messages are written as received (serialized CDR, no re-encoding) with ros2msg schemas, so
+standard MCAP tools list and decode them. The recorder lives in the client's process and
+subscribes before the goal is sent; it records what is published from then on.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from perch_operator.msgdefs import full_definition, message_class
+from perch_operator.stages import STAGES
+
+EVENT_SUFFIX = "/_service_event"
+# Every stage service plus the operator's own confirm service.
+SERVICES = {s.service: s.srv_type for s in STAGES.values()}
+
+
+def event_topics() -> dict[str, str]:
+    """Service event topic -> its type name, for every stage service and /perch/confirm."""
+    from perch_interfaces import srv
+
+    services = dict(SERVICES, **{"/perch/confirm": srv.Confirm})
+    return {name + EVENT_SUFFIX: f"perch_interfaces/srv/{cls.__name__}_Event" for name, cls in services.items()}
+
+
+class MissionRecorder:
+    """Subscribe (raw) to /perch topics on `node` and write them to `path` until `close()`."""
+
+    def __init__(self, node, path: str | Path, prefix: str = "/perch"):
+        from mcap.writer import CompressionType, Writer
+
+        self.node = node
+        self.path = Path(path)
+        self.prefix = prefix
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._file = open(self.path, "wb")
+        self._writer = Writer(self._file, compression=CompressionType.ZSTD)
+        self._writer.start(profile="ros2", library="perch_operator")
+        self._channels: dict[str, int] = {}
+        self._schemas: dict[str, int] = {}
+        self._subs: dict[str, object] = {}
+        self.counts: dict[str, int] = {}
+        self._closed = False
+
+    def refresh(self) -> None:
+        """Subscribe to every /perch topic now in the graph and every known service event topic."""
+        topics = dict(event_topics())
+        for name, types in self.node.get_topic_names_and_types():
+            if name.startswith(self.prefix) and types:
+                topics.setdefault(name, types[0])
+        for name, type_name in topics.items():
+            if name not in self._subs:
+                self._subscribe(name, type_name)
+
+    def _subscribe(self, topic: str, type_name: str) -> None:
+        msg_class = message_class(type_name)
+        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, durability=DurabilityPolicy.VOLATILE,
+                         reliability=self._reliability(topic))
+        self._subs[topic] = self.node.create_subscription(
+            msg_class, topic, lambda data, t=topic, n=type_name: self._write(t, n, data), qos, raw=True)
+
+    def _reliability(self, topic: str) -> ReliabilityPolicy:
+        """Reliable unless a publisher is best-effort (a reliable reader would not match it)."""
+        infos = self.node.get_publishers_info_by_topic(topic)
+        if any(i.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for i in infos):
+            return ReliabilityPolicy.BEST_EFFORT
+        return ReliabilityPolicy.RELIABLE
+
+    def _write(self, topic: str, type_name: str, data: bytes) -> None:
+        if self._closed:
+            return
+        if topic not in self._channels:
+            if type_name not in self._schemas:
+                self._schemas[type_name] = self._writer.register_schema(
+                    name=type_name, encoding="ros2msg", data=full_definition(type_name).encode())
+            self._channels[topic] = self._writer.register_channel(
+                topic=topic, message_encoding="cdr", schema_id=self._schemas[type_name])
+        now = time.time_ns()
+        self._writer.add_message(channel_id=self._channels[topic], log_time=now, publish_time=now,
+                                 data=bytes(data), sequence=self.counts.get(topic, 0))
+        self.counts[topic] = self.counts.get(topic, 0) + 1
+
+    def matched(self) -> dict[str, int]:
+        """Publishers matched per subscribed topic."""
+        return {t: s.get_publisher_count() for t, s in self._subs.items()}
+
+    def wait_matched(self, topics: list[str], spin, timeout: float = 5.0) -> list[str]:
+        """Spin until each of `topics` has a publisher matched; returns those still without one."""
+        deadline = time.monotonic() + timeout
+        while True:
+            self.refresh()
+            counts = self.matched()
+            missing = [t for t in topics if counts.get(t, 0) == 0]
+            if not missing or time.monotonic() > deadline:
+                return missing
+            spin(0.1)
+
+    def add_metadata(self, name: str, values: dict) -> None:
+        """A metadata record (string values; others JSON-encoded), shown by `mcap list metadata`."""
+        self._writer.add_metadata(name, {k: v if isinstance(v, str) else json.dumps(v) for k, v in values.items()})
+
+    def close(self) -> Path:
+        if not self._closed:
+            self._closed = True
+            for sub in self._subs.values():
+                self.node.destroy_subscription(sub)
+            self._writer.finish()
+            self._file.close()
+        return self.path

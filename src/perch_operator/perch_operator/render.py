@@ -1,0 +1,134 @@
+"""Pictures of a mission: the overview from above (ray cast, ceiling cut away) with regions, target,
+cameras and rejected perches drawn on it; each camera's simulated view (perch_placement.render).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+
+import numpy as np
+
+from perch_common.mesh import Mesh
+from perch_common.raycast import RayScene
+from perch_operator.mission_data import MissionData
+
+# BGR colours (OpenCV)
+REGION = (80, 200, 80)
+TARGET = (0, 140, 255)
+CAMERA = (220, 60, 20)
+REJECTED = (40, 40, 230)
+
+
+class TopView:
+    """Orthographic view from above: world xy <-> pixel, north (+y) up."""
+
+    def __init__(self, bounds: np.ndarray, size: int = 900, margin: float = 0.3):
+        lo, hi = bounds[0, :2] - margin, bounds[1, :2] + margin
+        self.res = float(max(hi - lo) / size)
+        self.lo, self.hi = lo, hi
+        self.width = int(np.ceil((hi[0] - lo[0]) / self.res))
+        self.height = int(np.ceil((hi[1] - lo[1]) / self.res))
+
+    def pixels(self, xy: np.ndarray) -> np.ndarray:
+        xy = np.asarray(xy, np.float64)
+        xy = xy.reshape(-1, xy.shape[-1])[:, :2]
+        return np.column_stack([(xy[:, 0] - self.lo[0]) / self.res, (self.hi[1] - xy[:, 1]) / self.res])
+
+    def cell_centres(self) -> np.ndarray:
+        u, v = np.meshgrid(np.arange(self.width) + 0.5, np.arange(self.height) + 0.5)
+        return np.column_stack([self.lo[0] + u.ravel() * self.res, self.hi[1] - v.ravel() * self.res])
+
+
+def shaded_top_view(mesh: Mesh, view: TopView) -> np.ndarray:
+    """(H,W,3) uint8 BGR: the mesh seen from above with downward-facing faces (ceilings) culled."""
+    normals = mesh.face_normals()
+    visible = np.flatnonzero(normals[:, 2] > -0.2)
+    image = np.full((view.height, view.width, 3), 255, np.uint8)
+    if len(visible) == 0:
+        return image
+    sub = mesh.submesh(visible)
+    top = mesh.bounds()[1, 2] + 1.0
+    xy = view.cell_centres()
+    origins = np.column_stack([xy, np.full(len(xy), top)])
+    hits = RayScene(sub).cast(origins, np.tile([0.0, 0.0, -1.0], (len(xy), 1)))
+    hit = hits.hit
+    colors = sub.face_colors()
+    base = np.full((len(xy), 3), 0.75) if colors is None else np.zeros((len(xy), 3))
+    if colors is not None:
+        base[hit] = colors[hits.face[hit]]
+    light = np.array([0.3, 0.2, 1.0]) / np.linalg.norm([0.3, 0.2, 1.0])
+    shade = 0.45 + 0.55 * np.abs(hits.normal @ light)
+    rgb = np.where(hit[:, None], base * shade[:, None], 1.0)
+    image = (np.clip(rgb, 0, 1) * 255).astype(np.uint8).reshape(view.height, view.width, 3)
+    return np.ascontiguousarray(image[:, :, ::-1])
+
+
+def overview(data: MissionData, size: int = 900) -> np.ndarray:
+    """The annotated overview image (BGR)."""
+    import cv2
+
+    mesh = data.mesh if data.mesh is not None else data.cropped
+    view = TopView(mesh.bounds(), size)
+    image = shaded_top_view(mesh, view)
+    layer = image.copy()
+    for region in data.regions:
+        tris = view.pixels(region.mesh.triangles().reshape(-1, 3)).reshape(-1, 3, 2)
+        cv2.fillPoly(layer, list(np.round(tris).astype(np.int32)), REGION, lineType=cv2.LINE_AA)
+    image = cv2.addWeighted(layer, 0.45, image, 0.55, 0)
+    if data.target is not None:
+        for a, b in view.pixels(data.target.edges().reshape(-1, 3)).reshape(-1, 2, 2):
+            cv2.line(image, _pt(a), _pt(b), TARGET, 2, cv2.LINE_AA)
+    for placement, _ in data.rejected:
+        centre = _pt(view.pixels(np.asarray(placement.drone_pose)[:3, 3][None])[0])
+        cv2.drawMarker(image, centre, REJECTED, cv2.MARKER_TILTED_CROSS, 14, 2)
+        cv2.circle(image, centre, max(2, int(0.3 / view.res)), REJECTED, 1, cv2.LINE_AA)
+    for p in data.placements:
+        pose = np.asarray(p.camera_pose)
+        centre = view.pixels(pose[:3, 3][None])[0]
+        heading = np.array([pose[0, 2], -pose[1, 2]])  # viewing direction in pixels (y flipped)
+        if np.linalg.norm(heading) > 0.05:  # a camera looking straight down has no heading to draw
+            ahead = centre + 35 * heading / np.linalg.norm(heading)
+            cv2.arrowedLine(image, _pt(centre), _pt(ahead), CAMERA, 2, cv2.LINE_AA, tipLength=0.3)
+        cv2.circle(image, _pt(centre), 7, CAMERA, -1, cv2.LINE_AA)
+        cv2.putText(image, str(p.drone_index), _pt(centre + [9, -9]), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 2,
+                    cv2.LINE_AA)
+    _legend(image)
+    return image
+
+
+def _legend(image: np.ndarray) -> None:
+    import cv2
+
+    items = [("perch regions", REGION), ("target volume", TARGET), ("camera (drone index)", CAMERA),
+             ("rejected perch", REJECTED)]
+    for i, (text, colour) in enumerate(items):
+        y = 20 + 20 * i
+        cv2.rectangle(image, (10, y - 10), (22, y + 2), colour, -1)
+        cv2.putText(image, text, (28, y), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (30, 30, 30), 1, cv2.LINE_AA)
+
+
+def _pt(p) -> tuple[int, int]:
+    return int(round(float(p[0]))), int(round(float(p[1])))
+
+
+def camera_views(data: MissionData) -> list[np.ndarray | None]:
+    """Each accepted camera's simulated RGB view (BGR uint8), by perch_placement's renderer.
+
+    Empty when perch_placement (with its renderer) is not installed.
+    """
+    if importlib.util.find_spec("perch_placement") is None or \
+            importlib.util.find_spec("perch_placement.render") is None or data.mesh is None:
+        return []
+    from perch_placement.render import render_view
+
+    from perch_operator.mission_data import placement_config
+
+    camera = placement_config().camera
+    out: list[np.ndarray | None] = []
+    for placement in data.placements:
+        rgb, _depth = render_view(data.mesh, placement, camera, data.target)
+        rgb = np.asarray(rgb)
+        if rgb.dtype != np.uint8:
+            rgb = (np.clip(rgb, 0, 1) * 255).astype(np.uint8)
+        out.append(np.ascontiguousarray(rgb[:, :, ::-1]))
+    return out

@@ -1,0 +1,125 @@
+"""The static mission report: report.html with PNG renders beside it, opens in any browser."""
+
+from __future__ import annotations
+
+import html
+import math
+from pathlib import Path
+
+import numpy as np
+
+from perch_operator.mission_data import MissionData
+
+STYLE = """
+body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1100px; color: #222; }
+table { border-collapse: collapse; margin: 0.5em 0 1.5em; }
+td, th { border: 1px solid #ccc; padding: 4px 10px; text-align: right; }
+th { background: #f3f3f3; } td.l, th.l { text-align: left; }
+img { max-width: 100%; border: 1px solid #ddd; }
+.views { display: grid; grid-template-columns: repeat(auto-fill, minmax(320px, 1fr)); gap: 12px; }
+figure { margin: 0; } figcaption { font-size: 0.9em; color: #555; }
+"""
+
+
+def summary_rows(data: MissionData) -> list[tuple[str, str]]:
+    s = data.summary
+    rows = [("cameras", str(len(data.placements))),
+            ("coverage", _pct(s.get("coverage"))),
+            ("mean uncertainty", _num(s.get("mean_uncertainty"), " m²", 5)),
+            ("fitness", _num(s.get("fitness"), "", 4)),
+            ("perch regions", str(len(data.regions))),
+            ("surfaces", str(len(data.surfaces))),
+            ("rejected / failed perches", str(len(data.rejected)))]
+    if data.mesh is not None:
+        rows.insert(0, ("mesh faces", f"{data.mesh.num_faces:,}"))
+    if data.target is not None:
+        rows.append(("target volume", f"{data.target.volume():.2f} m³"))
+    return rows
+
+
+def _pct(value) -> str:
+    return "–" if value is None or not math.isfinite(float(value)) else f"{100 * float(value):.1f} %"
+
+
+def _num(value, unit: str = "", digits: int = 3) -> str:
+    return "–" if value is None or not math.isfinite(float(value)) else f"{float(value):.{digits}g}{unit}"
+
+
+def write_report(data: MissionData, out_dir: str | Path, title: str = "Perch mission",
+                 views: list | None = None) -> Path:
+    """Write out_dir/report.html and out_dir/report_files/*.png; returns the HTML path.
+
+    `views`: the cameras' simulated images (BGR) if already rendered, else they are rendered here.
+    """
+    import cv2
+
+    from perch_operator.render import camera_views, overview
+
+    out_dir = Path(out_dir)
+    files = out_dir / "report_files"
+    files.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(files / "overview.png"), overview(data))
+    views = camera_views(data) if views is None else views
+    for i, image in enumerate(views):
+        cv2.imwrite(str(files / f"camera_{i}.png"), image)
+    parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>",
+             f"<style>{STYLE}</style></head><body><h1>{html.escape(title)}</h1>",
+             "<h2>Result</h2>", _table(["", ""], summary_rows(data), header=False)]
+    stages = list(zip(data.summary.get("stage_names", []), data.summary.get("stage_seconds", [])))
+    if stages:
+        parts += ["<h2>Stage times</h2>",
+                  _table(["stage", "seconds"], [(n, f"{t:.2f}") for n, t in stages])]
+    parts += ["<h2>Overview from above</h2>",
+              "<p>Ceiling cut away. Green: perch regions; orange: target volume; blue: accepted cameras with "
+              "their viewing direction; red: rejected perches with their exclusion radius.</p>",
+              "<img src='report_files/overview.png' alt='overview from above'>",
+              "<h2>Cameras</h2>", _table(
+                  ["drone", "region", "x (m)", "y (m)", "z (m)", "pan (°)", "tilt (°)", "gain", "coverage"],
+                  [_camera_row(p) for p in data.placements])]
+    if views:
+        parts.append("<div class='views'>")
+        for i, p in enumerate(data.placements[:len(views)]):
+            parts.append(f"<figure><img src='report_files/camera_{i}.png' alt='camera {p.drone_index} view'>"
+                         f"<figcaption>drone {p.drone_index}: simulated view</figcaption></figure>")
+        parts.append("</div>")
+    else:
+        parts.append("<p>Simulated views need perch_placement's renderer (not installed here).</p>")
+    if data.rejected:
+        parts += ["<h2>Rejected or failed perches</h2>", _table(
+            ["x (m)", "y (m)", "z (m)", "reason"],
+            [(*(f"{v:.2f}" for v in np.asarray(p.drone_pose)[:3, 3]), html.escape(r)) for p, r in data.rejected])]
+    parts += ["<h2>Waypoints</h2>", _table(
+        ["drone", "proposal", "position (m)", "approach (m)"],
+        [(str(w["drone_index"]), str(w["proposal_id"]), _vec(w["position"]), _vec(w["approach"]))
+         for w in _latest(data.waypoints)]), "</body></html>"]
+    path = out_dir / "report.html"
+    path.write_text("\n".join(parts))
+    return path
+
+
+def _latest(waypoints: list[dict]) -> list[dict]:
+    latest = {w["drone_index"]: w for w in waypoints}
+    return [latest[k] for k in sorted(latest)]
+
+
+def _vec(v) -> str:
+    return "(" + ", ".join(f"{x:.2f}" for x in v) + ")"
+
+
+def _camera_row(p) -> tuple:
+    x, y, z = np.asarray(p.drone_pose)[:3, 3]
+    return (str(p.drone_index), str(p.region_id), f"{x:.2f}", f"{y:.2f}", f"{z:.2f}",
+            f"{math.degrees(p.pan):.0f}", f"{math.degrees(p.tilt):.0f}", f"{p.marginal_gain:.4f}",
+            _pct(p.coverage))
+
+
+def _table(columns: list[str], rows: list[tuple], header: bool = True) -> str:
+    out = ["<table>"]
+    if header:
+        out.append("<tr>" + "".join(f"<th class='l'>{html.escape(h)}</th>" if i == 0 else f"<th>{html.escape(h)}</th>"
+                                     for i, h in enumerate(columns)) + "</tr>")
+    for row in rows:
+        out.append("<tr>" + "".join(f"<td class='l'>{c}</td>" if i == 0 else f"<td>{c}</td>"
+                                    for i, c in enumerate(row)) + "</tr>")
+    out.append("</table>")
+    return "".join(out)

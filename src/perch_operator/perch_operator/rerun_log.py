@@ -1,0 +1,121 @@
+"""A rerun recording (.rrd) of one mission: mesh, surfaces by class, what the filters removed,
+perch regions, target volume and its points coloured by score, camera frustums with their
+simulated views, waypoints and rejected perches."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from perch_common.mesh import Mesh
+from perch_operator.mission_data import MissionData, target_point_scores
+
+CLASS_COLOURS = {0: ("unknown", (150, 150, 150)), 1: ("floor", (200, 170, 90)), 2: ("wall", (90, 140, 220)),
+                 3: ("ceiling", (200, 200, 240)), 4: ("intermediate", (220, 120, 60))}
+FILTERS = ("orientation", "recovery_height", "obstacle_clearance", "line_of_sight", "perch_window", "reachability")
+
+
+def _mesh3d(rr, mesh: Mesh, colour=None):
+    kwargs = {}
+    if colour is not None:
+        kwargs["albedo_factor"] = np.array([*colour, 255], np.uint8)
+    elif mesh.vertex_colors is not None:
+        kwargs["vertex_colors"] = mesh.vertex_colors
+    return rr.Mesh3D(vertex_positions=mesh.vertices.astype(np.float32), triangle_indices=mesh.faces.astype(np.uint32),
+                     **kwargs)
+
+
+def write_rrd(data: MissionData, path: str | Path, views: list | None = None) -> Path:
+    """Write the recording; `views` are the cameras' simulated images (BGR) if already rendered."""
+    import rerun as rr
+
+    path = Path(path)
+    rec = rr.RecordingStream("perch")
+    rec.save(str(path))
+    rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    if data.mesh is not None:
+        rec.log("world/mesh", _mesh3d(rr, data.mesh), static=True)
+    _log_surfaces(rr, rec, data)
+    for region in data.regions:
+        rec.log(f"world/regions/{region.id}", _mesh3d(rr, region.mesh, (60, 200, 60)), static=True)
+    if data.target is not None:
+        rec.log("world/target/volume", rr.LineStrips3D(data.target.edges(), colors=[(255, 140, 0)]), static=True)
+        scored = target_point_scores(data)
+        if scored is not None:
+            points, scores = scored
+            colours = np.column_stack([255 * (1 - scores), 255 * scores, np.full(len(scores), 40)]).astype(np.uint8)
+            rec.log("world/target/points", rr.Points3D(points, colors=colours, radii=0.03), static=True)
+    _log_cameras(rr, rec, data, views)
+    if data.rejected:
+        centres = np.array([np.asarray(p.drone_pose)[:3, 3] for p, _ in data.rejected])
+        rec.log("world/rejected", rr.Points3D(centres, colors=[(230, 40, 40)], radii=0.3 / 3,
+                                              labels=[r or "rejected" for _, r in data.rejected]), static=True)
+    if data.summary:
+        rec.log("summary", rr.TextDocument(_summary_markdown(data), media_type=rr.MediaType.MARKDOWN), static=True)
+    rec.flush()
+    rec.disconnect()
+    return path
+
+
+def _log_surfaces(rr, rec, data: MissionData) -> None:
+    if data.cropped is None or not data.surfaces:
+        return
+    by_class: dict[int, list[np.ndarray]] = {}
+    for s in data.surfaces:
+        by_class.setdefault(int(s.surface_class), []).append(np.asarray(s.face_indices))
+    for code, faces in by_class.items():
+        name, colour = CLASS_COLOURS.get(code, CLASS_COLOURS[0])
+        rec.log(f"world/surfaces/{name}", _mesh3d(rr, data.cropped.submesh(np.concatenate(faces)), colour),
+                static=True)
+    # Each surface coloured by the filter that removed most of its area (kept ones are regions).
+    removal = {r.surface_id: r for r in data.removals}
+    by_filter: dict[str, list[np.ndarray]] = {}
+    for s in data.surfaces:
+        r = removal.get(s.id)
+        if r is None:
+            continue
+        amounts = [getattr(r, f) for f in FILTERS]
+        if max(amounts) > 0:
+            by_filter.setdefault(FILTERS[int(np.argmax(amounts))], []).append(np.asarray(s.face_indices))
+    palette = [(150, 150, 150), (230, 200, 40), (230, 90, 40), (170, 60, 200), (40, 180, 200), (200, 40, 120)]
+    for name, faces in by_filter.items():
+        rec.log(f"world/removed_by/{name}", _mesh3d(rr, data.cropped.submesh(np.concatenate(faces)),
+                                                    palette[FILTERS.index(name)]), static=True)
+
+
+def _log_cameras(rr, rec, data: MissionData, views: list | None) -> None:
+    import importlib.util
+
+    camera = None
+    if importlib.util.find_spec("perch_placement") is not None:
+        from perch_operator.mission_data import placement_config
+
+        camera = placement_config().camera
+    for i, p in enumerate(data.placements):
+        pose = np.asarray(p.camera_pose)
+        entity = f"world/cameras/{p.drone_index}"
+        rec.log(entity, rr.Transform3D(translation=pose[:3, 3], mat3x3=pose[:3, :3]), static=True)
+        if camera is not None:
+            rec.log(entity, rr.Pinhole(focal_length=[camera.fx, camera.fy], principal_point=[camera.cx, camera.cy],
+                                       width=camera.width, height=camera.height,
+                                       camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=0.4), static=True)
+            if views and i < len(views) and views[i] is not None:
+                rec.log(f"{entity}/view", rr.Image(np.ascontiguousarray(views[i][:, :, ::-1])), static=True)
+    if data.waypoints:
+        latest = {w["drone_index"]: w for w in data.waypoints}
+        positions = np.array([latest[k]["position"] for k in sorted(latest)])
+        approach = np.array([latest[k]["approach"] for k in sorted(latest)])
+        rec.log("world/waypoints", rr.Points3D(positions, colors=[(30, 90, 230)], radii=0.06,
+                                               labels=[f"drone {k}" for k in sorted(latest)]), static=True)
+        rec.log("world/waypoints/approach", rr.Arrows3D(origins=approach, vectors=positions - approach,
+                                                        colors=[(30, 90, 230)]), static=True)
+
+
+def _summary_markdown(data: MissionData) -> str:
+    from perch_operator.report import summary_rows
+
+    lines = ["| | |", "|---|---|"] + [f"| {k} | {v} |" for k, v in summary_rows(data)]
+    stages = zip(data.summary.get("stage_names", []), data.summary.get("stage_seconds", []))
+    lines += ["", "| stage | seconds |", "|---|---|"] + [f"| {n} | {t:.2f} |" for n, t in stages]
+    return "\n".join(lines)

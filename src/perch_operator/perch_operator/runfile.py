@@ -1,0 +1,90 @@
+"""Reading a recorded mission (MCAP): stage calls from introspection events, topic messages, metadata."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterator
+
+from perch_operator.msgdefs import message_class
+from perch_operator.recorder import EVENT_SUFFIX
+from perch_operator.stages import STAGES
+
+SERVICE_TO_STAGE = {s.service: name for name, s in STAGES.items()}
+REQUEST_SENT, REQUEST_RECEIVED, RESPONSE_SENT, RESPONSE_RECEIVED = range(4)
+
+
+@dataclass
+class StageCall:
+    """One request/reply exchange with a stage service, in the order the requests were made."""
+
+    stage: str
+    service: str
+    request: Any = None
+    response: Any = None
+    stamp_ns: int = 0
+    key: tuple = field(default=(), repr=False)
+
+
+def _open(path: str | Path):
+    from mcap.reader import make_reader
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such recording")
+    handle = open(path, "rb")
+    return handle, make_reader(handle)
+
+
+def iter_messages(path: str | Path, topics: list[str] | None = None) -> Iterator[tuple[str, Any, int]]:
+    """(topic, deserialized message, log time ns) in log-time order."""
+    from rclpy.serialization import deserialize_message
+
+    handle, reader = _open(path)
+    with handle:
+        for schema, channel, message in reader.iter_messages(topics=topics, log_time_order=True):
+            yield channel.topic, deserialize_message(message.data, message_class(schema.name)), message.log_time
+
+
+def stage_calls(path: str | Path) -> list[StageCall]:
+    """Every stage service call found in the recording (client- or server-side events)."""
+    topics = [service + EVENT_SUFFIX for service in SERVICE_TO_STAGE]
+    calls: dict[tuple, StageCall] = {}
+    for topic, event, stamp in iter_messages(path, topics):
+        service = topic[: -len(EVENT_SUFFIX)]
+        info = event.info
+        key = (service, bytes(bytearray(info.client_gid)), int(info.sequence_number))
+        call = calls.setdefault(key, StageCall(SERVICE_TO_STAGE[service], service, stamp_ns=stamp, key=key))
+        if info.event_type in (REQUEST_SENT, REQUEST_RECEIVED) and len(event.request) and call.request is None:
+            call.request = event.request[0]
+            call.stamp_ns = stamp
+        if info.event_type in (RESPONSE_SENT, RESPONSE_RECEIVED) and len(event.response) and call.response is None:
+            call.response = event.response[0]
+    return sorted(calls.values(), key=lambda c: c.stamp_ns)
+
+
+def metadata(path: str | Path) -> dict[str, dict[str, Any]]:
+    """Metadata records by name, JSON values decoded where they are JSON."""
+    handle, reader = _open(path)
+    out: dict[str, dict[str, Any]] = {}
+    with handle:
+        for record in reader.iter_metadata():
+            values = {}
+            for key, value in record.metadata.items():
+                try:
+                    values[key] = json.loads(value)
+                except ValueError:
+                    values[key] = value
+            out[record.name] = values
+    return out
+
+
+def channel_counts(path: str | Path) -> dict[str, int]:
+    """Messages per topic, from the file's summary."""
+    handle, reader = _open(path)
+    with handle:
+        summary = reader.get_summary()
+        if summary is None or summary.statistics is None:
+            return {}
+        return {summary.channels[cid].topic: n for cid, n in summary.statistics.channel_message_counts.items()}

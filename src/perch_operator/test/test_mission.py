@@ -1,0 +1,169 @@
+"""Mission flow against a scripted stage caller (no ROS graph): order, feedback, results, re-planning."""
+
+import numpy as np
+import pytest
+from perch_interfaces import msg as pm
+from perch_interfaces import srv
+from perch_interfaces.action import PlanPerches
+
+from perch_common.ros.conversions import mesh_to_msg
+from perch_operator.mission import Mission, MissionOptions, replan_slot
+from perch_operator.proposals import Decision, Status
+from perch_operator.stages import StageError
+
+
+def placement_msg(x: float) -> pm.CameraPlacement:
+    p = pm.CameraPlacement(region_id=1)
+    p.drone_pose.position.x = x
+    p.drone_pose.orientation.w = p.camera_pose.orientation.w = 1.0
+    return p
+
+
+class ScriptedStages:
+    """Answers each stage like a healthy graph would; `fail` makes one stage raise."""
+
+    def __init__(self, mesh_msg, fail: str | None = None, regions: int = 1):
+        self.mesh_msg, self.fail, self.regions = mesh_msg, fail, regions
+        self.requests: list[tuple[str, object]] = []
+
+    def call(self, stage, request, cancelled=lambda: False):
+        self.requests.append((stage, request))
+        if stage == self.fail:
+            raise StageError(stage, "failed: boom")
+        if stage == "clean":
+            return srv.CleanMesh.Response(success=True, mesh=request.mesh, seconds=0.1)
+        if stage == "crop":
+            return srv.Crop.Response(success=True, mesh=request.mesh, seconds=0.01,
+                                     target=pm.TargetVolume(kind=pm.TargetVolume.KIND_BOX))
+        if stage == "segment":
+            return srv.Segment.Response(success=True, surfaces=[pm.Surface(id=0)], seconds=0.2)
+        if stage == "filter":
+            return srv.Filter.Response(success=True, regions=[pm.PerchRegion(id=i) for i in range(self.regions)],
+                                       removals=[pm.FilterRemoval(surface_id=0, area_total=3.0, orientation=2.5,
+                                                                  perch_window=0.5)], seconds=0.3)
+        if stage == "optimise":
+            n = request.num_cameras or 2
+            start = 10.0 * len(request.exclusions)
+            return srv.Optimise.Response(success=True, placements=[placement_msg(start + i) for i in range(n)],
+                                         fitness=0.5, coverage=0.8, mean_uncertainty=0.01, seconds=0.4)
+        raise AssertionError(stage)
+
+
+def options(auto: bool = True) -> MissionOptions:
+    return MissionOptions(auto_accept=auto, exclusion_radius=0.3, clean_given_mesh=True, optimise_on_full_mesh=True,
+                          confirm_timeout=0.0, up=np.array([0.0, 0.0, 1.0]), frame_id="map")
+
+
+def run(stages, goal, auto=True):
+    feedback, proposals, operators = [], [], []
+    mission = Mission(stages, options(auto), 5, lambda *f: feedback.append(f), lambda: False,
+                      lambda p: proposals.append((p.id, p.status)), operators.append)
+    return mission, mission.run(goal), feedback, proposals, operators
+
+
+@pytest.fixture
+def goal(meshes):
+    return PlanPerches.Goal(mesh=mesh_to_msg(meshes.room()), num_cameras=2, auto_accept=True, seed=4)
+
+
+def test_stages_run_in_order_with_rising_feedback_and_times(meshes, goal):
+    stages = ScriptedStages(goal.mesh)
+    mission, result, feedback, proposals, operators = run(stages, goal)
+    assert [s for s, _ in stages.requests] == ["clean", "crop", "segment", "filter", "optimise"]
+    assert result.success and len(result.placements) == 2
+    assert result.stage_names == ["clean", "crop", "segment", "filter", "optimise", "confirm", "total"]
+    np.testing.assert_allclose(result.stage_seconds[:5], [0.1, 0.01, 0.2, 0.3, 0.4])
+    fractions = [f for _, f, _ in feedback]
+    assert fractions == sorted(fractions) and fractions[0] == 0.0 and fractions[-1] < 1.0
+    assert [s for s, _, _ in feedback][:5] == ["clean", "crop", "segment", "filter", "optimise"]
+    # Every proposal is published pending, then accepted by the policy; ids start where asked.
+    assert proposals == [(5, Status.PENDING), (5, Status.ACCEPTED),
+                                                     (6, Status.PENDING), (6, Status.ACCEPTED)]
+    optimise = stages.requests[-1][1]
+    assert optimise.seed == 4 and optimise.num_cameras == 2 and optimise.mesh is goal.mesh
+    assert (result.fitness, result.coverage) == (0.5, 0.8)
+
+
+def test_a_failing_stage_ends_the_mission_with_its_name(goal):
+    stages = ScriptedStages(goal.mesh, fail="segment")
+    mission = Mission(stages, options(), 1, lambda *f: None, lambda: False, lambda p: None, lambda o: None)
+    with pytest.raises(StageError, match=r"^stage segment \(/perch/segment\): failed: boom"):
+        mission.run(goal)
+    assert mission.stage_names == ["clean", "crop"]
+
+
+def test_no_regions_is_a_clear_error(goal):
+    stages = ScriptedStages(goal.mesh, regions=0)
+    with pytest.raises(ValueError, match=r"no perch regions on 1 surface.*orientation 2\.5 m\^2, perch_window 0\.5 m\^2$"):
+        run(stages, goal)
+
+
+def test_goal_needs_exactly_one_source(goal):
+    goal.mesh_path = "/somewhere/room.ply"
+    with pytest.raises(ValueError, match="exactly one of mesh_path, bag_path or mesh"):
+        run(ScriptedStages(goal.mesh), goal)
+
+
+def test_bag_goal_reconstructs_instead_of_cleaning(goal):
+    class Reconstructing(ScriptedStages):
+        def call(self, stage, request, cancelled=lambda: False):
+            if stage == "reconstruct":
+                self.requests.append((stage, request))
+                return srv.Reconstruct.Response(success=True, mesh=self.mesh_msg, seconds=2.0)
+            return super().call(stage, request, cancelled)
+
+    stages = Reconstructing(goal.mesh)
+    bag_goal = PlanPerches.Goal(bag_path="/data/kitchen.mcap", auto_accept=True)
+    _, result, _, _, _ = run(stages, bag_goal)
+    assert [s for s, _ in stages.requests][:2] == ["reconstruct", "crop"]
+    assert stages.requests[0][1].bag_path == "/data/kitchen.mcap" and result.success
+
+
+def test_replan_keeps_the_other_slots_and_sends_every_exclusion(goal):
+    stages = ScriptedStages(goal.mesh)
+    _, _, _, _, [operator] = run(stages, goal)
+    book = operator.book
+    first, second = book.current()
+    book.decide(second.id, Decision.FAILED_IN_FLIGHT, "slipped")
+    replacement = replan_slot(stages, operator, second.slot)
+    request = stages.requests[-1][1]
+    assert request.num_cameras == 1 and request.seed == 4
+    assert len(request.fixed) == 1 and request.fixed[0].drone_pose.position.x == pytest.approx(0.0)
+    assert len(request.exclusions) == 1 and request.exclusions[0].radius == pytest.approx(0.3)
+    assert request.exclusions[0].center.x == pytest.approx(1.0)
+    assert replacement.slot == second.slot and replacement.status == Status.PENDING
+    assert book.open_slots() == [second.slot]
+
+
+def test_waiting_for_decisions_ends_on_cancel_and_on_timeout(goal):
+    from perch_operator.stages import MissionCancelled
+
+    goal.auto_accept = False
+    calls = {"n": 0}
+
+    def cancelled() -> bool:
+        calls["n"] += 1
+        return calls["n"] > 2  # cancel while the proposals wait
+
+    mission = Mission(ScriptedStages(goal.mesh), options(auto=False), 1, lambda *f: None, cancelled,
+                      lambda p: None, lambda o: None)
+    with pytest.raises(MissionCancelled, match="waiting for operator decisions"):
+        mission.run(goal)
+    patient = options(auto=False)
+    patient.confirm_timeout = 0.3
+    mission = Mission(ScriptedStages(goal.mesh), patient, 1, lambda *f: None, lambda: False, lambda p: None,
+                      lambda o: None)
+    with pytest.raises(TimeoutError, match=r"no operator decision on proposal\(s\) \[1, 2\] within 0.3 s"):
+        mission.run(goal)
+
+
+def test_mesh_path_is_loaded_by_the_coordinator_and_cleaned_along_minus_up(meshes, tmp_path):
+    from perch_common.mesh import save_mesh
+
+    path = save_mesh(tmp_path / "room.ply", meshes.room())
+    stages = ScriptedStages(None)
+    _, result, _, _, _ = run(stages, PlanPerches.Goal(mesh_path=str(path), auto_accept=True))
+    stage, clean = stages.requests[0]
+    assert stage == "clean" and len(clean.mesh.triangles) == 3 * meshes.room().num_faces
+    assert (clean.gravity.x, clean.gravity.y, clean.gravity.z) == (0.0, 0.0, -1.0)
+    assert clean.mesh.header.frame_id == "map" and result.success

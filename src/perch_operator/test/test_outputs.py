@@ -1,0 +1,108 @@
+"""Mission outputs without ROS: overview render, HTML report, rerun file, waypoints.yaml, summary table."""
+
+import numpy as np
+import pytest
+import yaml
+
+from perch_common.target import TargetVolume
+from perch_common.types import CameraPlacement
+from perch_operator.mission_data import MissionData, write_waypoints_yaml
+
+
+def looking_at(position, target) -> np.ndarray:
+    """Camera pose (optical frame: z forward, y down) at `position` looking at `target`."""
+    z = np.asarray(target, float) - position
+    z /= np.linalg.norm(z)
+    x = np.cross(z, [0, 0, 1.0])
+    x /= np.linalg.norm(x)
+    pose = np.eye(4)
+    pose[:3, :3] = np.column_stack([x, np.cross(z, x), z])
+    pose[:3, 3] = position
+    return pose
+
+
+@pytest.fixture
+def mission(meshes) -> MissionData:
+    mesh = meshes.room()
+    mesh.vertex_colors = np.full((mesh.num_vertices, 3), 180, np.uint8)
+    target = TargetVolume(center=[2.0, 1.5, 0.6], size=[1.5, 1.0, 1.2])
+    placements = [CameraPlacement(i, 0, looking_at(np.array(p), target.center), looking_at(np.array(p), target.center),
+                                  pan=0.1, tilt=-0.2, marginal_gain=0.3, coverage=0.5 + 0.2 * i)
+                  for i, p in enumerate([(0.3, 0.3, 2.4), (3.7, 2.7, 2.4)])]
+    waypoints = [{"drone_index": i, "proposal_id": 10 + i, "frame_id": "map", "position": [0.3, 0.3, 2.4],
+                  "orientation_xyzw": [0, 0, 0, 1], "approach": [0.3, 0.3, 1.9], "pan": 0.1, "tilt": -0.2, "zoom": 1.0}
+                 for i in range(2)]
+    summary = {"stage_names": ["crop", "optimise", "total"], "stage_seconds": [0.01, 1.5, 2.0],
+               "fitness": 0.42, "coverage": 0.7, "mean_uncertainty": 0.0012}
+    return MissionData(mesh=mesh, cropped=mesh, target=target, placements=placements,
+                       rejected=[(placements[0], "blocked by a lamp")], waypoints=waypoints, summary=summary)
+
+
+def test_overview_shows_the_floor_from_above_and_marks_cameras(mission):
+    from perch_operator.render import REJECTED, TopView, overview
+
+    image = overview(mission, size=400)
+    view = TopView(mission.mesh.bounds(), 400)
+    assert image.shape == (view.height, view.width, 3)
+    centre = np.round(view.pixels(np.array([[2.0, 1.2, 0.0]]))[0]).astype(int)
+    floor_pixel = image[centre[1], centre[0]]
+    assert 60 < floor_pixel.mean() < 250  # shaded grey floor seen through the culled ceiling
+    outside = image[2, view.width - 3]
+    assert outside.tolist() == [255, 255, 255]
+    cam = np.round(view.pixels(np.array([[3.7, 2.7, 2.4]]))[0]).astype(int)
+    assert image[cam[1], cam[0]].tolist() != floor_pixel.tolist()
+    assert (image == np.array(REJECTED, np.uint8)).all(axis=-1).any()
+
+
+def test_report_has_numbers_images_and_waypoints(mission, tmp_path):
+    from perch_operator.report import write_report
+
+    path = write_report(mission, tmp_path)
+    text = path.read_text()
+    assert (tmp_path / "report_files" / "overview.png").stat().st_size > 1000
+    assert "70.0 %" in text and "0.0012 m²" in text and "<td class='l'>optimise</td><td>1.50</td>" in text
+    assert "blocked by a lamp" in text and "(0.30, 0.30, 1.90)" in text
+    assert text.count("<tr><td class='l'>") >= 10
+
+
+def test_rerun_file_is_written(mission, tmp_path):
+    from perch_operator.rerun_log import write_rrd
+
+    path = write_rrd(mission, tmp_path / "run.rrd")
+    data = path.read_bytes()
+    assert len(data) > 5000 and data[:4] == b"RRF2"
+
+
+def test_waypoints_yaml_keeps_the_latest_per_drone(mission, tmp_path):
+    later = dict(mission.waypoints[0], proposal_id=99, position=[1.0, 2.0, 3.0])
+    path = write_waypoints_yaml(tmp_path / "waypoints.yaml", mission.waypoints + [later])
+    doc = yaml.safe_load(path.read_text())
+    assert [w["proposal_id"] for w in doc["waypoints"]] == [99, 11]
+    assert doc["waypoints"][0]["position"] == [1.0, 2.0, 3.0] and doc["frame_id"] == "map"
+
+
+def test_summary_table_lists_scores_and_stage_times():
+    from perch_interfaces.action import PlanPerches
+    from perch_interfaces.msg import CameraPlacement as PlacementMsg
+
+    from perch_operator.runner import summary_table
+
+    result = PlanPerches.Result(success=True, coverage=0.815, mean_uncertainty=float("nan"), fitness=0.5,
+                                stage_names=["segment", "total"], stage_seconds=[1.234, 5.0],
+                                placements=[PlacementMsg(), PlacementMsg()])
+    table = summary_table(result)
+    assert "| cameras " in table and "|            2 |" in table
+    assert "81.5 %" in table and "n/a" in table and "1.23 s" in table and "time total" in table
+
+
+def test_target_spec_parsing(tmp_path):
+    from perch_interfaces import msg as pm
+
+    from perch_operator.cli import parse_target
+
+    assert parse_target(None).kind == pm.TargetVolume.KIND_DEFAULT
+    box = parse_target("box:1,2,0.6,2,3,1.2,90")
+    assert box.kind == pm.TargetVolume.KIND_BOX and box.box.size.y == 3.0
+    assert box.box.pose.orientation.z == pytest.approx(np.sqrt(0.5))
+    with pytest.raises(ValueError, match="CX,CY,CZ,SX,SY,SZ"):
+        parse_target("box:1,2,3")

@@ -1,0 +1,81 @@
+"""Recording introspection events to MCAP and `replay --check` against the live crop service."""
+
+import io
+
+import numpy as np
+import pytest
+
+from perch_common.ros import testing
+
+pytestmark = pytest.mark.ros
+
+
+@pytest.fixture(scope="module")
+def ros_node():
+    testing.use_isolated_ros_env()
+    import rclpy
+
+    rclpy.init()
+    node = rclpy.create_node("test_record_replay")
+    yield node
+    node.destroy_node()
+    rclpy.try_shutdown()
+
+
+def _operator(**params):
+    from perch_common.config import default_config_path
+
+    return testing.node_process("perch_operator.node", params_file=default_config_path(),
+                                params={f"perch_operator:{k}": v for k, v in params.items()})
+
+
+def test_crop_calls_are_recorded_and_replay_check_catches_a_parameter_change(ros_node, meshes, tmp_path):
+    from mcap.reader import make_reader
+    from perch_interfaces import msg as pm
+    from perch_interfaces.srv import Crop
+
+    from perch_common.ros.conversions import from_array, mesh_to_msg, pose_msg, vector_msg
+    from perch_operator.recorder import MissionRecorder
+    from perch_operator.replay import replay, summary_line
+    from perch_operator.runfile import channel_counts, stage_calls
+    from perch_operator.runner import spin_for
+
+    path = tmp_path / "run.mcap"
+    room = mesh_to_msg(meshes.room())
+    keep = Crop.Request(mesh=room)
+    pose = np.eye(4)
+    pose[:3, 3] = [1.0, 1.5, 1.25]
+    keep.keep_boxes = [pm.OrientedBox(pose=pose_msg(pose), size=vector_msg([2.0, 3.2, 3.0]))]
+    with _operator():
+        recorder = MissionRecorder(ros_node, path)
+        assert recorder.wait_matched(["/perch/crop/_service_event"], lambda t: spin_for(ros_node, t), 10) == []
+        first = testing.call_service(ros_node, Crop, "/perch/crop", Crop.Request(mesh=room), timeout=20)
+        second = testing.call_service(ros_node, Crop, "/perch/crop", keep, timeout=20)
+        assert first.success and second.success
+        spin_for(ros_node, 1.0)
+        recorder.close()
+
+        calls = stage_calls(path)
+        assert [c.stage for c in calls] == ["crop", "crop"]
+        assert len(calls[1].request.keep_boxes) == 1 and len(calls[0].request.keep_boxes) == 0
+        np.testing.assert_array_equal(from_array(calls[1].response.kept_faces, np.uint32),
+                                      from_array(second.kept_faces, np.uint32))
+        assert channel_counts(path)["/perch/crop/_service_event"] == 4  # received + sent, twice
+        with open(path, "rb") as handle:  # the standard reader sees ros2 schemas
+            summary = make_reader(handle).get_summary()
+        schemas = {s.name: s.encoding for s in summary.schemas.values()}
+        assert schemas["perch_interfaces/srv/Crop_Event"] == "ros2msg"
+
+        out = io.StringIO()
+        clean = replay(ros_node, path, check=True, out=out)
+        assert all(o.ok for o in clean), out.getvalue()
+        assert summary_line(clean, True).startswith("replay check passed: 2 stage call(s)")
+
+    with _operator(**{"crop.target_height": 2.0}):
+        out = io.StringIO()
+        changed = replay(ros_node, path, check=True, out=out)
+        text = out.getvalue()
+        assert not changed[0].ok and changed[1].ok is False
+        assert "target.height: recorded 1.2, replayed 2" in text
+        assert "target.footprint.vertices" not in text  # the floor outline is unchanged, only the height
+        assert summary_line(changed, True).startswith("replay check FAILED: 2 of 2")

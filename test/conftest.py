@@ -1,0 +1,129 @@
+"""The whole node graph as separate processes, shared by the end-to-end tests of one module."""
+
+from __future__ import annotations
+
+import importlib.util
+import threading
+import time
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+import yaml
+
+STAGE_NODES = ("perch_operator", "perch_reconstruction", "perch_segmentation", "perch_filtering", "perch_placement")
+MAIN_SERVICES = {"perch_operator": "/perch/crop", "perch_reconstruction": "/perch/clean_mesh",
+                 "perch_segmentation": "/perch/segment", "perch_filtering": "/perch/filter",
+                 "perch_placement": "/perch/optimise"}
+
+
+def missing_nodes() -> list[str]:
+    return [n for n in STAGE_NODES if importlib.util.find_spec(n) is None or importlib.util.find_spec(f"{n}.node") is None]
+
+
+def write_config(path: Path, changes: dict[str, dict] | None = None) -> Path:
+    """config/perch.yaml with per-node parameter changes {node: {param: value}} (dotted = nested)."""
+    from perch_common.config import default_config_path
+
+    data = yaml.safe_load(default_config_path().read_text())
+    for node, params in (changes or {}).items():
+        section = data.setdefault(node, {}).setdefault("ros__parameters", {})
+        for key, value in params.items():
+            *parents, leaf = key.split(".")
+            target = section
+            for p in parents:
+                target = target.setdefault(p, {})
+            target[leaf] = value
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+@pytest.fixture(scope="module")
+def graph(tmp_path_factory):
+    """Every stage node as its own process on an isolated domain, and a client node spun in a thread."""
+    missing = missing_nodes()
+    if missing:
+        pytest.skip(f"stage node(s) not installed yet: {', '.join(missing)}")
+    from perch_common.ros import testing
+
+    from perch_operator.runner import use_fast_liveliness
+
+    testing.use_isolated_ros_env()
+    use_fast_liveliness()  # a killed stage leaves the graph in ~3 s
+    import rclpy
+
+    from perch_common.launch import GraphProcesses
+
+    tmp = tmp_path_factory.mktemp("graph")
+    config = write_config(tmp / "perch.yaml", {"perch_operator": {"service_wait": 3.0, "gone_grace": 1.0}})
+    rclpy.init()
+    processes = GraphProcesses(config, list(STAGE_NODES), log_dir=tmp / "logs")
+    processes.start()
+    node = rclpy.create_node("e2e_client")
+    try:
+        missing_services = processes.wait_for_services(node, list(MAIN_SERVICES.values()), timeout=120)
+        assert not missing_services, f"services did not start: {missing_services}; logs in {tmp / 'logs'}"
+        yield SimpleNamespace(processes=processes, node=node, config=config, tmp=tmp, spinner=Spinner,
+                              wait_back=lambda name: wait_gone_and_back(node, MAIN_SERVICES[name]))
+    finally:
+        processes.stop()
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def wait_service(node, name: str, timeout: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if name in {n for n, _ in node.get_service_names_and_types()}:
+            return
+        time.sleep(0.2)
+    raise TimeoutError(f"{name} did not come back within {timeout:.0f} s")
+
+
+class Spinner:
+    """Spin a node in a background thread (for tests that block on other things meanwhile)."""
+
+    def __init__(self, node):
+        from rclpy.executors import SingleThreadedExecutor
+
+        self.executor = SingleThreadedExecutor()
+        self.executor.add_node(node)
+        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+
+    def __enter__(self):
+        self.thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self.executor.shutdown()
+        self.thread.join(5)
+
+
+@pytest.fixture
+def restart_with(graph, tmp_path):
+    """`with restart_with(node, {param: value}):` runs that node with changed parameters, then the original."""
+    import contextlib
+
+    from perch_common.launch import GraphProcesses
+
+    @contextlib.contextmanager
+    def run(name: str, params: dict):
+        config = write_config(tmp_path / f"{name}.yaml", {name: params})
+        graph.processes.stop_node(name)
+        changed = GraphProcesses(config, [name], log_dir=graph.tmp / "logs_changed")
+        changed.start()
+        try:
+            wait_gone_and_back(graph.node, MAIN_SERVICES[name])
+            yield changed
+        finally:
+            changed.stop()
+            graph.processes.start_node(name)
+            wait_gone_and_back(graph.node, MAIN_SERVICES[name])
+
+    return run
+
+
+def wait_gone_and_back(node, service: str, timeout: float = 60.0) -> None:
+    """Wait until `service` is offered again, plus a moment for the graph to settle."""
+    wait_service(node, service, timeout)
+    time.sleep(0.5)

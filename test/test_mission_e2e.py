@@ -1,0 +1,274 @@
+"""End to end across processes: missions on a generated scene through every stage node.
+
+One graph (each node its own process) serves the whole module; tests run in file order and the
+replay test reuses the first test's recording.
+"""
+
+from __future__ import annotations
+
+import io
+import time
+
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.ros
+
+CAMERAS = 3
+SCENE_SEED = 3
+
+
+@pytest.fixture(scope="module")
+def scene():
+    from perch_common.scene_generator import generate_scene
+
+    return generate_scene(SCENE_SEED, "room")
+
+
+def make_goal(scene, auto_accept: bool = True, cameras: int = CAMERAS):
+    from perch_interfaces.action import PlanPerches
+
+    from perch_common.ros.conversions import mesh_to_msg, target_to_msg
+
+    return PlanPerches.Goal(mesh=mesh_to_msg(scene.mesh), target=target_to_msg(scene.target),
+                            num_cameras=cameras, auto_accept=auto_accept, seed=-1)
+
+
+def wait_for(predicate, timeout: float, what: str):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(0.05)
+    raise TimeoutError(f"timed out waiting for {what}")
+
+
+@pytest.fixture(scope="module")
+def recorded(graph, scene, tmp_path_factory):
+    """The first mission: auto-accept, recorded, with outputs written."""
+    from perch_operator.runner import run_recorded_mission, write_outputs
+
+    out = tmp_path_factory.mktemp("mission")
+    outputs = run_recorded_mission(graph.node, make_goal(scene), out, progress=False, timeout=300)
+    assert outputs.result.success, outputs.result.message
+    return write_outputs(outputs)
+
+
+def test_auto_accept_mission_reaches_a_late_dispatcher(graph, recorded):
+    from geometry_msgs.msg import PoseArray
+
+    from perch_operator.dispatcher import Dispatcher
+    from perch_operator.node import LATCHED_LAST
+    from perch_operator.runner import spin_for
+
+    result = recorded.result
+    assert len(result.placements) == CAMERAS and len(result.waypoints) == CAMERAS
+    assert result.stage_names[:5] == ["clean", "crop", "segment", "filter", "optimise"]
+    assert result.stage_names[-2:] == ["confirm", "total"] and all(s >= 0 for s in result.stage_seconds)
+    assert 0 < result.coverage <= 1 and 0 < result.fitness <= 1
+    # A dispatcher started after the mission still receives every waypoint (transient local).
+    dispatcher = Dispatcher(name="late_dispatcher")
+    poses: list[PoseArray] = []
+    dispatcher.create_subscription(PoseArray, "/perch/waypoint_poses", poses.append, LATCHED_LAST)
+    deadline = time.monotonic() + 10
+    wanted = {w.proposal_id for w in result.waypoints}
+    while time.monotonic() < deadline and not wanted <= {w["proposal_id"] for w in dispatcher.received}:
+        spin_for(dispatcher, 0.1)
+    got = {w["proposal_id"]: w for w in dispatcher.received}
+    assert wanted <= set(got)
+    for w in result.waypoints:
+        p = w.pose.pose.position
+        np.testing.assert_allclose(got[w.proposal_id]["position"], [p.x, p.y, p.z], atol=1e-6)
+        # the approach point lies in front of the perch, 0.5 m along the perch normal
+        assert np.linalg.norm(np.subtract(got[w.proposal_id]["approach"], [p.x, p.y, p.z])) == pytest.approx(0.5)
+    assert poses and len(poses[-1].poses) == CAMERAS
+    dispatcher.destroy_node()
+    for name in ("run.mcap", "run.rrd", "report.html", "waypoints.yaml"):
+        assert (recorded.out_dir / name).stat().st_size > 0, name
+
+
+def test_recording_holds_every_stage_call_and_replays_clean(graph, recorded):
+    from perch_operator.replay import replay
+    from perch_operator.runfile import channel_counts, stage_calls
+
+    calls = stage_calls(recorded.mcap)
+    assert [c.stage for c in calls] == ["clean", "crop", "segment", "filter", "optimise"]
+    assert all(c.request is not None and c.response is not None for c in calls)
+    counts = channel_counts(recorded.mcap)
+    assert counts["/perch/proposals"] == 2 * CAMERAS and counts["/perch/waypoints"] == CAMERAS
+    # A standard MCAP ROS 2 reader decodes the topics from the file's own schemas.
+    from mcap_ros2.reader import read_ros2_messages
+
+    decoded = [m.ros_msg for m in read_ros2_messages(str(recorded.mcap), topics=["/perch/waypoints"])]
+    assert sorted(m.proposal_id for m in decoded) == sorted(w.proposal_id for w in recorded.result.waypoints)
+    out = io.StringIO()
+    outcomes = replay(graph.node, recorded.mcap, check=True, out=out)
+    assert all(o.ok for o in outcomes), out.getvalue()
+
+
+def test_replay_check_fails_after_a_parameter_change(graph, recorded, restart_with):
+    from perch_operator.replay import replay
+
+    with restart_with("perch_placement", {"seed": 12345}):
+        out = io.StringIO()
+        outcomes = replay(graph.node, recorded.mcap, check=True, stages=["optimise"], out=out)
+    assert not outcomes[0].ok
+    assert "placements" in out.getvalue() or "fitness" in out.getvalue()
+
+
+class LiveMission:
+    """A mission driven from the test: goal sent, proposals watched, decisions sent, all async."""
+
+    def __init__(self, node, goal):
+        from perch_interfaces.action import PlanPerches
+        from perch_interfaces.msg import Proposal
+        from perch_interfaces.srv import Confirm
+        from rclpy.action import ActionClient
+
+        from perch_operator.node import LATCHED
+
+        self.node = node
+        self.proposals: dict[int, Proposal] = {}
+        self.sub = node.create_subscription(Proposal, "/perch/proposals", self._on_proposal, LATCHED)
+        self.client = ActionClient(node, PlanPerches, "/perch/plan_perches")
+        self.confirm = node.create_client(Confirm, "/perch/confirm")
+        self.goal = goal
+        self.feedback: list = []
+
+    def _on_proposal(self, msg) -> None:
+        self.proposals[msg.id] = msg
+
+    def start(self) -> None:
+        time.sleep(0.5)  # latched proposals of earlier missions arrive first
+        self.first_id = max(self.proposals, default=0) + 1
+        sent = self.client.send_goal_async(self.goal, feedback_callback=lambda m: self.feedback.append(m.feedback))
+        handle = wait_for(lambda: sent.result() if sent.done() else None, 30, "goal acceptance")
+        assert handle.accepted
+        self.result_future = handle.get_result_async()
+
+    def mine(self, status=None) -> list:
+        return [p for i, p in sorted(self.proposals.items())
+                if i >= self.first_id and (status is None or p.status == status)]
+
+    def decide(self, proposal_id: int, decision: int, reason: str = ""):
+        from perch_interfaces.srv import Confirm
+
+        future = self.confirm.call_async(Confirm.Request(proposal_id=proposal_id, decision=decision, reason=reason))
+        return wait_for(lambda: future.result() if future.done() else None, 60, f"decision on {proposal_id}")
+
+    def result(self, timeout: float = 300):
+        return wait_for(lambda: self.result_future.result() if self.result_future.done() else None,
+                        timeout, "the mission result").result
+
+    def close(self) -> None:
+        self.node.destroy_subscription(self.sub)
+        self.node.destroy_client(self.confirm)
+        self.client.destroy()
+
+
+def _position(placement_msg) -> np.ndarray:
+    p = placement_msg.drone_pose.position
+    return np.array([p.x, p.y, p.z])
+
+
+def test_accept_reject_and_failed_in_flight(graph, scene):
+    from perch_interfaces.msg import Proposal
+    from perch_interfaces.srv import Confirm
+
+    mission = LiveMission(graph.node, make_goal(scene, auto_accept=False))
+    with graph.spinner(graph.node):
+        mission.start()
+        pending = wait_for(lambda: (lambda p: p if len(p) == CAMERAS else None)(mission.mine(Proposal.STATUS_PENDING)),
+                           300, f"{CAMERAS} pending proposals")
+        keep, reject, last = pending
+        assert mission.decide(keep.id, Confirm.Request.ACCEPT).success
+        started = time.monotonic()
+        reply = mission.decide(reject.id, Confirm.Request.REJECT, "too close to the lamp")
+        replan_seconds = time.monotonic() - started
+        assert reply.success, reply.message
+        new = reply.replacement
+        assert new.id > last.id and new.status == Proposal.STATUS_PENDING
+        assert new.placement.drone_index == reject.placement.drone_index
+        # The replacement keeps out of the exclusion zone around the rejected perch.
+        assert np.linalg.norm(_position(new.placement) - _position(reject.placement)) >= 0.3
+        assert mission.proposals[reject.id].status == Proposal.STATUS_REJECTED
+        assert mission.proposals[reject.id].reason == "too close to the lamp"
+        again = mission.decide(reject.id, Confirm.Request.ACCEPT)
+        assert not again.success and "superseded" in again.message
+        for p in (new, last):
+            assert mission.decide(p.id, Confirm.Request.ACCEPT).success
+        result = mission.result()
+        assert result.success, result.message
+        by_drone = {p.drone_index: p for p in result.placements}
+        # The accepted perch is kept exactly; the rejected one is replaced.
+        np.testing.assert_allclose(_position(by_drone[keep.placement.drone_index]), _position(keep.placement))
+        np.testing.assert_allclose(_position(by_drone[reject.placement.drone_index]), _position(new.placement))
+        assert {w.proposal_id for w in result.waypoints} == {keep.id, new.id, last.id}
+
+        # After the mission: an accepted perch fails in flight and is re-planned, the others kept.
+        failed = mission.decide(last.id, Confirm.Request.FAILED_IN_FLIGHT, "slipped off")
+        assert failed.success and failed.replacement.id > new.id
+        assert np.linalg.norm(_position(failed.replacement.placement) - _position(last.placement)) >= 0.3
+        assert np.linalg.norm(_position(failed.replacement.placement) - _position(reject.placement)) >= 0.3
+        assert mission.decide(failed.replacement.id, Confirm.Request.ACCEPT).success
+        stages = {f.stage for f in mission.feedback}
+        assert {"segment", "optimise", "confirm"} <= stages
+    mission.close()
+    print(f"re-plan after a rejection: {replan_seconds:.2f} s")
+
+
+def test_killed_stage_ends_the_mission_with_its_name_and_the_next_one_succeeds(graph, scene, restart_with):
+    from perch_interfaces.srv import Optimise
+    from rclpy.qos import qos_profile_services_default
+
+    from perch_operator.client import run_mission
+
+    # A deliberately long search, so that the stage dies in the middle of its call.
+    slow = {"pso.particles": 400, "pso.iterations": 400, "pso.tolerance": 0.0, "pso.patience": 1000}
+    with restart_with("perch_placement", slow) as changed:
+        received = []
+        events = graph.node.create_subscription(Optimise.Event, "/perch/optimise/_service_event",
+                                                received.append, qos_profile_services_default)
+        mission = LiveMission(graph.node, make_goal(scene))
+        with graph.spinner(graph.node):
+            wait_for(lambda: events.get_publisher_count() > 0, 30, "the optimise event publisher")
+            mission.start()
+            wait_for(lambda: any(e.info.event_type == 1 for e in received), 300, "the optimise request")
+            time.sleep(0.5)
+            changed.processes["perch_placement"].kill()   # SIGKILL: no goodbye to the graph
+            started = time.monotonic()
+            result = mission.result(timeout=120)
+            detected = time.monotonic() - started
+        mission.close()
+        graph.node.destroy_subscription(events)
+    assert not result.success
+    assert result.message.startswith("stage optimise (/perch/optimise):"), result.message
+    assert "disappeared during the call" in result.message
+    assert result.stage_names == ["clean", "crop", "segment", "filter"]
+    assert detected < 30
+    # restart_with has brought the normal placement node back: the next mission succeeds.
+    again = run_mission(graph.node, make_goal(scene), timeout=300)
+    assert again.success, again.message
+    print(f"killed stage reported {detected:.1f} s after the kill")
+
+
+@pytest.mark.slow
+def test_twenty_missions_without_crashes_or_memory_growth(graph, scene):
+    import psutil
+
+    from perch_operator.client import run_mission
+
+    goal = make_goal(scene, cameras=2)
+    procs = {n: psutil.Process(p.pid) for n, p in graph.processes.processes.items()}
+    rss: dict[str, list[float]] = {n: [] for n in procs}
+    for i in range(20):
+        result = run_mission(graph.node, goal, timeout=300)
+        assert result.success, f"mission {i}: {result.message}"
+        for name, proc in procs.items():
+            rss[name].append(proc.memory_info().rss / 2**20)
+    assert all(graph.processes.alive().values()), graph.processes.alive()
+    for name, values in rss.items():
+        # No steady growth once warm: the last five missions stay within 25 MB of missions 6-10.
+        growth = max(values[15:]) - max(values[5:10])
+        assert growth < 25, f"{name}: RSS grew {growth:.1f} MB over missions 6-20 ({values})"
