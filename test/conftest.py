@@ -46,10 +46,7 @@ def graph(tmp_path_factory):
         pytest.skip(f"stage node(s) not installed yet: {', '.join(missing)}")
     from perch_common.ros import testing
 
-    from perch_operator.runner import use_fast_liveliness
-
-    testing.use_isolated_ros_env()
-    use_fast_liveliness()  # a killed stage leaves the graph in ~3 s
+    testing.use_isolated_ros_env()  # includes the Fast DDS profile: a killed stage leaves in ~3 s
     import rclpy
 
     from perch_common.launch import GraphProcesses

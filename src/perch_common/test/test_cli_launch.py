@@ -59,7 +59,7 @@ def test_launch_lists_installed_listed_nodes(tmp_path):
     assert "perch_mesh_tools" in available_nodes()
     graph = GraphProcesses(config, overrides=["perch_mesh_tools:service_name:=/x"])
     assert graph.nodes == ["perch_mesh_tools"]
-    assert graph.command("perch_mesh_tools")[-2:] == ["-p", "service_name:=/x"]
+    assert graph.command("perch_mesh_tools")[-2:] == ["-p", "perch_mesh_tools:service_name:=/x"]
     with pytest.raises(ConfigError, match="unknown node"):
         GraphProcesses(config, nodes=["nope"])
 

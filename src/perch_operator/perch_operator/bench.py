@@ -58,7 +58,8 @@ def _run(args) -> int:
     from perch_common.launch import GraphProcesses
     from perch_operator.client import run_mission
 
-    from perch_operator.runner import client_context, use_fast_liveliness
+    from perch_common.launch import use_fast_liveliness
+    from perch_operator.runner import client_context
 
     use_fast_liveliness()
     goal, source, faces = build_goal(args)

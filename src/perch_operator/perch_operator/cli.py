@@ -111,7 +111,8 @@ def run_plan(goal, args, describe: dict) -> int:
     """Launch what is missing, run and record the mission, write the outputs, print the summary."""
     import rclpy
 
-    from perch_operator.runner import client_context, ensure_graph, use_fast_liveliness
+    from perch_common.launch import use_fast_liveliness
+    from perch_operator.runner import client_context, ensure_graph
 
     use_fast_liveliness()
     started = time.monotonic()

@@ -50,16 +50,6 @@ def client_context():
         rclpy.try_shutdown()
 
 
-def use_fast_liveliness() -> None:
-    """Let this process and the nodes it launches drop a killed process from the graph within ~3 s.
-
-    Call before rclpy.init; keeps a FASTRTPS_DEFAULT_PROFILES_FILE the user already set.
-    """
-    import os
-
-    os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(Path(__file__).with_name("fastdds_liveliness.xml")))
-
-
 def offered_services(node) -> set[str]:
     return {name for name, _ in node.get_service_names_and_types()}
 

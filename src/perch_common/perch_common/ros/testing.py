@@ -13,6 +13,7 @@ from typing import Any, Iterator
 import rclpy
 from rclpy.node import Node
 
+from perch_common.launch import use_fast_liveliness
 from perch_common.processes import stop_process
 
 
@@ -24,7 +25,7 @@ def isolated_ros_env(domain_id: int | None = None) -> dict[str, str]:
     env.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
     env.setdefault("OMP_NUM_THREADS", "2")
     env.setdefault("OPENBLAS_NUM_THREADS", "1")
-    return env
+    return use_fast_liveliness(env)
 
 
 def use_isolated_ros_env(domain_id: int | None = None) -> None:
