@@ -1,0 +1,80 @@
+"""`perch segment MESH -o OUT`: run the segmentation stage on a mesh file."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+from perch_common.config import ConfigError, default_config_path, from_parameters, node_parameters
+from perch_common.mesh import load_mesh
+
+
+def register(sub) -> None:
+    parser = sub.add_parser(
+        "segment", help="split a room mesh into planar surfaces",
+        description="Run the segmentation stage on MESH; write the surfaces (YAML or JSON) and a mesh "
+                    "coloured by surface. Parameters come from config/perch.yaml (perch_segmentation).")
+    parser.add_argument("mesh", type=Path, help="mesh file (.ply .obj .glb .stl .off)")
+    parser.add_argument("-o", "--output", type=Path, required=True,
+                        help="a .yaml/.yml/.json file (the coloured mesh goes beside it as *_segments.ply) "
+                             "or a folder (surfaces.yaml and segments.ply)")
+    parser.add_argument("--config", type=Path, default=None, help="parameter file (default: config/perch.yaml)")
+    parser.add_argument("-p", "--param", action="append", default=[], metavar="NAME:=VALUE",
+                        help="override a parameter, e.g. -p use_color:=false (repeatable)")
+    parser.add_argument("--png", type=Path, default=None, help="also render the coloured result to this PNG")
+    parser.set_defaults(func=run)
+
+
+def load_config(config_path: Path | None, overrides: list[str]):
+    from perch_segmentation.core import SegmentationConfig
+
+    try:
+        params = node_parameters("perch_segmentation", config_path or default_config_path())
+    except ConfigError:
+        if config_path is not None:
+            raise
+        params = {}  # no workspace config: the defaults
+    known = set(SegmentationConfig.__dataclass_fields__)
+    for item in overrides:
+        name, sep, value = item.partition(":=")
+        if not sep:
+            name, sep, value = item.partition("=")
+        name = name.strip()
+        if not sep or not name:
+            raise ConfigError(f"-p {item!r}: use NAME:=VALUE")
+        if name not in known:
+            raise ConfigError(f"-p {item!r}: perch_segmentation has no parameter '{name}' "
+                              f"(known: {', '.join(sorted(known))})")
+        params[name] = _parse_value(value.strip())
+    return from_parameters(SegmentationConfig, params)
+
+
+def _parse_value(text: str):
+    import yaml
+
+    return yaml.safe_load(text) if text else ""
+
+
+def run(args: argparse.Namespace) -> int:
+    from perch_segmentation.core import segment_mesh
+    from perch_segmentation.io import output_paths, write_colored_mesh, write_surfaces
+
+    config = load_config(args.config, args.param)
+    mesh = load_mesh(args.mesh)
+    started = time.perf_counter()
+    result = segment_mesh(mesh, config)
+    seconds = time.perf_counter() - started
+    surfaces_path, mesh_path = output_paths(args.output)
+    write_surfaces(surfaces_path, result.surfaces, source=str(args.mesh), frame_id=mesh.frame_id)
+    write_colored_mesh(mesh_path, mesh, result.face_labels)
+    area = sum(s.area for s in result.surfaces)
+    print(f"{len(result.surfaces)} surfaces ({area:.1f} m^2 of {mesh.face_areas().sum():.1f} m^2) from "
+          f"{mesh.num_faces} faces in {seconds:.2f} s")
+    print(f"surfaces: {surfaces_path}\ncoloured mesh: {mesh_path}")
+    if args.png:
+        from perch_segmentation.render import render_segmentation
+        from perch_common.transforms import parse_up_axis
+
+        print(f"picture: {render_segmentation(mesh, result.face_labels, args.png, parse_up_axis(config.up_axis))}")
+    return 0

@@ -1,0 +1,100 @@
+"""Outlines of surfaces (polygons with holes in plane coordinates) by rasterising their faces.
+
+A shapely union of every triangle costs seconds for a large surface, and noisy scans have
+fold-overs that are no valid coverage (make_valid then costs more than the whole segmentation).
+Instead each surface's faces are sampled onto a grid of `cell` metres in its plane, the mask is
+closed against pinholes, and OpenCV traces outer contours and holes. The outline is accurate to
+about one cell, which the simplification tolerance exceeds anyway.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+_MAX_PIXELS = 4096
+_FILL_ABOVE = 4.0  # cells; triangles with longer edges are scan-converted instead of sampled  # per side; coarser cells for huge surfaces keep memory bounded
+
+
+def _barycentric_grid(k: int) -> np.ndarray:
+    """(M,3) barycentric weights of a triangular grid with spacing 1/(k+1) of the edges, inset
+    by a third of the spacing so no sample lies on an edge (it would mark the pixel beyond)."""
+    i, j = np.meshgrid(np.arange(k + 1), np.arange(k + 1), indexing="ij")
+    keep = i + j <= k
+    i, j = i[keep], j[keep]
+    return np.stack([k - i - j + 1.0 / 3.0, i + 1.0 / 3.0, j + 1.0 / 3.0], axis=1) / (k + 1.0)
+
+
+def _sample_triangles(uv: np.ndarray, spacing: float) -> np.ndarray:
+    """Points covering each (F,3,2) triangle no more than `spacing` apart along its edges."""
+    edge = np.max(np.linalg.norm(uv - np.roll(uv, 1, axis=1), axis=2), axis=1)
+    levels = np.maximum(0, np.ceil(edge / spacing) - 1).astype(np.int64)
+    parts = [np.zeros((0, 2))]
+    for k in np.unique(levels):
+        w = _barycentric_grid(int(k))
+        tri = uv[levels == k]
+        parts.append((tri[:, None, 0] * w[None, :, 0, None] + tri[:, None, 1] * w[None, :, 1, None]
+                      + tri[:, None, 2] * w[None, :, 2, None]).reshape(-1, 2))
+    return np.concatenate(parts)
+
+
+def _shrink(tri: np.ndarray, inset: float) -> np.ndarray:
+    """(F,3,2) triangles with every edge moved inwards by `inset` (scaled about the incentre)."""
+    lengths = np.linalg.norm(np.roll(tri, -1, axis=1) - np.roll(tri, 1, axis=1), axis=2)  # opposite edges
+    perimeter = lengths.sum(axis=1)
+    incentre = (lengths[:, :, None] * tri).sum(axis=1) / perimeter[:, None]
+    e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    area2 = np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    radius = area2 / perimeter
+    scale = np.clip((radius - inset) / np.maximum(radius, 1e-12), 0.0, 1.0)
+    return incentre[:, None] + (tri - incentre[:, None]) * scale[:, None, None]
+
+
+def outline(uv: np.ndarray, cell: float, simplify: float) -> list:
+    """Polygons (lists of (K,2) rings, outer first) covered by the (F,3,2) plane triangles uv."""
+    import cv2
+    import shapely
+
+    from perch_common.polygons import from_shapely
+
+    if len(uv) == 0:
+        return []
+    low = uv.reshape(-1, 2).min(axis=0)
+    extent = uv.reshape(-1, 2).max(axis=0) - low
+    cell = max(cell, float(extent.max()) / (_MAX_PIXELS - 4))
+    origin = low - 2 * cell
+    size = np.ceil(extent / cell).astype(np.int64) + 5
+    mask = np.zeros((int(size[1]), int(size[0])), np.uint8)
+    grid = (uv - origin) / cell
+    edge = np.max(np.linalg.norm(grid - np.roll(grid, 1, axis=1), axis=2), axis=1)
+    large = edge > _FILL_ABOVE
+    if large.any():
+        # Large triangles are filled (scanline, even-odd: overlaps could cancel, hence also the
+        # samples of their corners and centres below); small ones are sampled densely. OpenCV
+        # fills edges inclusively: pulling every edge in by half a pixel keeps outlines unbiased.
+        inner = _shrink(grid[large], 0.5)
+        cv2.fillPoly(mask, np.round((inner - 0.5) * 16).astype(np.int32), 1, cv2.LINE_8, 4)
+        corners = np.concatenate([inner.reshape(-1, 2), inner.mean(axis=1)])
+    else:
+        corners = np.zeros((0, 2))
+    points = np.concatenate([_sample_triangles(grid[~large], 0.7), corners])
+    pixel = np.floor(points).astype(np.int64)
+    mask[pixel[:, 1], pixel[:, 0]] = 1
+    mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
+    contours, hierarchy = cv2.findContours(mask, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
+    if hierarchy is None:
+        return []
+    epsilon = max(simplify / cell, 0.5)
+    rings = [cv2.approxPolyDP(c, epsilon, True).reshape(-1, 2) * cell + origin + 0.5 * cell for c in contours]
+    parents = hierarchy[0][:, 3]
+    polygons = []
+    for k in np.flatnonzero(parents < 0):
+        if len(rings[k]) < 3:
+            continue
+        holes = [rings[h] for h in np.flatnonzero(parents == k) if len(rings[h]) >= 3]
+        polygons.append(shapely.Polygon(rings[k], holes))
+    if not polygons:
+        return []
+    shape = shapely.make_valid(shapely.MultiPolygon(polygons)) if len(polygons) > 1 else shapely.make_valid(polygons[0])
+    # Contours run through the centres of the outermost cells: grow by half a cell to the true edge.
+    shape = shape.buffer(0.5 * cell, join_style="mitre")
+    return from_shapely(shape)

@@ -1,0 +1,68 @@
+"""`perch segment` writes surfaces and a coloured mesh; the benchmark's helpers and JSON."""
+
+import json
+
+import numpy as np
+import pytest
+import yaml
+
+from perch_common.cli import main
+from perch_common.mesh import load_mesh, save_mesh
+from perch_segmentation.bench import subdivide
+from perch_segmentation.testing import box_room
+
+
+def test_segment_command_writes_surfaces_and_coloured_mesh(tmp_path, capsys):
+    mesh, plane = box_room(door=True)
+    source = save_mesh(tmp_path / "room.ply", mesh)
+    out = tmp_path / "result" / "room.yaml"
+    assert main(["segment", str(source), "-o", str(out), "--png", str(tmp_path / "room.png")]) == 0
+    document = yaml.safe_load(out.read_text())
+    surfaces = document["surfaces"]
+    assert len(surfaces) == 7 and [s["id"] for s in surfaces] == list(range(7))
+    door = [s for s in surfaces if s["mean_color"][0] < 0.5]
+    assert len(door) == 1 and door[0]["area"] == pytest.approx(1.8, rel=0.15)
+    floor = max(surfaces, key=lambda s: s["frame"]["normal"][2])
+    assert floor["area"] == pytest.approx(12.0, rel=0.01) and len(floor["face_indices"]) == 2400
+    assert len(floor["boundary"][0][0]) >= 4  # polygon 0, outer ring, points [u, v]
+    coloured = load_mesh(tmp_path / "result" / "room_segments.ply")
+    assert coloured.num_faces == mesh.num_faces
+    assert (tmp_path / "room.png").stat().st_size > 10000
+    assert "7 surfaces" in capsys.readouterr().out
+
+
+def test_segment_command_json_folder_and_overrides(tmp_path):
+    mesh, _ = box_room(door=True)
+    source = save_mesh(tmp_path / "room.ply", mesh)
+    assert main(["segment", str(source), "-o", str(tmp_path / "out.json"), "-p", "use_color:=false"]) == 0
+    assert len(json.loads((tmp_path / "out.json").read_text())["surfaces"]) == 6  # door merged into its wall
+    assert main(["segment", str(source), "-o", str(tmp_path / "folder")]) == 0
+    assert (tmp_path / "folder" / "surfaces.yaml").is_file() and (tmp_path / "folder" / "segments.ply").is_file()
+
+
+def test_segment_command_rejects_unknown_parameters(tmp_path, capsys):
+    source = save_mesh(tmp_path / "room.ply", box_room()[0])
+    with pytest.raises(SystemExit):
+        main(["segment", str(source), "-o", str(tmp_path / "x.yaml"), "-p", "theta:=3"])
+    assert "has no parameter 'theta'" in capsys.readouterr().err
+
+
+def test_subdivide_quadruples_faces_and_keeps_geometry():
+    mesh, _ = box_room(size=(2.0, 1.0, 1.0), cell=0.5)
+    fine = subdivide(mesh)
+    assert fine.num_faces == 4 * mesh.num_faces
+    assert fine.face_areas().sum() == pytest.approx(mesh.face_areas().sum())
+    np.testing.assert_allclose(fine.bounds(), mesh.bounds())
+    assert fine.vertex_colors.shape == (fine.num_vertices, 3)
+
+
+@pytest.mark.parametrize("baseline", ["patches", "ransac"])
+def test_bench_scene_prints_accuracy_and_baseline(tmp_path, capsys, baseline):
+    assert main(["bench", "segment", "--scene", "0", "--kind", "room", "--repeats", "1",
+                 "--baseline", baseline, "--out", str(tmp_path), "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    for key in ("faces", "seconds", "peak_rss_mb", "surfaces", "plane_recall", "plane_precision", "normal_error_deg"):
+        assert key in result
+    assert result["plane_recall"] >= 0.95
+    assert result["baseline"]["seconds"] > 0 and "plane_recall" in result["baseline"]
+    assert (tmp_path / "scene_room_0.png").is_file()
