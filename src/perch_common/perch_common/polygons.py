@@ -29,8 +29,12 @@ def faces_outline(frame: PlaneFrame, triangles: np.ndarray, simplify: float = 0.
         return []
     pieces = shapely.polygons(uv)
     # Mesh triangles usually form a valid coverage (edge-matched, no overlap): 30x faster union.
-    union = shapely.coverage_union_all(pieces)
-    if not union.is_valid:
+    try:
+        union = shapely.coverage_union_all(pieces)
+        valid = union.is_valid
+    except shapely.errors.GEOSException:  # noisy scans: triangles overlap once projected
+        valid = False
+    if not valid:
         union = shapely.union_all(pieces, grid_size=1e-6)
     if simplify > 0:
         union = union.simplify(simplify)

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from perch_common.errors import PerchError
-from perch_common.mesh import Mesh, MeshError
+from perch_common.mesh import Mesh, validate_mesh
 from perch_common.transforms import parse_up_axis
 from perch_common.types import Surface
 from perch_segmentation import stats as st
@@ -158,26 +158,8 @@ def segment_mesh(mesh: Mesh, config: SegmentationConfig | None = None) -> Segmen
 
 
 def check_mesh(mesh: Mesh, what: str) -> None:
-    """Raise MeshError naming every fatal problem (empty, NaN, indices out of range, all faces
-    degenerate). The fatal checks of perch_common.mesh.validate_mesh, without its duplicate-face
-    census (a warning only, and 1 s of sorting at a million faces)."""
-    fatal = []
-    if mesh.num_faces == 0 or mesh.num_vertices == 0:
-        raise MeshError(f"{what}: mesh is empty ({mesh.num_vertices} vertices, {mesh.num_faces} faces)")
-    bad = ~np.isfinite(mesh.vertices).all(axis=1)
-    if bad.any():
-        fatal.append(f"{int(bad.sum())} vertices are NaN or infinite (first: vertex {int(np.flatnonzero(bad)[0])})")
-    out_of_range = ((mesh.faces < 0) | (mesh.faces >= mesh.num_vertices)).any(axis=1)
-    if out_of_range.any():
-        face = int(np.flatnonzero(out_of_range)[0])
-        fatal.append(f"{int(out_of_range.sum())} faces index vertices outside 0..{mesh.num_vertices - 1}"
-                     f" (first: face {face} = {mesh.faces[face].tolist()})")
-    if mesh.vertex_colors is not None and len(mesh.vertex_colors) != mesh.num_vertices:
-        fatal.append(f"{len(mesh.vertex_colors)} vertex colours for {mesh.num_vertices} vertices")
-    if not fatal and not (mesh.face_areas() > 1e-12).any():
-        fatal.append("every face is degenerate (zero area)")
-    if fatal:
-        raise MeshError(f"{what}: " + "; ".join(fatal))
+    """Raise MeshError naming every fatal problem (perch_common's checks, without the census)."""
+    validate_mesh(mesh, what)
 
 
 def median_face_colors(mesh: Mesh) -> np.ndarray:
