@@ -5,7 +5,6 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass, field
 
-import numpy as np
 from perch_interfaces.srv import InspectMesh
 from rclpy.node import Node
 

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import sys
 import threading
-import time
 
 import numpy as np
 from geometry_msgs.msg import PoseArray
@@ -19,14 +18,14 @@ from perch_interfaces.action import PlanPerches
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_services_default
-from rclpy.service_introspection import ServiceIntrospectionState
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from perch_common.errors import PerchError
 from perch_common.mesh import MeshError, validate_mesh
 from perch_common.ros.conversions import mesh_from_msg, mesh_to_msg, target_from_msg, target_to_msg, to_array
 from perch_common.ros.node_main import run_node
 from perch_common.ros.params import declare_config, read_config
+from perch_common.ros.service import answering, create_stage_service
 from perch_common.transforms import parse_up_axis
 from perch_operator.config import OperatorConfig
 from perch_operator.crop import crop_mesh
@@ -51,10 +50,8 @@ class OperatorNode(Node):
         group = ReentrantCallbackGroup()
         self.stages = StageCaller(self, group, self.config.service_wait, self.config.stage_timeout,
                                   self.config.gone_grace)
-        self.crop_service = self.create_service(srv.Crop, "/perch/crop", self._crop, callback_group=group)
-        if self.config.introspection:
-            self.crop_service.configure_introspection(self.get_clock(), qos_profile_services_default,
-                                                      ServiceIntrospectionState.CONTENTS)
+        self.crop_service = create_stage_service(self, srv.Crop, "/perch/crop", self._crop,
+                                                 self.config.introspection, callback_group=group)
         self.confirm_service = self.create_service(srv.Confirm, "/perch/confirm", self._confirm,
                                                    callback_group=group)
         self.proposals_pub = self.create_publisher(pm.Proposal, "/perch/proposals", LATCHED)
@@ -69,24 +66,20 @@ class OperatorNode(Node):
 
     # --- crop ---------------------------------------------------------------------------------
 
+    @answering
     def _crop(self, request: srv.Crop.Request, response: srv.Crop.Response) -> srv.Crop.Response:
-        started = time.perf_counter()
-        try:
-            config = read_config(self, OperatorConfig).crop
-            mesh = validate_mesh(mesh_from_msg(request.mesh, "crop mesh"), "crop mesh")
-            keep = [box_from_ros(b, f"keep box {i}") for i, b in enumerate(request.keep_boxes)]
-            remove = [box_from_ros(b, f"remove box {i}") for i, b in enumerate(request.remove_boxes)]
-            result = crop_mesh(mesh, keep, remove, target_from_msg(request.target), config)
-            response.mesh = mesh_to_msg(result.mesh, stamp=request.mesh.header.stamp)
-            response.kept_faces = to_array(result.kept_faces, np.uint32)
-            response.target = target_to_msg(result.target)
-            response.success = True
-            kind = "box" if result.target.is_box else f"footprint x {result.target.height:.2f} m"
-            response.message = (f"kept {result.mesh.num_faces} of {mesh.num_faces} faces; target {kind}, "
-                                f"{result.target.volume():.2f} m^3")
-        except (MeshError, PerchError, ValueError) as exc:
-            response.success, response.message = False, str(exc)
-        response.seconds = time.perf_counter() - started
+        config = read_config(self, OperatorConfig).crop
+        mesh = validate_mesh(mesh_from_msg(request.mesh, "crop mesh"), "crop mesh")
+        keep = [box_from_ros(b, f"keep box {i}") for i, b in enumerate(request.keep_boxes)]
+        remove = [box_from_ros(b, f"remove box {i}") for i, b in enumerate(request.remove_boxes)]
+        result = crop_mesh(mesh, keep, remove, target_from_msg(request.target), config)
+        response.mesh = mesh_to_msg(result.mesh, stamp=request.mesh.header.stamp)
+        response.kept_faces = to_array(result.kept_faces, np.uint32)
+        response.target = target_to_msg(result.target)
+        response.success = True
+        kind = "box" if result.target.is_box else f"footprint x {result.target.height:.2f} m"
+        response.message = (f"kept {result.mesh.num_faces} of {mesh.num_faces} faces; target {kind}, "
+                            f"{result.target.volume():.2f} m^3")
         return response
 
     # --- mission ------------------------------------------------------------------------------

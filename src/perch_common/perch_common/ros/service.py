@@ -40,13 +40,14 @@ def answering(callback: Callable) -> Callable:
     return wrapper
 
 
-def create_stage_service(node, srv_type, name: str, callback: Callable, introspection: bool = True):
+def create_stage_service(node, srv_type, name: str, callback: Callable, introspection: bool = True,
+                         **kwargs):
     """A service whose requests and replies are published as introspection events when enabled,
     so a recorder (perch_operator) can capture and replay them."""
     from rclpy.qos import qos_profile_services_default
     from rclpy.service_introspection import ServiceIntrospectionState
 
-    service = node.create_service(srv_type, name, callback)
+    service = node.create_service(srv_type, name, callback, **kwargs)
     if introspection:
         service.configure_introspection(node.get_clock(), qos_profile_services_default,
                                         ServiceIntrospectionState.CONTENTS)
