@@ -1,0 +1,209 @@
+"""`perch bench placement`: fitness, time and evaluations per method and camera count, against the
+exhaustive reference; prints JSON and writes a markdown table shaped like the original's Table 7."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from perch_common.bench import emit, peak_rss_mb
+from perch_placement.problem import add_problem_arguments, load_config, load_problem, up_of
+
+LABELS = {"pso": "Greedy PSO", "random": "Random", "grid": "Grid", "naive": "Naive PSO", "celf": "CELF + refine",
+          "pso-unseeded": "Greedy PSO (unseeded)"}
+
+
+def register(sub) -> None:
+    parser = sub.add_parser("placement", help="placement search: methods vs the exhaustive reference")
+    add_problem_arguments(parser, mesh_positional=False)
+    parser.add_argument("--cameras", type=int, default=5, help="largest camera count (runs 1..N)")
+    parser.add_argument("--seeds", type=int, default=30, help="search seeds per method and count")
+    parser.add_argument("--methods", default="pso,random,grid,naive,celf",
+                        help="comma-separated: pso, pso-unseeded, random, grid, naive, celf")
+    parser.add_argument("--reference", action="store_true", help="also run the exhaustive reference")
+    parser.add_argument("--density", type=float, default=1000.0, help="points/m^3 for coverage and uncertainty")
+    parser.add_argument("--bound-check", type=int, default=0, metavar="N",
+                        help="also check the greedy online bound by exhaustive search on N small rooms")
+    parser.add_argument("--json", action="store_true", help="print JSON (always on; kept for scripts)")
+    parser.add_argument("--table", help="write the markdown table here (default: stderr)")
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from perch_placement.core import optimise, scene_for
+    from perch_placement.fitness import Evaluator
+
+    config = load_config(args.params).resolved()
+    problem = load_problem(args, up_of(config))
+    started = time.perf_counter()
+    scene = scene_for(problem.mesh)
+    build_seconds = time.perf_counter() - started
+    dense = Evaluator(scene, problem.target.sample(density=args.density, seed=config.seed + 1), config.camera,
+                      config.occlusion_epsilon)
+    result_rays = _ray_throughput(scene, problem)
+    counts = list(range(1, args.cameras + 1))
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    result = {"benchmark": "placement", "problem": problem.name, "regions": len(problem.regions),
+              "regions_route": problem.route, "region_area_m2": float(sum(r.area for r in problem.regions)),
+              "target_volume_m3": problem.target.volume(), "target_points": config.target_points,
+              "dense_points": dense.count, "seeds": args.seeds, "scene_build_seconds": build_seconds,
+              "occlusion_tests_per_second": result_rays, "pso": vars(config.pso), "methods": {}}
+    for method in methods:
+        cfg = replace(config, pso=replace(config.pso, seeded=0)) if method == "pso-unseeded" else config
+        name = "pso" if method == "pso-unseeded" else method
+        per_count = {}
+        for k in counts:
+            runs = [optimise(problem.mesh, problem.regions, problem.target, k, cfg, method=name, seed=s,
+                             scene=scene) for s in range(args.seeds)]
+            per_count[str(k)] = _summary(runs, dense)
+            print(f"{method} k={k}: fitness {per_count[str(k)]['fitness_mean']:.4f} "
+                  f"median {per_count[str(k)]['seconds_median']:.3f} s", file=sys.stderr)
+        result["methods"][method] = per_count
+    if args.reference:
+        result["reference"] = _reference(problem, config, scene, args.cameras, dense)
+    if args.bound_check:
+        from perch_placement.optimality import bound_check_suite
+
+        result["bound_check"] = bound_check_suite(args.bound_check)
+    result["checks"] = _checks(result, counts)
+    result["peak_rss_mb"] = peak_rss_mb()
+    result["load_average"] = list(os.getloadavg())
+    table = markdown_table(result, counts)
+    if args.table:
+        Path(args.table).write_text(table)
+    else:
+        print(table, file=sys.stderr)
+    return emit(result)
+
+
+def _ray_throughput(scene, problem, count: int = 1_000_000) -> float:
+    """Occlusion tests per second on segments from camera positions on the regions to target points."""
+    rng = np.random.default_rng(0)
+    cameras = np.concatenate([r.mesh.vertices + 0.1 * r.frame.normal for r in problem.regions])
+    starts = cameras[rng.integers(0, len(cameras), count)]
+    ends = problem.target.sample(1000, seed=1)
+    ends = ends[rng.integers(0, len(ends), count)]
+    scene.occluded(starts[:1000], ends[:1000])  # warm-up
+    started = time.perf_counter()
+    scene.occluded(starts, ends)
+    return count / (time.perf_counter() - started)
+
+
+def _dense_score(dense, placements) -> tuple[float, float]:
+    dense.reset()
+    for p in placements:
+        pose = np.asarray(p.camera_pose, np.float64)
+        dense.commit(pose[:3, 3], pose[:3, :3], max(float(p.zoom), 1.0))
+    score = dense.current()
+    return float(score.coverage), float(score.mean_uncertainty)
+
+
+def _summary(runs, dense) -> dict:
+    fitness = np.array([r.fitness for r in runs])
+    seconds = np.array([r.seconds for r in runs])
+    cover, unc = zip(*[_dense_score(dense, r.placements) for r in runs])
+    return {"fitness_mean": float(fitness.mean()), "fitness_std": float(fitness.std()),
+            "fitness_min": float(fitness.min()), "seconds_median": float(np.median(seconds)),
+            "seconds_mean": float(seconds.mean()), "seconds_first": float(seconds[0]),
+            "cpu_seconds_median": float(np.median([r.cpu_seconds for r in runs])), "evaluations_mean": float(np.mean([r.evaluations for r in runs])),
+            "candidate_evaluations_mean": float(np.mean([r.candidate_evaluations for r in runs])),
+            "ray_tests_mean": float(np.mean([r.ray_tests for r in runs])),
+            "upper_bound_mean": float(np.nanmean([r.upper_bound for r in runs])),
+            "coverage_dense_mean": float(np.mean(cover)), "uncertainty_dense_mean_m2": float(np.nanmean(unc)),
+            "cameras_placed_mean": float(np.mean([len(r.placements) for r in runs]))}
+
+
+def _reference(problem, config, scene, k: int, dense) -> dict:
+    from perch_placement.fitness import Evaluator
+    from perch_placement.perches import Perches
+    from perch_placement.celf import exhaustive_reference
+    from perch_placement.search import SearchContext
+
+    started = time.perf_counter()
+    ev = Evaluator(scene, problem.target.sample(config.target_points, seed=config.seed), config.camera,
+                   config.occlusion_epsilon)
+    perches = Perches(problem.regions, problem.target.centroid(), config.drone, up_of(config), "plane",
+                      config.camera.max_zoom)
+    ctx = SearchContext(perches, ev, config, np.random.default_rng(0))
+    fitness, chosen, candidates, arrangements = exhaustive_reference(ctx, k)
+    seconds = time.perf_counter() - started
+    cover, unc = [], []
+    dense.reset()
+    for perch in chosen:
+        dense.commit(perch.camera_position, perch.camera_rotation, perch.zoom)
+        score = dense.current()
+        cover.append(float(score.coverage))
+        unc.append(float(score.mean_uncertainty))
+    return {"fitness": fitness, "coverage_dense": cover, "uncertainty_dense_m2": unc, "candidates": candidates,
+            "arrangements_scored": arrangements, "seconds": seconds,
+            "grid": {"spacing_m": config.reference_spacing, "angles": config.reference_angles}}
+
+
+def _checks(result: dict, counts: list) -> dict:
+    checks = {}
+    pso = result["methods"].get("pso")
+    last = str(counts[-1])
+    if pso:
+        checks["pso_median_seconds_below_1"] = pso[last]["seconds_median"] < 1.0
+        for other in ("random", "grid"):
+            if other in result["methods"]:
+                checks[f"pso_above_{other}"] = all(pso[str(k)]["fitness_mean"] > result["methods"][other][str(k)]["fitness_mean"]
+                                                  for k in counts)
+    ref = result.get("reference")
+    if ref:
+        checks["reference_below_300s"] = ref["seconds"] < 300
+        if pso:
+            ratios = [pso[str(k)]["fitness_mean"] / ref["fitness"][k - 1] for k in counts if k <= len(ref["fitness"])]
+            checks["pso_ratio_to_reference"] = ratios
+            checks["pso_at_least_99pct_of_reference"] = bool(ratios) and min(ratios) >= 0.99
+        cov, unc = ref["coverage_dense"], ref["uncertainty_dense_m2"]
+        checks["reference_coverage_rises"] = all(b >= a for a, b in zip(cov, cov[1:]))
+        checks["reference_uncertainty_falls"] = all(b <= a for a, b in zip(unc, unc[1:]))
+    if pso:
+        cov = [pso[str(k)]["coverage_dense_mean"] for k in counts]
+        unc = [pso[str(k)]["uncertainty_dense_mean_m2"] for k in counts]
+        checks["pso_coverage_rises"] = all(b >= a for a, b in zip(cov, cov[1:]))
+        checks["pso_uncertainty_falls"] = all(b <= a for a, b in zip(unc, unc[1:]))
+    return checks
+
+
+def markdown_table(result: dict, counts: list) -> str:
+    """Rows: camera counts. Columns: the reference and each method, fitness mean +- std (median s)."""
+    methods = list(result["methods"])
+    ref = result.get("reference")
+    head = ["Cameras"] + (["Exhaustive reference"] if ref else []) + [LABELS.get(m, m) for m in methods]
+    lines = [f"Placement on {result['problem']} ({result['regions']} regions, {result['regions_route']}; "
+             f"{result['target_points']} target points; {result['seeds']} seeds; fitness mean ± std, "
+             "median seconds)", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for k in counts:
+        row = [str(k)]
+        if ref:
+            row.append(f"{ref['fitness'][k - 1]:.4f}" if k <= len(ref["fitness"]) else "-")
+        for m in methods:
+            s = result["methods"][m][str(k)]
+            row.append(f"{s['fitness_mean']:.4f} ± {s['fitness_std']:.4f} ({s['seconds_median']:.2f} s)")
+        lines.append("| " + " | ".join(row) + " |")
+    lines += ["", f"Coverage (%) and mean uncertainty (mm², spectral norm of the fused covariance) at "
+              f"{result['dense_points']} dense target points", "",
+              "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for k in counts:
+        row = [str(k)]
+        if ref:
+            row.append(f"{100 * ref['coverage_dense'][k - 1]:.1f} / {1e6 * ref['uncertainty_dense_m2'][k - 1]:.3f}"
+                       if k <= len(ref["coverage_dense"]) else "-")
+        for m in methods:
+            s = result["methods"][m][str(k)]
+            row.append(f"{100 * s['coverage_dense_mean']:.1f} / {1e6 * s['uncertainty_dense_mean_m2']:.3f}")
+        lines.append("| " + " | ".join(row) + " |")
+    if ref:
+        lines += ["", f"Reference: greedy over {ref['candidates']} candidates ({ref['grid']['spacing_m']} m grid, "
+                  f"{ref['grid']['angles']}² gimbal angles), {ref['arrangements_scored']} arrangements scored "
+                  f"in {ref['seconds']:.1f} s."]
+    return "\n".join(lines) + "\n"

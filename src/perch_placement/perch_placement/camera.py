@@ -1,0 +1,149 @@
+"""The camera simulator: projection with Brown-Conrady distortion, visibility and stereo covariance.
+
+Batched over B cameras and N points. Information matrices are stored as 6 components
+(xx, yy, zz, xy, xz, yz) and scaled by ||C_max|| so that a point's score is 1 - 1/lambda_min.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from perch_placement.config import CameraSpec
+
+SYM6 = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
+
+
+def distort(x: np.ndarray, y: np.ndarray, coeffs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Normalised image coordinates through Brown-Conrady; also whether the radial map is monotonic there.
+
+    Beyond the radius where r*(1 + k1 r^2 + k2 r^4 + k3 r^6) turns back, far off-axis points would
+    fold back into the image; they are not imaged, so `valid` marks where d(r_d)/dr > 0.
+    """
+    k1, k2, p1, p2, k3 = (float(c) for c in coeffs)
+    if k1 == k2 == p1 == p2 == k3 == 0.0:
+        return x, y, np.ones(np.shape(x), bool)
+    r2 = x * x + y * y
+    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    valid = 1 + r2 * (3 * k1 + r2 * (5 * k2 + r2 * 7 * k3)) > 0
+    return xd, yd, valid
+
+
+def undistort(xd: np.ndarray, yd: np.ndarray, coeffs, iterations: int = 20) -> tuple[np.ndarray, np.ndarray]:
+    """Invert `distort` by fixed-point iteration (as OpenCV's undistortPoints)."""
+    k1, k2, p1, p2, k3 = (float(c) for c in coeffs)
+    x, y = xd.copy(), yd.copy()
+    for _ in range(iterations):
+        r2 = x * x + y * y
+        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        dx = 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        dy = p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        x, y = (xd - dx) / radial, (yd - dy) / radial
+    return x, y
+
+
+def project(camera: CameraSpec, points_cam: np.ndarray, zoom=1.0) -> tuple[np.ndarray, np.ndarray]:
+    """(..., 3) points in the optical frame to (..., 2) pixels and a mask: in front, imaged, on the sensor."""
+    z = points_cam[..., 2]
+    front = z > 1e-9
+    safe_z = np.where(front, z, 1.0)
+    xd, yd, monotonic = distort(points_cam[..., 0] / safe_z, points_cam[..., 1] / safe_z, camera.distortion)
+    zoom = np.asarray(zoom, np.float64)
+    u = camera.fx * zoom * xd + camera.cx
+    v = camera.fy * zoom * yd + camera.cy
+    on_sensor = (u >= 0) & (u <= camera.width) & (v >= 0) & (v <= camera.height)
+    return np.stack([u, v], axis=-1), front & monotonic & on_sensor
+
+
+def on_sensor(camera: CameraSpec, points_cam: np.ndarray) -> np.ndarray:
+    """In front, imaged and on the sensor (unzoomed); without distortion this needs no division:
+    0 <= fx x + cx z <= W z and likewise for y."""
+    if any(float(c) != 0.0 for c in camera.distortion):
+        return project(camera, points_cam)[1]
+    x, y, z = points_cam[..., 0], points_cam[..., 1], points_cam[..., 2]
+    u = camera.fx * x + camera.cx * z
+    v = camera.fy * y + camera.cy * z
+    return (z > 1e-9) & (u >= 0) & (u <= camera.width * z) & (v >= 0) & (v <= camera.height * z)
+
+
+def in_view(camera: CameraSpec, positions: np.ndarray, rotations: np.ndarray, points: np.ndarray,
+            zoom: np.ndarray | float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Everything but occlusion, for B cameras (positions (B,3), world-from-camera rotations (B,3,3))
+    and N points: returns mask (B,N), distances (B,N) and unit directions camera->point (B,N,3)."""
+    delta = points[None, :, :] - positions[:, None, :]
+    distance = np.linalg.norm(delta, axis=-1)
+    unit = delta / np.maximum(distance, 1e-12)[..., None]
+    local = np.matmul(delta, rotations)  # R^T (p - t), row-vector form
+    zoom = np.broadcast_to(np.asarray(zoom, np.float64), (len(positions),))
+    _, mask = project(camera, local, zoom[:, None])
+    r_max = np.minimum(camera.max_range,
+                       camera.focal * zoom * camera.min_feature_size / camera.min_feature_pixels)
+    mask &= (distance >= camera.min_range) & (distance <= r_max[:, None])
+    return mask, distance, unit
+
+
+def sigmas(camera: CameraSpec, distance: np.ndarray, zoom=1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Stereo error across the ray sigma_xy = d e / f and along it sigma_z = d^2 e / (f b) (metres)."""
+    f = camera.focal * np.asarray(zoom, np.float64)
+    e = camera.subpixel_error
+    return distance * e / f, distance ** 2 * e / (f * camera.baseline)
+
+
+def max_covariance_norm(camera: CameraSpec) -> float:
+    """||C_max||: spectral norm of one unzoomed camera's covariance at R_max."""
+    s_xy, s_z = sigmas(camera, np.float64(camera.max_distance()))
+    return float(max(s_xy, s_z) ** 2)
+
+
+def covariance(camera: CameraSpec, distance: np.ndarray, unit: np.ndarray, zoom=1.0) -> np.ndarray:
+    """(..., 3, 3) world covariance sigma_xy^2 I + (sigma_z^2 - sigma_xy^2) u u^T."""
+    s_xy, s_z = sigmas(camera, distance, zoom)
+    outer = unit[..., :, None] * unit[..., None, :]
+    return (s_xy ** 2)[..., None, None] * np.eye(3) + (s_z ** 2 - s_xy ** 2)[..., None, None] * outer
+
+
+def information6(camera: CameraSpec, distance: np.ndarray, unit: np.ndarray, zoom=1.0,
+                 scale: float | None = None) -> np.ndarray:
+    """(..., 6) information C^-1 = a I + (c - a) u u^T with a = 1/sigma_xy^2, c = 1/sigma_z^2,
+    multiplied by `scale` (default ||C_max||, so lambda_min >= 1 within R_max)."""
+    scale = max_covariance_norm(camera) if scale is None else scale
+    s_xy, s_z = sigmas(camera, np.maximum(distance, 1e-9), zoom)
+    a = scale / s_xy ** 2
+    c = scale / s_z ** 2
+    out = np.empty(distance.shape + (6,))
+    for k, (i, j) in enumerate(SYM6):
+        out[..., k] = (c - a) * unit[..., i] * unit[..., j] + (a if i == j else 0.0)
+    return out
+
+
+def full_matrix(info6: np.ndarray) -> np.ndarray:
+    """(..., 6) symmetric components to (..., 3, 3)."""
+    out = np.empty(info6.shape[:-1] + (3, 3))
+    for k, (i, j) in enumerate(SYM6):
+        out[..., i, j] = info6[..., k]
+        out[..., j, i] = info6[..., k]
+    return out
+
+
+def min_eigenvalue(m: np.ndarray) -> np.ndarray:
+    """Smallest eigenvalue of symmetric 3x3 matrices given as (..., 6), closed form (trigonometric)."""
+    a, d, f, b, c, e = (m[..., k] for k in range(6))  # xx yy zz xy xz yz
+    q = (a + d + f) / 3
+    p1 = b * b + c * c + e * e
+    p2 = (a - q) ** 2 + (d - q) ** 2 + (f - q) ** 2 + 2 * p1
+    p = np.sqrt(np.maximum(p2, 0) / 6)
+    safe = np.where(p > 1e-300, p, 1.0)
+    ba, bd, bf, bb, bc, be = (a - q) / safe, (d - q) / safe, (f - q) / safe, b / safe, c / safe, e / safe
+    det = ba * (bd * bf - be * be) - bb * (bb * bf - be * bc) + bc * (bb * be - bd * bc)
+    phi = np.arccos(np.clip(det / 2, -1.0, 1.0)) / 3
+    smallest = q + 2 * p * np.cos(phi + 2 * np.pi / 3)
+    return np.where(p > 1e-300, smallest, q)
+
+
+def point_score(info6: np.ndarray, seen: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-point score s = 1 - ||C||/||C_max|| (0 when unseen) and ||C||/||C_max|| (inf when unseen),
+    from information scaled by ||C_max||: the spectral norm of C = J^-1 is 1/lambda_min(J)."""
+    lam = min_eigenvalue(info6)
+    ratio = np.where(seen, 1.0 / np.maximum(lam, 1e-300), np.inf)
+    return np.where(seen, np.clip(1.0 - ratio, 0.0, 1.0), 0.0), ratio

@@ -1,0 +1,264 @@
+"""Discrete candidate sets: positions on a grid over the regions times a pan/tilt grid.
+
+Occlusion and range depend only on the camera position, so they are ray-cast once per position;
+each orientation only adds a frustum test. A greedy step then scores every candidate with one
+matrix product: gain(c) = sum_n visible(c, n) * (s_n(with c's position) - s_n) / N. This makes the
+dense exhaustive reference, lazy greedy (CELF) and the greedy online bound cheap.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections import OrderedDict
+from dataclasses import dataclass
+
+import numpy as np
+
+from perch_common.types import ExclusionZone
+from perch_placement.camera import information6, on_sensor, point_score
+from perch_placement.fitness import Evaluator
+from perch_placement.perches import Perch, Perches
+
+
+@dataclass
+class CandidateSet:
+    perch: Perch            # C = P * A candidates, grouped by position (A orientations each)
+    gimbal: np.ndarray      # (A,2) pan/tilt coordinates in [0,1] of each orientation
+    visible: np.ndarray     # (P,A,N) bool, occlusion and range included
+    info: np.ndarray        # (P,N,6) scaled information of a camera at each position (zoom 1)
+    reach: np.ndarray       # (P,N) bool: some orientation at the position sees the point
+
+    @property
+    def positions(self) -> int:
+        return self.visible.shape[0]
+
+    @property
+    def orientations(self) -> int:
+        return self.visible.shape[1]
+
+    def __len__(self) -> int:
+        return self.positions * self.orientations
+
+    def drone_positions(self) -> np.ndarray:
+        return self.perch.drone_position[::self.orientations]
+
+    def subset(self, keep: np.ndarray) -> "CandidateSet":
+        """The candidates at the positions where `keep` (P,) is true."""
+        index = (np.flatnonzero(keep)[:, None] * self.orientations + np.arange(self.orientations)).reshape(-1)
+        return CandidateSet(self.perch.take(index), self.gimbal, self.visible[keep], self.info[keep],
+                            self.reach[keep])
+
+
+_CACHE: OrderedDict = OrderedDict()
+
+
+def cached_candidates(perches: Perches, evaluator: Evaluator, spacing: float, angles: int,
+                      exclusions: tuple[ExclusionZone, ...] = (), fixed: np.ndarray = np.zeros((0, 3))) -> CandidateSet:
+    """build_candidates, reusing the unconstrained set of an identical earlier request (same scene,
+    target points, regions, camera and drone) and applying exclusions and fixed drones afterwards:
+    re-optimising after a rejection then costs no candidate ray casting."""
+    key = _key(perches, evaluator, spacing, angles)
+    entry = _CACHE.get(key)
+    if entry is None or entry[0] is not evaluator.scene:  # the entry holds its scene: ids stay unique
+        entry = _CACHE[key] = (evaluator.scene, build_candidates(perches, evaluator, spacing, angles))
+        while len(_CACHE) > 2:
+            _CACHE.popitem(last=False)
+    _CACHE.move_to_end(key)
+    full = entry[1]
+    probe = full.perch.take(np.arange(0, len(full), full.orientations))
+    return full.subset(perches.feasible(probe, fixed, exclusions))
+
+
+def _key(perches: Perches, evaluator: Evaluator, spacing: float, angles: int) -> str:
+    h = hashlib.blake2b(digest_size=16)
+    for region in perches.regions:
+        f = region.frame
+        h.update(np.concatenate([f.origin, f.axis_u, f.axis_v, f.normal]).tobytes())
+        for poly in region.polygons:
+            for ring in poly:
+                h.update(np.ascontiguousarray(ring, np.float64).tobytes())
+    h.update(evaluator.points.tobytes())
+    h.update(repr((id(evaluator.scene), evaluator.camera, evaluator.epsilon, perches.drone, perches.up.tolist(),
+                   perches.target_centre.tolist(), spacing, angles)).encode())
+    return h.hexdigest()
+
+
+def build_candidates(perches: Perches, evaluator: Evaluator, spacing: float, angles: int,
+                     exclusions: tuple[ExclusionZone, ...] = (), fixed: np.ndarray = np.zeros((0, 3)),
+                     chunk: int = 1_000_000) -> CandidateSet:
+    """Candidates at `spacing` on every region with `angles` x `angles` gimbal settings, minus those
+    inside exclusion zones or closer than the minimum spacing to a fixed drone."""
+    region, points = perches.grid(spacing)
+    steps = np.linspace(0.0, 1.0, max(angles, 1)) if angles > 1 else np.array([0.5])
+    gimbal = np.stack(np.meshgrid(steps, steps, indexing="ij"), -1).reshape(-1, 2)
+    a = len(gimbal)
+    probe = perches.pose(region, points, np.full((len(region), 2), 0.5))
+    keep = perches.feasible(probe, fixed, exclusions)
+    region, points = region[keep], points[keep]
+    mounts = tuple(np.repeat(m[keep], a, axis=0) for m in perches.mounts(probe.region, probe.drone_position))
+    perch = perches.pose(np.repeat(region, a), np.repeat(points, a, axis=0), np.tile(gimbal, (len(region), 1)),
+                         mounts=mounts)
+    cam = evaluator.camera
+    targets = evaluator.points
+    cam_pos = perch.camera_position[::a]
+    delta = targets[None] - cam_pos[:, None]
+    distance = np.linalg.norm(delta, axis=-1)
+    unit = delta / np.maximum(distance, 1e-12)[..., None]
+    reach = (distance >= cam.min_range) & (distance <= cam.max_distance())
+    pos, pt = np.nonzero(reach)
+    if len(pos):
+        blocked = evaluator.scene.occluded(cam_pos[pos], targets[pt], evaluator.epsilon)
+        reach[pos[blocked], pt[blocked]] = False
+        evaluator.ray_tests += len(pos)
+    # Frustum tests for every orientation at a position as one matrix product:
+    # local[p, n, a, j] = sum_k delta[p, n, k] R[p, a, k, j] (row-vector R^T d).
+    visible = np.zeros((len(region), a, len(targets)), bool)
+    rotations = perch.camera_rotation.reshape(-1, a, 3, 3).transpose(0, 2, 1, 3).reshape(-1, 3, a * 3)
+    per_chunk = max(1, chunk // (a * len(targets)))
+    for start in range(0, len(region), per_chunk):
+        sl = slice(start, start + per_chunk)
+        local = np.matmul(delta[sl].astype(np.float32), rotations[sl].astype(np.float32))
+        in_frame = on_sensor(cam, local.reshape(local.shape[0], len(targets), a, 3))
+        visible[sl] = (in_frame & reach[sl, :, None]).transpose(0, 2, 1)
+    reach = visible.any(axis=1)
+    info = np.zeros(distance.shape + (6,))
+    info[reach] = information6(cam, distance[reach], unit[reach], 1.0, evaluator.scale)
+    return CandidateSet(perch, gimbal, visible, info, reach)
+
+
+@dataclass
+class GreedyPick:
+    chosen: list            # candidate indices, in order
+    gains: list             # marginal fitness gains
+    evaluations: int        # candidate gains computed
+
+
+class CandidateGreedy:
+    """Greedy selection over a candidate set on top of a base information state."""
+
+    def __init__(self, cands: CandidateSet, base_info: np.ndarray, base_seen: np.ndarray, min_spacing: float):
+        self.c = cands
+        self.info = base_info.copy()
+        self.seen = base_seen.copy()
+        self.min_spacing = min_spacing
+        self.valid = np.ones(cands.positions, bool)
+        self.evaluations = 0
+        self._score = point_score(self.info, self.seen)[0]
+
+    @property
+    def fitness(self) -> float:
+        return float(self._score.mean())
+
+    def _delta(self, positions: np.ndarray) -> np.ndarray:
+        """(P',N) score gain of each point if a camera at these positions saw it."""
+        out = np.zeros((len(positions), len(self._score)))
+        p, n = np.nonzero(self.c.reach[positions])
+        new = point_score(self.info[n] + self.c.info[positions[p], n], np.ones(len(n), bool))[0]
+        out[p, n] = np.maximum(new - self._score[n], 0.0)
+        return out
+
+    def gains(self, positions: np.ndarray | None = None, chunk: int = 512) -> np.ndarray:
+        """(P',A) marginal gains of the candidates at the given positions (default: all)."""
+        positions = np.arange(self.c.positions) if positions is None else np.asarray(positions)
+        out = np.zeros((len(positions), self.c.orientations))
+        for start in range(0, len(positions), chunk):
+            sel = positions[start:start + chunk]
+            delta = self._delta(sel)
+            out[start:start + chunk] = np.matmul(self.c.visible[sel].astype(np.float32),
+                                                 delta[..., None].astype(np.float32))[..., 0]
+        self.evaluations += out.size
+        return out / len(self._score)
+
+    def add(self, index: int) -> float:
+        """Commit candidate `index`; returns its marginal gain."""
+        p, o = divmod(int(index), self.c.orientations)
+        before = self.fitness
+        seen = self.c.visible[p, o]
+        self.info = self.info + self.c.info[p] * seen[:, None]
+        self.seen = self.seen | seen
+        self._score = point_score(self.info, self.seen)[0]
+        if self.min_spacing > 0:
+            where = self.c.drone_positions()
+            self.valid &= np.linalg.norm(where - where[p], axis=1) >= self.min_spacing
+        return self.fitness - before
+
+    def step(self) -> tuple[int, float] | None:
+        """Plain greedy: score every valid candidate, add the best."""
+        pos = np.flatnonzero(self.valid)
+        if len(pos) == 0:
+            return None
+        g = self.gains(pos)
+        i, j = np.unravel_index(int(np.argmax(g)), g.shape)
+        if g[i, j] <= 0:
+            return None
+        index = int(pos[i]) * self.c.orientations + int(j)
+        return index, self.add(index)
+
+    def run(self, k: int, lazy: bool = False, block: int = 64) -> GreedyPick:
+        chosen, gains = [], []
+        bounds = None
+        for _ in range(k):
+            picked = self._lazy_step(bounds, block) if lazy and bounds is not None else None
+            if picked is None:
+                pos = np.flatnonzero(self.valid)
+                if len(pos) == 0:
+                    break
+                g = np.full((self.c.positions, self.c.orientations), -np.inf)
+                g[pos] = self.gains(pos)
+                bounds = g.reshape(-1)
+                best = int(np.argmax(bounds))
+                if not bounds[best] > 0:
+                    break
+                picked = (best, self.add(best))
+            chosen.append(picked[0])
+            gains.append(picked[1])
+        return GreedyPick(chosen, gains, self.evaluations)
+
+    def _lazy_step(self, bounds: np.ndarray, block: int) -> tuple[int, float] | None:
+        """CELF: re-score the candidates with the highest stale gains in blocks until a freshly scored
+        one beats every stale bound (valid when gains only shrink, i.e. for submodular objectives)."""
+        a = self.c.orientations
+        valid = np.repeat(self.valid, a)
+        bounds[~valid] = -np.inf
+        fresh = np.zeros(len(bounds), bool)
+        while True:
+            stale = np.where(fresh, -np.inf, bounds)
+            best_fresh = np.max(np.where(fresh, bounds, -np.inf))
+            top = np.argpartition(-stale, min(block, len(stale) - 1))[:block]
+            top = top[np.isfinite(stale[top])]
+            if len(top) == 0 or best_fresh >= stale[top].max():
+                break
+            p, o = np.divmod(top, a)
+            upos, inv = np.unique(p, return_inverse=True)
+            delta = self._delta(upos)
+            bounds[top] = (self.c.visible[p, o] * delta[inv]).sum(-1) / len(self._score)
+            self.evaluations += len(top)
+            fresh[top] = True
+            block *= 2  # gains that grew (fusion is not submodular) can take many rounds
+        best = int(np.argmax(np.where(fresh, bounds, -np.inf)))
+        if not fresh[best] or not bounds[best] > 0:
+            return None
+        return best, self.add(best)
+
+    def online_bound(self, k: int) -> float:
+        """f(S) + the k largest marginal gains over the candidate set (spacing among the new cameras
+        ignored), at most one per position when drones must be apart (an optimal set then holds at
+        most one camera per position). An upper bound on the best k-subset only if f is submodular,
+        which covariance fusion is not (see perch_placement.optimality)."""
+        if self.c.positions == 0 or k <= 0:
+            return self.fitness
+        return min(1.0, self.fitness + self._top_sum(self.gains(), k))  # f <= 1 always
+
+    def coverage_bound(self, k: int) -> float:
+        """The same bound for coverage g(S) (fraction of points seen), which is submodular and
+        >= f: a guaranteed upper bound on the best k-subset's fitness, looser than online_bound."""
+        if self.c.positions == 0 or k <= 0:
+            return float(self.seen.mean())
+        unseen = (~self.seen).astype(np.float32)
+        gains = np.matmul(self.c.visible.astype(np.float32), unseen)[..., ] / len(unseen)
+        self.evaluations += gains.size
+        return min(1.0, float(self.seen.mean()) + self._top_sum(gains, k))
+
+    def _top_sum(self, gains: np.ndarray, k: int) -> float:
+        g = gains.max(axis=1) if self.min_spacing > 0 else gains.reshape(-1)
+        return float(np.maximum(np.sort(g)[::-1][:k], 0).sum())

@@ -1,0 +1,78 @@
+"""`perch place MESH --target FOOTPRINT --cameras 5 -o OUT`: placements as YAML, simulated views as PNG."""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+import numpy as np
+
+from perch_placement.problem import add_problem_arguments, load_config, load_problem, up_of
+from perch_placement.search import METHODS
+
+
+def register(sub) -> None:
+    parser = sub.add_parser("place", help="choose camera perches on a mesh (placement stage)",
+                            description="Place camera drones to observe a target volume; writes "
+                                        "placements.yaml and one colour + depth view per camera.")
+    add_problem_arguments(parser, mesh_positional=True)
+    parser.add_argument("--cameras", type=int, default=None, help="cameras to place (default: config)")
+    parser.add_argument("--method", choices=METHODS, default=None, help="search method (default: config)")
+    parser.add_argument("--seed", type=int, default=None, help="search seed (default: config)")
+    parser.add_argument("--view-scale", type=float, default=0.5, help="rendered view size / sensor size")
+    parser.add_argument("-o", "--output", required=True, help="output folder")
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from perch_placement.core import optimise
+
+    config = load_config(args.params).resolved()
+    problem = load_problem(args, up_of(config))
+    if not problem.regions:
+        raise ValueError(f"{problem.name}: no perch regions found ({problem.route})")
+    result = optimise(problem.mesh, problem.regions, problem.target,
+                      args.cameras if args.cameras is not None else config.num_cameras, config,
+                      method=args.method or config.method,
+                      seed=args.seed if args.seed is not None else config.seed)
+    out = Path(args.output)
+    out.mkdir(parents=True, exist_ok=True)
+    write_placements(out / "placements.yaml", problem, result, config)
+    views = write_views(out, problem, result.placements, config, args.view_scale)
+    print(result.message)
+    print(f"wrote {out / 'placements.yaml'} and {len(views)} view(s) in {out}")
+    return 0 if result.placements else 1
+
+
+def write_placements(path: Path, problem, result, config) -> None:
+    import yaml
+
+    def plain(p):
+        return {"drone_index": p.drone_index, "region_id": p.region_id,
+                "drone_pose": np.round(p.drone_pose, 6).tolist(), "camera_pose": np.round(p.camera_pose, 6).tolist(),
+                "pan_deg": round(math.degrees(p.pan), 3), "tilt_deg": round(math.degrees(p.tilt), 3),
+                "zoom": p.zoom, "marginal_gain": round(p.marginal_gain, 6), "fitness": round(p.fitness, 6),
+                "coverage": round(p.coverage, 6), "mean_uncertainty_m2": float(p.mean_uncertainty)}
+
+    doc = {"mesh": problem.name, "regions": f"{len(problem.regions)} ({problem.route})",
+           "camera": config.camera.name, "fitness": round(result.fitness, 6), "coverage": round(result.coverage, 6),
+           "mean_uncertainty_m2": float(result.mean_uncertainty), "upper_bound": float(result.upper_bound),
+           "evaluations": int(result.evaluations), "seconds": round(result.seconds, 3),
+           "message": result.message, "placements": [plain(p) for p in result.placements]}
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+
+
+def write_views(out: Path, problem, placements, config, scale: float) -> list[Path]:
+    import cv2
+
+    from perch_placement.render import render_view
+
+    written = []
+    for p in placements:
+        rgb, depth = render_view(problem.mesh, p, config.camera, problem.target, scale=scale)
+        colour_path = out / f"view_{p.drone_index}.png"
+        cv2.imwrite(str(colour_path), rgb[:, :, ::-1])
+        cv2.imwrite(str(out / f"depth_{p.drone_index}.png"), np.clip(depth * 1000, 0, 65535).astype(np.uint16))
+        written.append(colour_path)
+    return written

@@ -1,0 +1,163 @@
+"""Configuration of the placement stage: the camera, the drone and the search (thesis defaults).
+
+Every field becomes a ROS parameter of the perch_placement node (nested ones as `camera.width`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+
+def _f(description: str, unit: str | None = None) -> dict:
+    return {"description": description, **({"unit": unit} if unit else {})}
+
+
+# Intel RealSense D435 depth stream: 1280 x 720 px, 87 x 58 degrees field of view.
+D435_FX = 640.0 / math.tan(math.radians(87.0 / 2))
+D435_FY = 360.0 / math.tan(math.radians(58.0 / 2))
+
+
+@dataclass
+class CameraSpec:
+    """A stereo depth camera: pinhole intrinsics, Brown-Conrady distortion and stereo error model."""
+
+    name: str = field(default="d435", metadata=_f("camera profile name"))
+    width: int = field(default=1280, metadata=_f("image width", "px"))
+    height: int = field(default=720, metadata=_f("image height", "px"))
+    fx: float = field(default=D435_FX, metadata=_f("focal length along x (87 deg horizontal FOV)", "px"))
+    fy: float = field(default=D435_FY, metadata=_f("focal length along y (58 deg vertical FOV)", "px"))
+    cx: float = field(default=640.0, metadata=_f("principal point x", "px"))
+    cy: float = field(default=360.0, metadata=_f("principal point y", "px"))
+    distortion: tuple = field(default=(0.0, 0.0, 0.0, 0.0, 0.0),
+                              metadata=_f("Brown-Conrady coefficients, OpenCV order k1 k2 p1 p2 k3"))
+    baseline: float = field(default=0.05, metadata=_f("stereo baseline", "m"))
+    subpixel_error: float = field(default=0.08, metadata=_f("disparity (sub-pixel) error", "px"))
+    min_range: float = field(default=0.2, metadata=_f("closest usable depth (r_min)", "m"))
+    max_range: float = field(default=10.0, metadata=_f("farthest depth before the feature-size cap", "m"))
+    min_feature_size: float = field(default=0.05, metadata=_f("smallest feature to track (L_min)", "m"))
+    min_feature_pixels: float = field(default=10.0, metadata=_f("pixels that feature must span (p_min)", "px"))
+    max_zoom: float = field(default=1.0, metadata=_f("largest optical zoom factor (1 = no zoom)"))
+
+    @property
+    def focal(self) -> float:
+        """The focal length used by the range cap and the error model: the smaller of fx, fy
+        (conservative: a feature must span p_min pixels along both image axes)."""
+        return min(self.fx, self.fy)
+
+    def max_distance(self, zoom: float = 1.0) -> float:
+        """R_max = min(max_range, f * zoom * L_min / p_min)."""
+        return min(self.max_range, self.focal * zoom * self.min_feature_size / self.min_feature_pixels)
+
+    def validate(self) -> "CameraSpec":
+        problems = []
+        if self.width <= 0 or self.height <= 0:
+            problems.append(f"image size {self.width}x{self.height} must be positive")
+        if not (self.fx > 0 and self.fy > 0):
+            problems.append(f"focal lengths fx={self.fx}, fy={self.fy} must be positive")
+        if len(self.distortion) != 5:
+            problems.append(f"distortion needs 5 coefficients (k1 k2 p1 p2 k3), got {len(self.distortion)}")
+        if not (self.baseline > 0 and self.subpixel_error > 0):
+            problems.append("baseline and subpixel_error must be positive")
+        if not (0 <= self.min_range < self.max_distance()):
+            problems.append(f"range [{self.min_range}, {self.max_distance():.3f}] m is empty "
+                            "(check min_range, max_range, min_feature_size, min_feature_pixels)")
+        if self.max_zoom < 1:
+            problems.append(f"max_zoom {self.max_zoom} must be >= 1")
+        if problems:
+            raise ValueError(f"camera '{self.name}': " + "; ".join(problems))
+        return self
+
+
+def camera_from_fov(name: str, width: int, height: int, hfov_deg: float, vfov_deg: float, **kw) -> CameraSpec:
+    return CameraSpec(name=name, width=width, height=height,
+                      fx=width / 2 / math.tan(math.radians(hfov_deg) / 2),
+                      fy=height / 2 / math.tan(math.radians(vfov_deg) / 2),
+                      cx=width / 2, cy=height / 2, **kw)
+
+
+# Named camera profiles (PlacementConfig.camera_profile picks one instead of the camera.* parameters).
+CAMERA_PROFILES = {
+    "d435": CameraSpec(),
+    "d455": camera_from_fov("d455", 1280, 720, 87.0, 58.0, baseline=0.095, max_range=20.0),
+    "d405": camera_from_fov("d405", 1280, 720, 87.0, 58.0, baseline=0.018, min_range=0.07, max_range=0.5),
+    "zed2": camera_from_fov("zed2", 1280, 720, 110.0, 70.0, baseline=0.12, subpixel_error=0.1,
+                            min_range=0.3, max_range=20.0),
+}
+
+
+@dataclass
+class DroneSpec:
+    """A perching drone carrying the camera on a pan/tilt gimbal."""
+
+    radius: float = field(default=0.25, metadata=_f("drone radius for flight clearance", "m"))
+    camera_offset: float = field(default=0.1, metadata=_f("camera distance from the perch surface", "m"))
+    pan_range_deg: float = field(default=90.0, metadata=_f("full gimbal pan range about the drone's forward axis", "deg"))
+    tilt_range_deg: float = field(default=90.0, metadata=_f("full gimbal tilt range", "deg"))
+    gimbal_limited_targeting: bool = field(default=True, metadata=_f(
+        "restrict pan/tilt to a window around the direction to the target centre"))
+    target_deviation_deg: float = field(default=40.0, metadata=_f(
+        "half-width of the targeting window", "deg"))
+    min_spacing: float = field(default=1.0, metadata=_f("minimum distance between perched drones", "m"))
+
+
+@dataclass
+class PsoConfig:
+    """Local-best particle swarm (numpy; one batched evaluation per generation)."""
+
+    particles: int = field(default=50, metadata=_f("swarm size"))
+    iterations: int = field(default=40, metadata=_f("maximum generations"))
+    inertia: float = field(default=0.7, metadata=_f("velocity inertia weight"))
+    cognitive: float = field(default=0.5, metadata=_f("pull towards a particle's own best"))
+    social: float = field(default=0.4, metadata=_f("pull towards the neighbourhood best"))
+    neighbours: int = field(default=5, metadata=_f("neighbourhood size (nearest particles, self included)"))
+    tolerance: float = field(default=0.001, metadata=_f("convergence: least best-fitness gain ..."))
+    patience: int = field(default=5, metadata=_f("... over this many generations"))
+    seeded: int = field(default=25, metadata=_f(
+        "particles started at the best candidates of the discrete candidate set (0: all uniform random,"
+        " as the original)"))
+    polish_rounds: int = field(default=6, metadata=_f(
+        "hill-climbing rounds (32 batched samples each) polishing each camera's swarm best (0: none)"))
+
+
+@dataclass
+class PlacementConfig:
+    """Everything the placement search needs besides the scene."""
+
+    num_cameras: int = field(default=5, metadata=_f("cameras to add"))
+    method: str = field(default="pso", metadata=_f("search: pso | celf | random | grid | naive"))
+    encoding: str = field(default="plane", metadata=_f(
+        "position encoding: plane (in-plane coordinates) | mesh (area-weighted face selector)"))
+    target_points: int = field(default=100, metadata=_f("target points sampled in the target volume (N)"))
+    seed: int = field(default=0, metadata=_f("seed of the target samples and of the search"))
+    up_axis: str = field(default="+z", metadata=_f("gravity up direction"))
+    occlusion_epsilon: float = field(default=1e-3, metadata=_f("ignored length at both ends of a sight line", "m"))
+    candidate_spacing: float = field(default=0.15, metadata=_f(
+        "candidate grid spacing on the regions (CELF and the optimality bound)", "m"))
+    candidate_angles: int = field(default=7, metadata=_f("candidate pan and tilt steps (each)"))
+    reference_spacing: float = field(default=0.05, metadata=_f("exhaustive reference grid spacing", "m"))
+    reference_angles: int = field(default=13, metadata=_f("exhaustive reference pan and tilt steps (each)"))
+    compute_bound: bool = field(default=True, metadata=_f("report the greedy online optimality bound"))
+    camera_profile: str = field(default="", metadata=_f(
+        "named camera profile (d435, d455, d405, zed2) overriding camera.*; empty: use camera.*"))
+    introspection: bool = field(default=True, metadata=_f("service introspection (requests/replies recorded)"))
+    camera: CameraSpec = field(default_factory=CameraSpec)
+    drone: DroneSpec = field(default_factory=DroneSpec)
+    pso: PsoConfig = field(default_factory=PsoConfig)
+
+    def resolved(self) -> "PlacementConfig":
+        """The configuration with the camera profile applied, checked."""
+        cfg = self
+        if self.camera_profile:
+            if self.camera_profile not in CAMERA_PROFILES:
+                raise ValueError(f"camera_profile '{self.camera_profile}': use one of "
+                                 f"{', '.join(CAMERA_PROFILES)} or leave it empty")
+            cfg = replace(self, camera=CAMERA_PROFILES[self.camera_profile], camera_profile="")
+        if cfg.encoding not in ("plane", "mesh"):
+            raise ValueError(f"encoding '{cfg.encoding}': use plane or mesh")
+        if cfg.target_points < 1:
+            raise ValueError("target_points must be >= 1")
+        if cfg.pso.particles < 2 or cfg.pso.iterations < 1:
+            raise ValueError("pso needs >= 2 particles and >= 1 iteration")
+        cfg.camera.validate()
+        return cfg

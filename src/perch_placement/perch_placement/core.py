@@ -1,0 +1,153 @@
+"""The placement stage's entry point: where should each camera drone perch?
+
+`optimise(mesh, regions, target, num_cameras, config, ...)` runs one of the searches and returns
+the added cameras with the fitness, coverage and mean uncertainty after each, and the greedy
+online bound (how close to the best possible arrangement on the candidate set the answer is).
+Never imports rclpy.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import time
+from collections import OrderedDict
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from perch_common.errors import PerchError
+from perch_common.mesh import Mesh, validate_mesh
+from perch_common.raycast import RayScene
+from perch_common.target import TargetVolume
+from perch_common.transforms import parse_up_axis
+from perch_common.types import CameraPlacement, ExclusionZone, PerchRegion
+from perch_placement.candidates import CandidateGreedy
+from perch_placement.config import (CAMERA_PROFILES, CameraSpec, DroneSpec, PlacementConfig,  # noqa: F401
+                                    PsoConfig)
+from perch_placement.fitness import Evaluator
+from perch_placement.perches import Perch, Perches
+from perch_placement.celf import celf
+from perch_placement.search import METHODS, SearchContext, greedy, naive_pso
+
+__all__ = ["CameraSpec", "DroneSpec", "PsoConfig", "PlacementConfig", "PlacementResult", "optimise",
+           "scene_for", "METHODS", "CAMERA_PROFILES"]
+
+
+@dataclass
+class PlacementResult:
+    placements: list[CameraPlacement]   # the added cameras, in placement order
+    fitness: float                      # of all cameras (fixed + added)
+    coverage: float
+    mean_uncertainty: float             # m^2, NaN when no point is seen
+    upper_bound: float                  # greedy online bound (NaN when not computed)
+    evaluations: int                    # camera arrangements simulated
+    seconds: float
+    message: str
+    ray_tests: int = 0
+    candidate_evaluations: int = 0      # candidate gains scored from the cached candidate set
+    target_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    cpu_seconds: float = 0.0            # CPU time of this process (all threads) during the call
+
+
+_SCENES: OrderedDict = OrderedDict()
+
+
+def scene_for(mesh: Mesh) -> RayScene:
+    """The ray-cast scene of a (validated) mesh, cached by content: re-optimising after a rejection
+    reuses it. Raises MeshError for an unusable mesh."""
+    digest = hashlib.blake2b(np.ascontiguousarray(mesh.vertices).tobytes(), digest_size=16)
+    digest.update(np.ascontiguousarray(mesh.faces).tobytes())
+    key = digest.hexdigest()
+    if key not in _SCENES:
+        _SCENES[key] = RayScene(validate_mesh(mesh, "environment mesh"))
+        while len(_SCENES) > 2:
+            _SCENES.popitem(last=False)
+    _SCENES.move_to_end(key)
+    return _SCENES[key]
+
+
+def optimise(mesh: Mesh, regions: list[PerchRegion], target: TargetVolume, num_cameras: int,
+             config: PlacementConfig | None = None, fixed: tuple[CameraPlacement, ...] | list = (),
+             exclusions: tuple[ExclusionZone, ...] | list = (), method: str = "pso", seed: int = 0,
+             scene: RayScene | None = None) -> PlacementResult:
+    """Add `num_cameras` cameras to the `fixed` ones. Raises ValueError/PerchError on unusable input;
+    returns fewer cameras (with the reason in .message) when no further perch adds fitness."""
+    start, cpu_start = time.perf_counter(), time.process_time()
+    cfg = (config or PlacementConfig()).resolved()
+    if method not in METHODS:
+        raise ValueError(f"method '{method}': use one of {', '.join(METHODS)}")
+    if num_cameras < 0:
+        raise ValueError(f"num_cameras must be >= 0, got {num_cameras}")
+    if target is None:
+        raise ValueError("no target volume given")
+    points = target.sample(cfg.target_points, seed=cfg.seed)
+    if len(points) == 0:
+        raise PerchError("the target volume yields no sample points (is it degenerate?)")
+    scene = scene or scene_for(mesh)  # validates the mesh when it is new
+    evaluator = Evaluator(scene, points, cfg.camera, cfg.occlusion_epsilon)
+    perches = Perches(regions, target.centroid(), cfg.drone, parse_up_axis(cfg.up_axis), cfg.encoding,
+                      cfg.camera.max_zoom)
+    for placed in fixed:
+        pose = np.asarray(placed.camera_pose, np.float64)
+        evaluator.commit(pose[:3, 3], pose[:3, :3], max(float(placed.zoom), 1.0))
+    ctx = SearchContext(perches, evaluator, cfg, np.random.default_rng(seed), tuple(exclusions),
+                        [np.asarray(p.drone_pose, np.float64)[:3, 3] for p in fixed], len(fixed))
+    if num_cameras == 0:
+        outcome_perches, reason = [], ""
+    else:
+        outcome = {"celf": lambda: celf(ctx, num_cameras), "naive": lambda: naive_pso(ctx, num_cameras)}.get(
+            method, lambda: greedy(ctx, num_cameras, method))()
+        outcome_perches, reason = outcome.perches, outcome.stop_reason
+    placements = _placements(evaluator, perches, outcome_perches, fixed)
+    score = evaluator.current()
+    bound = float("nan")
+    if cfg.compute_bound and outcome_perches:
+        state = CandidateGreedy(ctx.candidates(), evaluator.info, evaluator.seen,
+                                cfg.drone.min_spacing)
+        bound = state.online_bound(len(outcome_perches))
+    seconds = time.perf_counter() - start
+    return PlacementResult(placements, float(score.fitness), float(score.coverage),
+                           float(score.mean_uncertainty), bound, evaluator.evaluations, seconds,
+                           _message(method, num_cameras, placements, score, bound, reason),
+                           evaluator.ray_tests, evaluator.candidate_evaluations, points,
+                           time.process_time() - cpu_start)
+
+
+def _placements(evaluator: Evaluator, perches: Perches, chosen: list[Perch], fixed) -> list[CameraPlacement]:
+    """Re-commit the chosen cameras in order on top of the fixed ones, recording the score after each."""
+    evaluator.reset()
+    for placed in fixed:
+        pose = np.asarray(placed.camera_pose, np.float64)
+        evaluator.commit(pose[:3, 3], pose[:3, :3], max(float(placed.zoom), 1.0))
+    out = []
+    before = float(evaluator.current().fitness)
+    for i, perch in enumerate(chosen):
+        evaluator.commit(perch.camera_position, perch.camera_rotation, perch.zoom)
+        score = evaluator.current()
+        out.append(CameraPlacement(
+            drone_index=len(fixed) + i, region_id=int(perches.regions[int(perch.region[0])].id),
+            drone_pose=_matrix(perch.drone_rotation[0], perch.drone_position[0]),
+            camera_pose=_matrix(perch.camera_rotation[0], perch.camera_position[0]),
+            pan=float(perch.pan[0]), tilt=float(perch.tilt[0]), zoom=float(perch.zoom[0]),
+            marginal_gain=float(score.fitness) - before, fitness=float(score.fitness),
+            coverage=float(score.coverage), mean_uncertainty=float(score.mean_uncertainty)))
+        before = float(score.fitness)
+    return out
+
+
+def _matrix(rotation: np.ndarray, position: np.ndarray) -> np.ndarray:
+    m = np.eye(4)
+    m[:3, :3], m[:3, 3] = rotation, position
+    return m
+
+
+def _message(method: str, asked: int, placements: list, score, bound: float, reason: str) -> str:
+    text = f"placed {len(placements)} of {asked} camera(s) with {method}"
+    if reason:
+        text += f": {reason}"
+    text += f"; fitness {float(score.fitness):.4f}, coverage {100 * float(score.coverage):.1f} %"
+    if np.isfinite(bound) and bound > 0:
+        text += (f"; greedy online bound {bound:.4f} on the candidate set: fitness is "
+                 f"{100 * float(score.fitness) / bound:.1f} % of it (a strict bound only for submodular "
+                 "objectives; covariance fusion is not, see perch_placement.optimality)")
+    return text

@@ -1,0 +1,83 @@
+"""perch_placement node: serves /perch/optimise (perch_interfaces/srv/Optimise)."""
+
+from __future__ import annotations
+
+import math
+import sys
+
+from perch_interfaces import srv
+from rclpy.node import Node
+
+from perch_common.ros.conversions import (exclusion_from_msg, mesh_from_msg, placement_from_msg,
+                                          placement_to_msg, region_from_msg, target_from_msg)
+from perch_common.ros.node_main import run_node
+from perch_common.ros.params import declare_config, read_config
+from perch_common.ros.service import answering, create_stage_service
+from perch_placement.config import CameraSpec, DroneSpec, PlacementConfig
+from perch_placement.core import optimise
+
+
+def camera_from_msg(msg) -> CameraSpec:
+    return CameraSpec(name=msg.name or "custom", width=int(msg.width), height=int(msg.height), fx=msg.fx,
+                      fy=msg.fy, cx=msg.cx, cy=msg.cy, distortion=tuple(float(c) for c in msg.distortion),
+                      baseline=msg.baseline, subpixel_error=msg.subpixel_error, min_range=msg.min_range,
+                      max_range=msg.max_range, min_feature_size=msg.min_feature_size,
+                      min_feature_pixels=msg.min_feature_pixels, max_zoom=max(msg.max_zoom, 1.0))
+
+
+def drone_from_msg(msg) -> DroneSpec:
+    return DroneSpec(radius=msg.radius, camera_offset=msg.camera_offset,
+                     pan_range_deg=math.degrees(msg.pan_range), tilt_range_deg=math.degrees(msg.tilt_range),
+                     gimbal_limited_targeting=bool(msg.gimbal_limited_targeting),
+                     target_deviation_deg=math.degrees(msg.target_deviation), min_spacing=msg.min_spacing)
+
+
+class PlacementNode(Node):
+    def __init__(self) -> None:
+        super().__init__("perch_placement")
+        config = declare_config(self, PlacementConfig)
+        config.resolved()  # fail at start-up on a broken configuration
+        self.service = create_stage_service(self, srv.Optimise, "/perch/optimise", self.optimise,
+                                            config.introspection)
+        self.get_logger().info("ready: /perch/optimise")
+
+    def _request_config(self, request) -> PlacementConfig:
+        config = read_config(self, PlacementConfig).resolved()
+        if request.camera.specified:
+            config.camera = camera_from_msg(request.camera).validate()
+        if request.drone.specified:
+            config.drone = drone_from_msg(request.drone)
+        return config
+
+    @answering
+    def optimise(self, request: srv.Optimise.Request, response: srv.Optimise.Response) -> srv.Optimise.Response:
+        config = self._request_config(request)
+        target = target_from_msg(request.target)
+        if target is None:
+            raise ValueError("target volume kind DEFAULT: the placement stage needs an explicit target "
+                             "(box or extruded footprint)")
+        if not request.regions:
+            raise ValueError("no perch regions given: nothing to place cameras on")
+        count = int(request.num_cameras) if request.num_cameras > 0 else config.num_cameras
+        result = optimise(
+            mesh_from_msg(request.mesh, "environment mesh"),
+            [region_from_msg(r) for r in request.regions], target, count, config,
+            fixed=[placement_from_msg(p) for p in request.fixed],
+            exclusions=[exclusion_from_msg(z) for z in request.exclusions],
+            method=request.method or config.method,
+            seed=int(request.seed) if request.seed >= 0 else config.seed)
+        response.placements = [placement_to_msg(p) for p in result.placements]
+        response.fitness, response.coverage = result.fitness, result.coverage
+        response.mean_uncertainty, response.upper_bound = result.mean_uncertainty, result.upper_bound
+        response.evaluations = int(result.evaluations)
+        response.success = len(result.placements) > 0 or count == 0
+        response.message = result.message
+        return response
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(lambda: PlacementNode(), args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

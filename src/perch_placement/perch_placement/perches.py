@@ -1,0 +1,225 @@
+"""Perch positions on regions, drone and camera poses, the gimbal window and the [0,1]^D encodings.
+
+Drone frame: z along the region normal (into free space), x forward (walls: gravity-down projected
+on the wall; ceilings and floors: towards the target centre). The camera's neutral optical axis is
+the drone's z with image-down along the drone's x; the gimbal pans about the image's vertical axis,
+then tilts about its horizontal axis (positive tilt looks up the image). Encodings: [region, u, v,
+pan, tilt(, zoom)] (plane) or [region, face, pan, tilt(, zoom)] (mesh), all in [0, 1].
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from perch_common.polygons import to_shapely
+from perch_common.types import ExclusionZone, PerchRegion
+from perch_placement.config import DroneSpec
+
+# Columns: the optical frame's x, y, z in the drone frame (x_opt = -y_drone, y_opt = x_drone, z_opt = z_drone).
+DRONE_FROM_NEUTRAL = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+
+
+@dataclass
+class Perch:
+    """Decoded perches (batched): region index, drone pose, camera pose, gimbal and feasibility."""
+
+    region: np.ndarray        # (B,) index into Perches.regions
+    drone_position: np.ndarray  # (B,3) on the surface
+    drone_rotation: np.ndarray  # (B,3,3) world-from-drone
+    camera_position: np.ndarray
+    camera_rotation: np.ndarray  # (B,3,3) world-from-optical
+    pan: np.ndarray
+    tilt: np.ndarray
+    zoom: np.ndarray
+    inside: np.ndarray        # (B,) position lies in its region
+
+    def __len__(self) -> int:
+        return len(self.region)
+
+    def take(self, index) -> "Perch":
+        return Perch(*(getattr(self, f)[index] for f in self.__dataclass_fields__))
+
+
+class Perches:
+    """The perch regions prepared for decoding, gridding and feasibility tests."""
+
+    def __init__(self, regions: list[PerchRegion], target_centre: np.ndarray, drone: DroneSpec,
+                 up: np.ndarray = np.array([0.0, 0.0, 1.0]), encoding: str = "plane", max_zoom: float = 1.0):
+        if not regions:
+            raise ValueError("no perch regions given: nothing to place cameras on")
+        self.regions = list(regions)
+        self.drone = drone
+        self.up = np.asarray(up, np.float64) / np.linalg.norm(up)
+        self.target_centre = np.asarray(target_centre, np.float64)
+        self.encoding = encoding
+        self.max_zoom = float(max_zoom)
+        self.shapes = [to_shapely(r.polygons) for r in self.regions]
+        for shape, region in zip(self.shapes, self.regions):
+            if shape.is_empty:
+                raise ValueError(f"perch region {region.id} has no polygon")
+        import shapely
+
+        for shape in self.shapes:
+            shapely.prepare(shape)
+        bounds = np.array([s.bounds for s in self.shapes])
+        self.lo, self.hi = bounds[:, :2], bounds[:, 2:]
+        areas = np.array([s.area for s in self.shapes])
+        self.cdf = np.cumsum(areas) / areas.sum()
+        self.normals = np.array([r.frame.normal for r in self.regions], np.float64)
+        self.axis_u = np.array([r.frame.axis_u for r in self.regions], np.float64)
+        self.is_wall = np.abs(self.normals @ self.up) < np.cos(np.radians(45))
+        if encoding == "mesh":
+            self._prepare_faces()
+
+    @property
+    def dims(self) -> int:
+        return (6 if self.encoding == "plane" else 5) - (self.max_zoom <= 1.0)
+
+    def _prepare_faces(self) -> None:
+        self.face_centroids, self.face_cdf = [], []
+        for region in self.regions:
+            if region.mesh.num_faces == 0:
+                raise ValueError(f"perch region {region.id}: mesh encoding needs its triangulated mesh")
+            areas = region.mesh.face_areas()
+            self.face_centroids.append(region.mesh.face_centroids())
+            self.face_cdf.append(np.cumsum(areas) / max(areas.sum(), 1e-12))
+
+    # --- positions -------------------------------------------------------------------------
+
+    def region_of(self, selector: np.ndarray) -> np.ndarray:
+        return np.minimum(np.searchsorted(self.cdf, selector, side="right"), len(self.regions) - 1)
+
+    def surface_points(self, region: np.ndarray, a: np.ndarray, b: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """World points on the regions and whether each lies inside its region."""
+        points = np.zeros((len(region), 3))
+        inside = np.ones(len(region), bool)
+        for r in np.unique(region):
+            sel = region == r
+            frame = self.regions[r].frame
+            if self.encoding == "mesh":
+                face = np.minimum(np.searchsorted(self.face_cdf[r], a[sel]), len(self.face_cdf[r]) - 1)
+                points[sel] = self.face_centroids[r][face]
+                continue
+            uv = self.lo[r] + np.stack([a[sel], b[sel]], -1) * (self.hi[r] - self.lo[r])
+            points[sel] = frame.to_world(uv)
+            inside[sel] = self._contains(r, uv)
+        return points, inside
+
+    def _contains(self, r: int, uv: np.ndarray) -> np.ndarray:
+        import shapely
+
+        return shapely.intersects_xy(self.shapes[r], uv[:, 0], uv[:, 1])
+
+    def grid(self, spacing: float) -> tuple[np.ndarray, np.ndarray]:
+        """Region indices and world points of a grid (cell centres) inside every region."""
+        regions, points = [], []
+        for r, shape in enumerate(self.shapes):
+            lo, hi = self.lo[r], self.hi[r]
+            counts = np.maximum(1, np.round((hi - lo) / spacing)).astype(int)
+            axes = [lo[i] + (np.arange(counts[i]) + 0.5) * (hi[i] - lo[i]) / counts[i] for i in range(2)]
+            uv = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 2)
+            uv = uv[self._contains(r, uv)]
+            if len(uv) == 0:  # a sliver smaller than the spacing still gets one perch
+                p = shape.representative_point()
+                uv = np.array([[p.x, p.y]])
+            regions.append(np.full(len(uv), r))
+            points.append(self.regions[r].frame.to_world(uv))
+        return np.concatenate(regions), np.concatenate(points)
+
+    # --- poses -----------------------------------------------------------------------------
+
+    def drone_rotations(self, region: np.ndarray, points: np.ndarray) -> np.ndarray:
+        normal = self.normals[region]
+        towards = self.target_centre - points
+        forward = np.where(self.is_wall[region][:, None], -self.up, towards)
+        forward = forward - (forward * normal).sum(-1, keepdims=True) * normal
+        norm = np.linalg.norm(forward, axis=-1, keepdims=True)
+        forward = np.where(norm > 1e-9, forward / np.maximum(norm, 1e-12), self.axis_u[region])
+        side = np.cross(normal, forward)
+        return np.stack([forward, side, normal], axis=-1)
+
+    def gimbal_window(self, camera_position: np.ndarray, drone_rotation: np.ndarray) -> np.ndarray:
+        """(B,4) pan_lo, pan_hi, tilt_lo, tilt_hi: the gimbal range, intersected (targeting mode) with
+        +-deviation around the direction to the target centre; an empty intersection collapses to the
+        gimbal limit nearest that direction."""
+        half_pan = np.radians(self.drone.pan_range_deg) / 2
+        half_tilt = np.radians(self.drone.tilt_range_deg) / 2
+        b = len(camera_position)
+        window = np.tile([-half_pan, half_pan, -half_tilt, half_tilt], (b, 1)).astype(np.float64)
+        if not self.drone.gimbal_limited_targeting:
+            return window
+        neutral = drone_rotation @ DRONE_FROM_NEUTRAL
+        d = np.einsum("bk,bkj->bj", self.target_centre - camera_position, neutral)
+        pan0 = np.arctan2(d[:, 0], d[:, 2])
+        tilt0 = np.arctan2(-d[:, 1], np.hypot(d[:, 0], d[:, 2]))
+        dev = np.radians(self.drone.target_deviation_deg)
+        for col, centre, half in ((0, pan0, half_pan), (2, tilt0, half_tilt)):
+            lo = np.maximum(centre - dev, -half)
+            hi = np.minimum(centre + dev, half)
+            empty = lo > hi
+            edge = np.clip(centre, -half, half)
+            window[:, col] = np.where(empty, edge, lo)
+            window[:, col + 1] = np.where(empty, edge, hi)
+        return window
+
+    def mounts(self, region: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Drone rotations, camera positions and gimbal windows of drones perched at surface points."""
+        rot = self.drone_rotations(region, points)
+        cam = points + self.drone.camera_offset * self.normals[region]
+        return rot, cam, self.gimbal_window(cam, rot)
+
+    def pose(self, region: np.ndarray, points: np.ndarray, gimbal: np.ndarray,
+             inside: np.ndarray | None = None, mounts: tuple | None = None) -> Perch:
+        """Perches at surface points with gimbal coordinates (B, 2 or 3) in [0,1] (pan, tilt(, zoom))."""
+        rot, cam, window = self.mounts(region, points) if mounts is None else mounts
+        pan = window[:, 0] + gimbal[:, 0] * (window[:, 1] - window[:, 0])
+        tilt = window[:, 2] + gimbal[:, 1] * (window[:, 3] - window[:, 2])
+        zoom = 1.0 + (gimbal[:, 2] * (self.max_zoom - 1.0) if gimbal.shape[1] > 2 else 0.0)
+        zoom = np.broadcast_to(zoom, (len(region),)).astype(np.float64)
+        cam_rot = rot @ DRONE_FROM_NEUTRAL @ gimbal_rotation(pan, tilt)
+        inside = np.ones(len(region), bool) if inside is None else inside
+        return Perch(region, points, rot, cam, cam_rot, pan, tilt, zoom, inside)
+
+    def decode(self, x: np.ndarray) -> Perch:
+        x = np.clip(np.asarray(x, np.float64).reshape(-1, self.dims), 0.0, 1.0)
+        region = self.region_of(x[:, 0])
+        if self.encoding == "plane":
+            points, inside = self.surface_points(region, x[:, 1], x[:, 2])
+            gimbal = x[:, 3:]
+        else:
+            points, inside = self.surface_points(region, x[:, 1], None)
+            gimbal = x[:, 2:]
+        return self.pose(region, points, gimbal, inside)
+
+    def encode_position(self, region: int, point: np.ndarray) -> np.ndarray:
+        """Plane-encoding [region, u, v] of a surface point (inverse of decode's position part)."""
+        lo_cdf = self.cdf[region - 1] if region > 0 else 0.0
+        uv = self.regions[region].frame.to_plane(point[None])[0]
+        span = np.maximum(self.hi[region] - self.lo[region], 1e-12)
+        return np.concatenate([[(lo_cdf + self.cdf[region]) / 2], np.clip((uv - self.lo[region]) / span, 0, 1)])
+
+    # --- constraints -----------------------------------------------------------------------
+
+    def feasible(self, perch: Perch, others: np.ndarray, exclusions: tuple[ExclusionZone, ...] = ()) -> np.ndarray:
+        """Inside a region, at least min_spacing from every other drone, outside every exclusion zone."""
+        ok = perch.inside.copy()
+        others = np.asarray(others, np.float64).reshape(-1, 3)
+        if len(others):
+            gap = np.linalg.norm(perch.drone_position[:, None] - others[None], axis=-1).min(axis=1)
+            ok &= gap >= self.drone.min_spacing
+        for zone in exclusions:
+            ok &= np.linalg.norm(perch.drone_position - np.asarray(zone.center), axis=1) >= zone.radius
+        return ok
+
+
+def gimbal_rotation(pan: np.ndarray, tilt: np.ndarray) -> np.ndarray:
+    """(B,3,3) R_y(pan) @ R_x(tilt) in the optical frame."""
+    cp, sp, ct, st = np.cos(pan), np.sin(pan), np.cos(tilt), np.sin(tilt)
+    out = np.empty(np.shape(pan) + (3, 3))
+    # R_y(pan) @ R_x(tilt) multiplied out.
+    out[..., 0, 0], out[..., 0, 1], out[..., 0, 2] = cp, sp * st, sp * ct
+    out[..., 1, 0], out[..., 1, 1], out[..., 1, 2] = 0.0, ct, -st
+    out[..., 2, 0], out[..., 2, 1], out[..., 2, 2] = -sp, cp * st, cp * ct
+    return out
