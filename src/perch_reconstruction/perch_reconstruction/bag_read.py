@@ -1,0 +1,177 @@
+"""Read ROS 2 MCAP bags: summary, raw messages in time order, and synchronised RGB-D frames."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from perch_common.errors import PerchError
+from perch_reconstruction import images, msgdefs
+from perch_reconstruction.bag_write import PERCH_METADATA, BagTopics
+from perch_reconstruction.frames import Intrinsics, RGBDFrame
+from perch_reconstruction.sync import FrameAssembler, PoseBuffer
+
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+@dataclass
+class RawMessage:
+    topic: str
+    type_name: str
+    log_time_ns: int
+    data: bytes     # CDR, with the 4-byte encapsulation header (what rmw publishes raw)
+    schema: object  # mcap Schema, for decoding
+
+
+def _check_file(path: Path) -> None:
+    if not path.is_file():
+        raise PerchError(f"{path}: no such bag file")
+    with open(path, "rb") as f:
+        head = f.read(8)
+    if head != MCAP_MAGIC:
+        raise PerchError(f"{path}: not an MCAP file (record bags with `ros2 bag record -s mcap` "
+                         "or convert frames with `perch bag from-frames`)")
+
+
+def _reader(stream):
+    from mcap.reader import make_reader
+
+    return make_reader(stream)
+
+
+def bag_info(path: str | Path) -> dict:
+    """Topics (type, count), start, duration and Perch metadata; raises PerchError for bad files."""
+    path = Path(path)
+    _check_file(path)
+    try:
+        with open(path, "rb") as stream:
+            reader = _reader(stream)
+            summary = reader.get_summary()
+            metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+    except PerchError:
+        raise
+    except Exception as exc:  # mcap raises several types for truncated/corrupt files
+        raise PerchError(f"{path}: corrupt or truncated MCAP ({type(exc).__name__}: {exc})") from exc
+    if summary is None or summary.statistics is None:
+        raise PerchError(f"{path}: MCAP without a summary (truncated recording?); re-index it with `mcap recover`")
+    stats = summary.statistics
+    topics = {}
+    for cid, channel in summary.channels.items():
+        schema = summary.schemas.get(channel.schema_id)
+        topics[channel.topic] = {"type": schema.name if schema else "", "encoding": channel.message_encoding,
+                                 "count": int(stats.channel_message_counts.get(cid, 0))}
+    duration = (stats.message_end_time - stats.message_start_time) / 1e9 if stats.message_count else 0.0
+    gravity = metadata.get(PERCH_METADATA, {}).get("gravity")
+    return {"path": str(path), "messages": int(stats.message_count), "start_ns": int(stats.message_start_time),
+            "duration_s": duration, "topics": dict(sorted(topics.items())),
+            "gravity": None if gravity is None else [float(v) for v in gravity.split()],
+            "metadata": sorted(metadata)}
+
+
+def iter_raw(path: str | Path, topics: list[str] | None = None) -> Iterator[RawMessage]:
+    """Messages in log-time order, undecoded."""
+    path = Path(path)
+    _check_file(path)
+    with open(path, "rb") as stream:
+        reader = _reader(stream)
+        try:
+            for schema, channel, message in reader.iter_messages(topics=topics, log_time_order=True):
+                yield RawMessage(channel.topic, schema.name if schema else "", message.log_time, message.data, schema)
+        except PerchError:
+            raise
+        except Exception as exc:
+            raise PerchError(f"{path}: corrupt MCAP data ({type(exc).__name__}: {exc})") from exc
+
+
+class _Decoder:
+    def __init__(self):
+        from mcap_ros2.decoder import DecoderFactory
+
+        self._factory = DecoderFactory()
+        self._cache = {}
+
+    def __call__(self, raw: RawMessage):
+        schema = raw.schema
+        if schema.id not in self._cache:
+            self._cache[schema.id] = self._factory.decoder_for("cdr", schema)
+        return self._cache[schema.id](raw.data)
+
+
+@dataclass
+class BagFrames:
+    """What `read_bag_frames` found: the intrinsics, gravity and a frame iterator."""
+
+    intrinsics: Intrinsics
+    gravity: np.ndarray | None
+    frame_count: int
+    has_poses: bool
+    frames: Iterator[RGBDFrame]
+    assembler: FrameAssembler
+
+
+def read_bag_frames(path: str | Path, topics: BagTopics = BagTopics(), depth_scale: float = 0.0,
+                    sync_tolerance_ns: int = 5_000_000, pose_tolerance_ns: int = 20_000_000) -> BagFrames:
+    """Check the bag has the expected topics and return its synchronised frames (lazily decoded).
+
+    Poses (PoseStamped or Odometry on topics.pose) are attached when one lies within
+    pose_tolerance_ns of the frame; frames never see a pose when the bag has none.
+    """
+    info = bag_info(path)
+    present = info["topics"]
+    missing = [t for t in (topics.color, topics.depth, topics.camera_info) if t not in present]
+    if missing:
+        listing = ", ".join(f"{t} ({v['type']})" for t, v in present.items()) or "none"
+        raise PerchError(f"{path}: missing topic(s) {', '.join(missing)}; the bag has: {listing}. "
+                         "Pass --color-topic/--depth-topic/--info-topic to name yours")
+    for topic, allowed in ((topics.color, msgdefs.IMAGE_TYPES), (topics.depth, msgdefs.IMAGE_TYPES),
+                           (topics.camera_info, (msgdefs.CAMERA_INFO,))):
+        if present[topic]["type"] not in allowed:
+            raise PerchError(f"{path}: topic {topic} has type {present[topic]['type']}, expected "
+                             f"{' or '.join(allowed)}")
+        if present[topic]["count"] == 0:
+            raise PerchError(f"{path}: topic {topic} has no messages")
+    decode = _Decoder()
+    intrinsics = None
+    for raw in iter_raw(path, [topics.camera_info]):
+        intrinsics = images.intrinsics_from_camera_info(decode(raw), topics.camera_info)
+        break
+    poses = PoseBuffer(capacity=10**7)
+    has_poses = topics.pose in present and present[topics.pose]["type"] in msgdefs.POSE_TYPES
+    if has_poses:
+        for raw in iter_raw(path, [topics.pose]):
+            msg = decode(raw)
+            poses.add(images.stamp_ns(msg), images.pose_from_msg(msg))
+    gravity = None if info["gravity"] is None else np.asarray(info["gravity"], np.float64)
+    assembler = FrameAssembler(sync_tolerance_ns)
+
+    def frames() -> Iterator[RGBDFrame]:
+        for raw in iter_raw(path, [topics.color, topics.depth]):
+            msg = decode(raw)
+            stamp = images.stamp_ns(msg)
+            if raw.topic == topics.color:
+                frame = assembler.add_color(stamp, images.color_from_msg(msg, topics.color))
+            else:
+                frame = assembler.add_depth(stamp, images.depth_from_msg(msg, topics.depth, depth_scale))
+            if frame is None:
+                continue
+            check_sizes(frame, intrinsics, topics)
+            frame.pose = poses.lookup(frame.stamp_ns, pose_tolerance_ns) if has_poses else None
+            yield frame
+
+    count = min(present[topics.color]["count"], present[topics.depth]["count"])
+    return BagFrames(intrinsics, gravity, count, has_poses, frames(), assembler)
+
+
+def check_sizes(frame: RGBDFrame, intrinsics: Intrinsics, topics: BagTopics) -> None:
+    """Colour, depth and camera info must describe the same image size."""
+    dh, dw = frame.depth.shape
+    ch, cw = frame.color.shape[:2]
+    if (ch, cw) != (dh, dw):
+        raise PerchError(f"{topics.color} is {cw}x{ch} but {topics.depth} is {dw}x{dh}: publish depth "
+                         "registered to colour (same size), e.g. the camera driver's aligned depth topic")
+    if (intrinsics.width, intrinsics.height) != (dw, dh):
+        raise PerchError(f"{topics.camera_info} describes {intrinsics.width}x{intrinsics.height} but "
+                         f"{topics.depth} is {dw}x{dh}: use the camera info of the depth stream")

@@ -1,0 +1,198 @@
+"""`perch bag ...`, `perch clean`, `perch reconstruct` (registered through perch.commands)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from perch_common.errors import PerchError
+from perch_reconstruction.bag_write import BagTopics
+from perch_reconstruction.config import ReconstructionConfig
+
+
+def load_config(path: str | None = None) -> ReconstructionConfig:
+    """The perch_reconstruction section of config/perch.yaml (or `path`), defaults when absent."""
+    from perch_common.config import ConfigError, default_config_path, from_parameters, node_parameters
+
+    try:
+        params = node_parameters("perch_reconstruction", path or default_config_path())
+    except ConfigError:
+        if path:
+            raise
+        params = {}
+    return from_parameters(ReconstructionConfig, params).validate()
+
+
+def _topic_args(parser) -> None:
+    d = BagTopics()
+    parser.add_argument("--color-topic", default=d.color)
+    parser.add_argument("--depth-topic", default=d.depth)
+    parser.add_argument("--info-topic", default=d.camera_info)
+    parser.add_argument("--pose-topic", default=d.pose)
+
+
+def _topics(args) -> BagTopics:
+    return BagTopics(args.color_topic, args.depth_topic, args.info_topic, args.pose_topic)
+
+
+# --- perch bag -----------------------------------------------------------------------------------
+
+def register_bag(sub) -> None:
+    parser = sub.add_parser("bag", help="RGB-D bags: convert frames, inspect, play on the graph")
+    bag = parser.add_subparsers(dest="bag_command", metavar="ACTION")
+    conv = bag.add_parser("from-frames", help="TUM/7-Scenes-style folder -> ROS 2 MCAP bag")
+    conv.add_argument("frames", help="folder with frame-*.color.jpg, frame-*.depth.png (mm), poses, intrinsics")
+    conv.add_argument("-o", "--output", required=True, help="bag file to write (.mcap)")
+    conv.add_argument("--fps", type=float, default=30.0, help="frame rate of the time stamps")
+    conv.add_argument("--limit", type=int, default=0, help="convert at most this many frames")
+    conv.add_argument("--step", type=int, default=1, help="take every N-th frame")
+    conv.add_argument("--compressed", action="store_true", help="CompressedImage (JPEG colour, PNG depth)")
+    conv.add_argument("--pose-type", choices=("pose", "odometry"), default="pose",
+                      help="geometry_msgs/PoseStamped or nav_msgs/Odometry")
+    conv.add_argument("--no-poses", action="store_true", help="leave the poses out")
+    _topic_args(conv)
+    conv.set_defaults(func=_from_frames)
+    info = bag.add_parser("info", help="topics, types, counts and duration of a bag")
+    info.add_argument("bag")
+    info.add_argument("--json", action="store_true")
+    info.set_defaults(func=_info)
+    play = bag.add_parser("play", help="publish a bag's messages in time order")
+    play.add_argument("bag")
+    play.add_argument("--rate", type=float, default=1.0, help="speed factor (0: as fast as possible)")
+    play.add_argument("--topics", nargs="+", help="only these topics")
+    play.add_argument("--wait-subscribers", type=float, default=0.0,
+                      help="wait up to this many seconds for subscribers before starting")
+    play.set_defaults(func=_play)
+    parser.set_defaults(func=lambda args: parser.print_help() or 2)
+
+
+def _from_frames(args) -> int:
+    from perch_reconstruction.bag_write import write_bag
+    from perch_reconstruction.frames import iter_folder_frames, open_frame_folder
+
+    if args.fps <= 0:
+        raise ValueError(f"--fps must be > 0, got {args.fps}")
+    folder = open_frame_folder(args.frames, limit=args.limit or None, step=args.step)
+
+    def frames():
+        for frame in iter_folder_frames(folder, args.fps):
+            if args.no_poses:
+                frame.pose = None
+            yield frame
+
+    result = write_bag(args.output, frames(), folder.intrinsics, gravity=folder.gravity, topics=_topics(args),
+                       compressed=args.compressed, pose_type=args.pose_type)
+    print(json.dumps(result, indent=2))
+    return 0
+
+
+def _info(args) -> int:
+    from perch_reconstruction.bag_read import bag_info
+
+    info = bag_info(args.bag)
+    if args.json:
+        print(json.dumps(info, indent=2))
+        return 0
+    print(f"{info['path']}: {info['messages']} messages, {info['duration_s']:.2f} s")
+    width = max((len(t) for t in info["topics"]), default=0)
+    for topic, t in info["topics"].items():
+        print(f"  {topic:<{width}}  {t['count']:>6}  {t['type']} ({t['encoding']})")
+    if info["gravity"] is not None:
+        print(f"  gravity (world frame): {info['gravity']}")
+    return 0
+
+
+def _play(args) -> int:
+    from perch_reconstruction.player import play_bag
+
+    counts = play_bag(args.bag, args.rate, args.topics, args.wait_subscribers)
+    print(json.dumps({"published": counts}))
+    return 0
+
+
+# --- perch clean ---------------------------------------------------------------------------------
+
+def register_clean(sub) -> None:
+    parser = sub.add_parser("clean", help="clean a mesh: merge, drop small pieces, decimate, gravity-align")
+    parser.add_argument("mesh")
+    parser.add_argument("-o", "--output", required=True)
+    parser.add_argument("--gravity", nargs=3, type=float, metavar=("X", "Y", "Z"),
+                        help="gravity direction in the mesh frame (default: estimate from floor/ceiling)")
+    parser.add_argument("--target-faces", type=int, help="decimation target (0: none)")
+    parser.add_argument("--min-piece", type=float, help="remove pieces smaller than this diameter (m)")
+    parser.add_argument("--no-align", action="store_true", help="keep the orientation")
+    parser.add_argument("--config", help="parameter file (default config/perch.yaml)")
+    parser.set_defaults(func=_clean)
+
+
+def _clean(args) -> int:
+    from perch_common.mesh import load_mesh, save_mesh
+    from perch_reconstruction.cleaning import clean_mesh_with_report
+
+    config = load_config(args.config)
+    if args.target_faces is not None:
+        config.target_faces = args.target_faces
+    if args.min_piece is not None:
+        config.min_piece_diameter = args.min_piece
+    if args.no_align:
+        config.gravity_align = False
+    config.validate()
+    mesh, report = clean_mesh_with_report(load_mesh(args.mesh), np.array(args.gravity) if args.gravity else None,
+                                          config)
+    save_mesh(args.output, mesh)
+    print(json.dumps({"output": args.output, "faces_in": report.faces_in, "faces_out": report.faces_out,
+                      "small_piece_faces_removed": report.pieces_removed_faces, "up_source": report.up_source,
+                      "up_confidence": round(report.up_confidence, 3), "seconds": round(report.seconds, 3),
+                      "warnings": report.warnings}, indent=2))
+    return 0
+
+
+# --- perch reconstruct ---------------------------------------------------------------------------
+
+def register_reconstruct(sub) -> None:
+    parser = sub.add_parser("reconstruct", help="RGB-D bag (or frame folder) -> clean gravity-aligned mesh")
+    source = parser.add_mutually_exclusive_group(required=True)
+    source.add_argument("--bag", help="ROS 2 MCAP bag")
+    source.add_argument("--frames", help="TUM/7-Scenes-style frame folder")
+    parser.add_argument("-o", "--output", required=True, help="mesh file (.ply, .obj, ...)")
+    mode = parser.add_mutually_exclusive_group()
+    mode.add_argument("--use-poses", dest="use_poses", action="store_true", default=True,
+                      help="integrate the recorded poses (default)")
+    mode.add_argument("--odometry", dest="use_poses", action="store_false", help="track the camera (RGB-D odometry)")
+    parser.add_argument("--voxel-size", type=float, help="TSDF voxel size (m)")
+    parser.add_argument("--target-faces", type=int)
+    parser.add_argument("--raw", help="also write the uncleaned TSDF surface here")
+    parser.add_argument("--limit", type=int, default=0, help="--frames: use at most this many frames")
+    parser.add_argument("--config", help="parameter file (default config/perch.yaml)")
+    _topic_args(parser)
+    parser.set_defaults(func=_reconstruct)
+
+
+def _reconstruct(args) -> int:
+    from perch_common.mesh import save_mesh
+    from perch_reconstruction.core import reconstruct_bag, reconstruct_frames
+
+    config = load_config(args.config)
+    if args.voxel_size is not None:
+        config.voxel_size = args.voxel_size
+    if args.target_faces is not None:
+        config.target_faces = args.target_faces
+    config.validate()
+    progress = lambda s: print(f"  {s.frames_integrated}/{s.frames_received} frames integrated", flush=True)
+    if args.bag:
+        mesh, stats = reconstruct_bag(args.bag, config, args.use_poses, _topics(args), progress=progress)
+    else:
+        from perch_reconstruction.frames import iter_folder_frames, open_frame_folder
+
+        folder = open_frame_folder(args.frames, limit=args.limit or None)
+        if args.use_poses and not folder.has_poses:
+            raise PerchError(f"{args.frames}: no frame-*.pose.txt files; use --odometry")
+        mesh, stats = reconstruct_frames(iter_folder_frames(folder), folder.intrinsics, config, args.use_poses,
+                                         folder.gravity, progress=progress)
+    if args.raw:
+        save_mesh(args.raw, stats.raw_mesh)
+    save_mesh(args.output, mesh)
+    print(json.dumps({"output": str(Path(args.output)), **stats.summary(), "faces": mesh.num_faces}, indent=2))
+    return 0

@@ -1,0 +1,98 @@
+"""Configuration of the reconstruction stage (ROS parameters of node perch_reconstruction)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+def _f(default, description: str, unit: str | None = None):
+    meta = {"description": description}
+    if unit:
+        meta["unit"] = unit
+    return field(default=default, metadata=meta)
+
+
+@dataclass
+class ReconstructionConfig:
+    # TSDF volume
+    voxel_size: float = _f(0.02, "TSDF voxel edge length", "m")
+    block_resolution: int = _f(16, "voxels per block edge of the VoxelBlockGrid")
+    max_blocks: int = _f(15000, "memory bound: at most this many TSDF blocks (~82 kB each); frames that "
+                                "would add more are skipped and counted")
+    depth_min: float = _f(0.1, "ignore depth closer than this", "m")
+    depth_max: float = _f(4.0, "ignore depth farther than this (sensor noise grows with range)", "m")
+    depth_scale: float = _f(0.0, "metres per raw depth unit; 0 = by encoding (16UC1 mm, 32FC1 m)", "m")
+    trunc_voxel_multiplier: float = _f(4.0, "TSDF truncation distance in voxels (4 x 2 cm keeps thin furniture)")
+    weight_threshold: float = _f(1.0, "extract surface where the TSDF weight reaches this")
+    # Odometry (used when no poses are given)
+    tracking_scale: float = _f(0.25, "image scale for odometry (0.25 = 160x120 from 640x480; never below 160 px wide)")
+    tracking_depth_diff: float = _f(0.07, "max depth difference of an odometry correspondence", "m")
+    tracking_min_fitness: float = _f(0.2, "below this inlier share the frame is not integrated (lost)")
+    # Time synchronisation
+    sync_tolerance: float = _f(0.005, "colour and depth stamps pair when this close", "s")
+    pose_tolerance: float = _f(0.02, "a pose stamp must lie this close to the frame stamp", "s")
+    # Cleaning (also the /perch/clean_mesh service defaults)
+    merge_distance: float = _f(1e-5, "vertices closer than this are merged", "m")
+    min_piece_diameter: float = _f(0.3, "connected pieces with a smaller bounding-box diagonal are removed", "m")
+    target_faces: int = _f(100_000, "quadric edge-collapse decimation target (0 = no decimation)")
+    gravity_align: bool = _f(True, "rotate the mesh so gravity points along -z")
+    min_up_confidence: float = _f(0.05, "share of floor/ceiling area needed to trust an estimated up axis")
+    seed: int = _f(0, "seed of every random choice (metric sampling)")
+
+    def validate(self) -> "ReconstructionConfig":
+        checks = [
+            (self.voxel_size > 0, f"voxel_size must be > 0 m, got {self.voxel_size}"),
+            (self.block_resolution in (4, 8, 16, 32), f"block_resolution must be 4, 8, 16 or 32, got {self.block_resolution}"),
+            (self.max_blocks > 0, f"max_blocks must be > 0, got {self.max_blocks}"),
+            (0 <= self.depth_min < self.depth_max, f"need 0 <= depth_min < depth_max, got {self.depth_min}, {self.depth_max}"),
+            (self.depth_scale >= 0, f"depth_scale must be >= 0, got {self.depth_scale}"),
+            (0 < self.tracking_scale <= 1, f"tracking_scale must be in (0, 1], got {self.tracking_scale}"),
+            (self.min_piece_diameter >= 0, f"min_piece_diameter must be >= 0, got {self.min_piece_diameter}"),
+            (self.target_faces >= 0, f"target_faces must be >= 0, got {self.target_faces}"),
+        ]
+        for ok, message in checks:
+            if not ok:
+                raise ValueError(f"reconstruction config: {message}")
+        return self
+
+
+@dataclass
+class NodeConfig(ReconstructionConfig):
+    """The node's parameters: the reconstruction settings plus live-input handling."""
+
+    color_topic: str = _f("/camera/color/image_raw", "colour images (sensor_msgs/Image rgb8/bgr8/...)")
+    depth_topic: str = _f("/camera/depth/image_raw", "depth images registered to colour (16UC1 mm or 32FC1 m)")
+    camera_info_topic: str = _f("/camera/depth/camera_info", "sensor_msgs/CameraInfo of the depth stream")
+    pose_topic: str = _f("/camera/pose", "world-from-camera poses (geometry_msgs/PoseStamped)")
+    pose_type: str = _f("pose", "type on pose_topic: 'pose' (PoseStamped) or 'odometry' (nav_msgs/Odometry)")
+    lossless_replay: bool = _f(False, "subscribe reliable + transient-local as `perch bag play` publishes "
+                                      "(no frame lost); false: best effort, matching camera drivers and "
+                                      "`ros2 bag play`")
+    compressed_images: bool = _f(False, "colour and depth arrive as sensor_msgs/CompressedImage")
+    use_poses: bool = _f(True, "live input: integrate the poses from pose_topic (false: RGB-D odometry)")
+    gravity: list = field(default_factory=lambda: [0.0, 0.0, 0.0], metadata={
+        "description": "live input: gravity in the pose frame; zeros = estimate from floor/ceiling"})
+    queue_size: int = _f(4, "frames waiting for integration; when full the OLDEST waiting frame is dropped "
+                            "(counted) so the reconstruction follows the newest view")
+    camera_info_timeout: float = _f(5.0, "report an error when images arrive without camera info this long", "s")
+    pose_wait: float = _f(0.5, "how long a frame waits for its pose to arrive", "s")
+    drain_timeout: float = _f(60.0, "Reconstruct waits at most this long for queued frames", "s")
+    progress_period: float = _f(1.0, "progress message period on /perch/reconstruct/progress", "s")
+    frame_id: str = _f("map", "frame of the returned mesh")
+    introspection: bool = _f(True, "publish service requests/replies for the operator's recorder")
+
+    def validate(self) -> "NodeConfig":
+        super().validate()
+        if self.queue_size < 1:
+            raise ValueError(f"reconstruction config: queue_size must be >= 1, got {self.queue_size}")
+        if self.pose_type not in ("pose", "odometry"):
+            raise ValueError(f"reconstruction config: pose_type must be 'pose' or 'odometry', got '{self.pose_type}'")
+        if len(self.gravity) != 3:
+            raise ValueError(f"reconstruction config: gravity needs 3 numbers, got {list(self.gravity)}")
+        return self
+
+    def reconstruction(self) -> ReconstructionConfig:
+        """The core settings alone."""
+        from dataclasses import fields
+
+        return ReconstructionConfig(**{f.name: getattr(self, f.name) for f in fields(ReconstructionConfig)})

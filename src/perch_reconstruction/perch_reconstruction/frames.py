@@ -1,0 +1,145 @@
+"""RGB-D frames, camera intrinsics, and TUM/7-Scenes-style frame folders."""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from perch_common.errors import PerchError
+
+# Indoor RGB-D sensors see at most ~10 m; a median this far means the depth is not in the units we think.
+MAX_PLAUSIBLE_MEDIAN_DEPTH_M = 20.0
+MIN_PLAUSIBLE_MEDIAN_DEPTH_M = 0.05
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """Pinhole intrinsics of the depth camera (colour assumed registered to depth)."""
+
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+
+    def matrix(self) -> np.ndarray:
+        return np.array([[self.fx, 0, self.cx], [0, self.fy, self.cy], [0, 0, 1.0]])
+
+    def scaled(self, factor: float) -> "Intrinsics":
+        """Intrinsics of the image resized by `factor` (pixel centres kept)."""
+        return Intrinsics(int(round(self.width * factor)), int(round(self.height * factor)),
+                          self.fx * factor, self.fy * factor,
+                          (self.cx + 0.5) * factor - 0.5, (self.cy + 0.5) * factor - 0.5)
+
+    @staticmethod
+    def from_matrix(k: np.ndarray, width: int, height: int) -> "Intrinsics":
+        k = np.asarray(k, np.float64).reshape(3, 3)
+        return Intrinsics(int(width), int(height), float(k[0, 0]), float(k[1, 1]), float(k[0, 2]), float(k[1, 2]))
+
+
+@dataclass
+class RGBDFrame:
+    """One synchronised frame: colour (H,W,3) uint8 RGB, depth (H,W) float32 metres (0 = invalid)."""
+
+    color: np.ndarray
+    depth: np.ndarray
+    stamp_ns: int
+    pose: np.ndarray | None = None  # 4x4 world-from-camera (optical frame), when recorded
+
+
+def check_depth(depth_m: np.ndarray, what: str) -> None:
+    """Raise PerchError when depth values cannot be metres of an indoor scene."""
+    valid = depth_m[(depth_m > 0) & np.isfinite(depth_m)]
+    if valid.size == 0:
+        return  # an all-invalid frame integrates nothing; not an error
+    median = float(np.median(valid))
+    if median > MAX_PLAUSIBLE_MEDIAN_DEPTH_M or median < MIN_PLAUSIBLE_MEDIAN_DEPTH_M:
+        raise PerchError(
+            f"{what}: median depth {median:.4g} m is implausible for a room (expected "
+            f"{MIN_PLAUSIBLE_MEDIAN_DEPTH_M}-{MAX_PLAUSIBLE_MEDIAN_DEPTH_M} m); check the depth units "
+            "(16UC1 must be millimetres, 32FC1 metres) or set depth_scale")
+
+
+COLOR_SUFFIXES = (".color.jpg", ".color.png", ".color.jpeg", ".rgb.jpg", ".rgb.png", ".rgb.jpeg")
+_FRAME_RE = re.compile(r"^(?P<stem>.*?)(?P<index>\d+)\.(?:color|rgb)\.(?:jpg|jpeg|png)$", re.IGNORECASE)
+
+
+@dataclass
+class FrameFolder:
+    """A folder of `frame-NNNNNN.color.jpg`, `.depth.png` (uint16 mm), optional `.pose.txt` (4x4
+    camera-to-world), `camera-intrinsics.txt` (3x3 K) and optional `gravity-direction.txt` (world)."""
+
+    root: Path
+    stems: list[str]
+    intrinsics: Intrinsics
+    gravity: np.ndarray | None
+    has_poses: bool
+
+    def __len__(self) -> int:
+        return len(self.stems)
+
+    def load(self, index: int, stamp_ns: int = 0) -> RGBDFrame:
+        import cv2
+
+        stem = self.root / self.stems[index]
+        color_path = next((p for p in (stem.with_name(stem.name + s) for s in COLOR_SUFFIXES) if p.is_file()), None)
+        depth_path = stem.with_name(stem.name + ".depth.png")
+        color = cv2.imread(str(color_path)) if color_path else None
+        depth = cv2.imread(str(depth_path), cv2.IMREAD_UNCHANGED)
+        if color is None:
+            raise PerchError(f"{stem}.color.jpg/png: missing or unreadable colour image")
+        if depth is None or depth.dtype != np.uint16 or depth.ndim != 2:
+            raise PerchError(f"{depth_path}: missing, unreadable or not a 16-bit single-channel PNG (mm)")
+        if color.shape[:2] != depth.shape:
+            raise PerchError(f"{stem}: colour {color.shape[1]}x{color.shape[0]} and depth "
+                             f"{depth.shape[1]}x{depth.shape[0]} differ in size; register them first")
+        pose = None
+        if self.has_poses:
+            pose = np.loadtxt(stem.with_name(stem.name + ".pose.txt")).reshape(4, 4)
+            if not np.isfinite(pose).all():
+                pose = None  # the 7-Scenes/TUM convention for a lost-tracking frame
+        # 65535 marks invalid Kinect depth; both it and 0 become 0 (invalid).
+        depth_m = np.where(depth == 65535, 0, depth).astype(np.float32) / 1000.0
+        return RGBDFrame(np.ascontiguousarray(color[:, :, ::-1]), depth_m, stamp_ns, pose)
+
+
+def open_frame_folder(path: str | Path, limit: int | None = None, step: int = 1) -> FrameFolder:
+    root = Path(path)
+    if not root.is_dir():
+        raise PerchError(f"{root}: no such frame folder")
+    found = []
+    for p in root.iterdir():
+        m = _FRAME_RE.match(p.name)
+        if m:
+            found.append((int(m["index"]), p.name.split(".")[0]))
+    if not found:
+        raise PerchError(f"{root}: no frames named like frame-000000.color.jpg with .depth.png beside them")
+    stems = [s for _, s in sorted(found)][::max(1, step)]
+    if limit:
+        stems = stems[:limit]
+    k_path = root / "camera-intrinsics.txt"
+    if not k_path.is_file():
+        raise PerchError(f"{k_path}: missing (3x3 intrinsic matrix K, whitespace separated)")
+    import cv2
+
+    first = cv2.imread(str(root / f"{stems[0]}.depth.png"), cv2.IMREAD_UNCHANGED)
+    if first is None:
+        raise PerchError(f"{root / stems[0]}.depth.png: missing or unreadable")
+    intrinsics = Intrinsics.from_matrix(np.loadtxt(k_path), first.shape[1], first.shape[0])
+    gravity = None
+    g_path = root / "gravity-direction.txt"
+    if g_path.is_file():
+        gravity = np.loadtxt(g_path).reshape(3)
+    has_poses = all((root / f"{s}.pose.txt").is_file() for s in stems)
+    return FrameFolder(root, stems, intrinsics, gravity, has_poses)
+
+
+def iter_folder_frames(folder: FrameFolder, fps: float = 30.0, start_ns: int = 0) -> Iterator[RGBDFrame]:
+    period_ns = int(round(1e9 / fps))
+    for i in range(len(folder)):
+        yield folder.load(i, start_ns + i * period_ns)

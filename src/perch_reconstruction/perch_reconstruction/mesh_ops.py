@@ -1,0 +1,88 @@
+"""Vectorised mesh clean-up steps (numpy/scipy): vertex welding, small pieces, vertex clustering."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from perch_common.mesh import Mesh
+
+
+def _remap(mesh: Mesh, inverse: np.ndarray, count: int, average: bool) -> Mesh:
+    """Mesh whose vertex i becomes new vertex inverse[i]; degenerate and duplicate faces dropped."""
+    weights = np.bincount(inverse, minlength=count).astype(np.float64)
+    if average:
+        vertices = np.column_stack([np.bincount(inverse, mesh.vertices[:, i], count) for i in range(3)])
+        vertices /= weights[:, None]
+    else:
+        first = np.full(count, -1, np.int64)
+        first[inverse[::-1]] = np.arange(len(inverse))[::-1]
+        vertices = mesh.vertices[first]
+    colors = None
+    if mesh.vertex_colors is not None:
+        sums = np.column_stack([np.bincount(inverse, mesh.vertex_colors[:, i].astype(np.float64), count)
+                                for i in range(3)])
+        colors = np.clip(np.round(sums / weights[:, None]), 0, 255).astype(np.uint8)
+    faces = inverse[mesh.faces]
+    keep = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
+    faces = faces[keep]
+    ordered = np.sort(faces, axis=1)
+    key = (ordered[:, 0] * count + ordered[:, 1]) * count + ordered[:, 2] if count < 2 ** 21 else None
+    if key is None:
+        _, first_face = np.unique(ordered, axis=0, return_index=True)
+    else:
+        _, first_face = np.unique(key, return_index=True)
+    faces = faces[np.sort(first_face)]
+    return _drop_unused(Mesh(vertices, faces, colors, frame_id=mesh.frame_id))
+
+
+def _drop_unused(mesh: Mesh) -> Mesh:
+    used = np.zeros(mesh.num_vertices, bool)
+    used[mesh.faces.ravel()] = True
+    if used.all():
+        return mesh
+    index = np.cumsum(used) - 1
+    return Mesh(mesh.vertices[used], index[mesh.faces],
+                None if mesh.vertex_colors is None else mesh.vertex_colors[used], frame_id=mesh.frame_id)
+
+
+def _cells(points: np.ndarray, cell: float) -> tuple[np.ndarray, int]:
+    key = np.floor((points - points.min(axis=0)) / cell).astype(np.int64)
+    span = key.max(axis=0) + 1
+    linear = (key[:, 0] * span[1] + key[:, 1]) * span[2] + key[:, 2]
+    unique, inverse = np.unique(linear, return_inverse=True)
+    return inverse.ravel(), len(unique)
+
+
+def weld_vertices(mesh: Mesh, distance: float) -> Mesh:
+    """Merge vertices falling in the same `distance` cell (duplicates from block seams, STL soups)."""
+    inverse, count = _cells(mesh.vertices, max(distance, 1e-12))
+    return _remap(mesh, inverse, count, average=False)
+
+
+def remove_small_pieces(mesh: Mesh, min_diameter: float) -> tuple[Mesh, int]:
+    """Drop connected pieces whose bounding-box diagonal is below min_diameter; returns (mesh, faces removed)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n = mesh.num_vertices
+    f = mesh.faces
+    rows = np.concatenate([f[:, 0], f[:, 1]])
+    cols = np.concatenate([f[:, 1], f[:, 2]])
+    graph = coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), shape=(n, n))
+    count, label = connected_components(graph, directed=False)
+    lo = np.full((count, 3), np.inf)
+    hi = np.full((count, 3), -np.inf)
+    np.minimum.at(lo, label, mesh.vertices)
+    np.maximum.at(hi, label, mesh.vertices)
+    big = np.linalg.norm(hi - lo, axis=1) >= min_diameter
+    keep = big[label[f[:, 0]]]
+    removed = int((~keep).sum())
+    return (mesh if removed == 0 else mesh.submesh(keep)), removed
+
+
+def cluster_vertices(mesh: Mesh, target_faces: int) -> Mesh:
+    """Vertex clustering on a grid sized so roughly target_faces remain (fast coarse decimation)."""
+    area = float(mesh.face_areas().sum())
+    cell = np.sqrt(2.0 * area / max(target_faces, 1))  # a grid of cell c triangulates to ~2 A / c^2 faces
+    inverse, count = _cells(mesh.vertices, cell)
+    return _remap(mesh, inverse, count, average=True)

@@ -1,0 +1,195 @@
+"""perch_reconstruction node: live RGB-D topics or recorded bags in, clean z-up mesh out.
+
+Services: /perch/reconstruct (perch_interfaces/srv/Reconstruct), /perch/reconstruct/reset
+(std_srvs/Trigger), /perch/clean_mesh (perch_interfaces/srv/CleanMesh).
+Progress: /perch/reconstruct/progress (std_msgs/String, JSON) every progress_period seconds.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import sys
+
+import numpy as np
+from perch_interfaces import srv
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
+
+from perch_common.errors import EXPECTED
+from perch_common.ros.conversions import mesh_from_msg, mesh_to_msg, xyz
+from perch_common.ros.node_main import run_node
+from perch_common.ros.params import declare_config
+from perch_common.ros.service import answering, create_stage_service
+from perch_reconstruction import images
+from perch_reconstruction.bag_write import BagTopics
+from perch_reconstruction.cleaning import clean_mesh_with_report
+from perch_reconstruction.config import NodeConfig
+from perch_reconstruction.core import reconstruct_bag
+from perch_reconstruction.live import LiveIngest
+
+
+def input_qos(lossless: bool, depth: int) -> QoSProfile:
+    """Default: best effort, volatile - matches camera drivers (sensor-data QoS) and any player.
+    lossless: reliable and transient local, as `perch bag play` offers, so even the first messages
+    (sent while discovery completes) arrive; publishers offering volatile durability do not match."""
+    if lossless:
+        return QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    return QoSProfile(depth=depth, reliability=ReliabilityPolicy.BEST_EFFORT)
+
+
+class ReconstructionNode(Node):
+    def __init__(self) -> None:
+        super().__init__("perch_reconstruction")
+        self.config = declare_config(self, NodeConfig).validate()
+        c = self.config
+        self.ingest = LiveIngest(c, log=self.get_logger().warning)
+        inputs = MutuallyExclusiveCallbackGroup()
+        # Poses and camera info in their own group: a burst of images must not hold them back.
+        meta = MutuallyExclusiveCallbackGroup()
+        services = ReentrantCallbackGroup()
+        if c.compressed_images:
+            from sensor_msgs.msg import CompressedImage as ImageType
+        else:
+            from sensor_msgs.msg import Image as ImageType
+        from sensor_msgs.msg import CameraInfo
+
+        qos = input_qos(c.lossless_replay, 50 if c.lossless_replay else 10)
+        self.create_subscription(ImageType, c.color_topic, self._on_color, qos, callback_group=inputs)
+        self.create_subscription(ImageType, c.depth_topic, self._on_depth, qos, callback_group=inputs)
+        self.create_subscription(CameraInfo, c.camera_info_topic, self._on_info, input_qos(c.lossless_replay, 10),
+                                 callback_group=meta)
+        if c.pose_topic:
+            if c.pose_type == "odometry":
+                from nav_msgs.msg import Odometry as PoseType
+            else:
+                from geometry_msgs.msg import PoseStamped as PoseType
+            self.create_subscription(PoseType, c.pose_topic, self._on_pose, input_qos(c.lossless_replay, 100),
+                                     callback_group=meta)
+        self.progress = self.create_publisher(String, "/perch/reconstruct/progress", 10)
+        self.create_timer(c.progress_period, self._publish_status, callback_group=meta)
+        self._offline_status: dict | None = None
+        self._frame_ids: dict[str, str] = {}
+        self._frame_warned = False
+        for srv_type, name, callback in ((srv.Reconstruct, "/perch/reconstruct", self._reconstruct),
+                                         (Trigger, "/perch/reconstruct/reset", self._reset),
+                                         (srv.CleanMesh, "/perch/clean_mesh", self._clean)):
+            create_stage_service(self, srv_type, name, callback, c.introspection, callback_group=services)
+        self.get_logger().info(f"ready: /perch/reconstruct, /perch/clean_mesh; listening on {c.color_topic}, "
+                               f"{c.depth_topic}, {c.camera_info_topic}" + (f", {c.pose_topic}" if c.pose_topic else ""))
+
+    # --- live input -----------------------------------------------------------------------------
+    def _guard(self, topic: str, work) -> None:
+        try:
+            work()
+        except EXPECTED as exc:
+            self.ingest.report_error(f"{topic}: {exc}" if topic not in str(exc) else str(exc))
+
+    def _on_color(self, msg) -> None:
+        t = self.config.color_topic
+        self._check_frames(color=msg.header.frame_id)
+        self._guard(t, lambda: self.ingest.on_color(images.stamp_ns(msg), images.color_from_msg(msg, t)))
+
+    def _on_depth(self, msg) -> None:
+        t = self.config.depth_topic
+        self._check_frames(depth=msg.header.frame_id)
+        self._guard(t, lambda: self.ingest.on_depth(
+            images.stamp_ns(msg), images.depth_from_msg(msg, t, self.config.depth_scale)))
+
+    def _check_frames(self, **frame_id: str) -> None:
+        """Registered depth carries the colour camera's frame id; different ids mean it is not."""
+        self._frame_ids.update(frame_id)
+        color, depth = self._frame_ids.get("color"), self._frame_ids.get("depth")
+        if color and depth and color != depth and not self._frame_warned:
+            self._frame_warned = True
+            c = self.config
+            self.ingest.report_error(
+                f"{c.depth_topic} is in frame '{depth}' but {c.color_topic} in '{color}': depth must be "
+                "registered to colour (use the driver's aligned-depth topic); integrating, colours may be offset")
+
+    def _on_info(self, msg) -> None:
+        t = self.config.camera_info_topic
+        self._guard(t, lambda: self.ingest.on_camera_info(images.intrinsics_from_camera_info(msg, t)))
+
+    def _on_pose(self, msg) -> None:
+        self.ingest.on_pose(images.stamp_ns(msg), images.pose_from_msg(msg))
+
+    def _publish_status(self) -> None:
+        status = self._offline_status or {"mode": "live", **self.ingest.status()}
+        self.progress.publish(String(data=json.dumps(status)))
+
+    # --- services -------------------------------------------------------------------------------
+    @answering
+    def _reconstruct(self, request, response):
+        c = self.config
+        try:
+            if request.bag_path:
+                mesh, stats = self._reconstruct_bag(request)
+            else:
+                response.frames_dropped = self.ingest.frames_dropped
+                if not self.ingest.drain(c.drain_timeout):
+                    self.get_logger().warning(f"frames still queued after {c.drain_timeout} s; extracting anyway")
+                gravity = np.asarray(c.gravity, np.float64)
+                mesh, stats = self.ingest.finish(gravity if np.any(gravity) else None, int(request.target_faces))
+        finally:
+            self._offline_status = None
+        response.mesh = mesh_to_msg(mesh, self.get_clock().now().to_msg())
+        response.frames_integrated, response.frames_dropped = stats.frames_integrated, stats.frames_dropped
+        response.success = True
+        response.message = (f"{mesh.num_faces} faces from {stats.frames_integrated} of {stats.frames_received}"
+                            f" frames ({stats.frames_dropped} dropped, {stats.frames_without_pose} without pose, "
+                            f"{stats.frames_lost} lost, {stats.frames_over_budget} over the block budget)")
+        if stats.clean is not None:
+            response.message += f"; up from {stats.clean.up_source}"
+            if stats.clean.warnings:
+                response.message += "; " + "; ".join(stats.clean.warnings)
+        return response
+
+    def _reconstruct_bag(self, request):
+        c = self.config
+        config = c.reconstruction()
+        if request.target_faces:
+            config = dataclasses.replace(config, target_faces=int(request.target_faces))
+        topics = BagTopics(c.color_topic, c.depth_topic, c.camera_info_topic, c.pose_topic)
+
+        def progress(stats) -> None:
+            self._offline_status = {"mode": "bag", "bag": request.bag_path, **stats.summary()}
+
+        return reconstruct_bag(request.bag_path, config, bool(request.use_poses), topics, progress=progress)
+
+    def _reset(self, request, response):
+        self.ingest.reset()
+        response.success, response.message = True, "reconstruction cleared"
+        self.get_logger().info("reset: volume, queue and counters cleared")
+        return response
+
+    @answering
+    def _clean(self, request, response):
+        config = self.config.reconstruction()
+        if request.target_faces:
+            config = dataclasses.replace(config, target_faces=int(request.target_faces))
+        gravity = xyz(request.gravity)
+        mesh, report = clean_mesh_with_report(mesh_from_msg(request.mesh, "mesh to clean"),
+                                              gravity if np.any(gravity) else None, config)
+        response.mesh = mesh_to_msg(mesh, self.get_clock().now().to_msg())
+        response.success = True
+        response.message = (f"{report.faces_in} -> {report.faces_out} faces ({report.pieces_removed_faces} in "
+                            f"small pieces); up from {report.up_source}" +
+                            ("; " + "; ".join(report.warnings) if report.warnings else ""))
+        return response
+
+    def destroy_node(self):
+        self.ingest.stop()
+        return super().destroy_node()
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(lambda: ReconstructionNode(), args=args, threads=4)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,100 @@
+"""Live ingestion without ROS: bounded queue, drop-oldest policy, camera-info timeout, errors kept apart."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from perch_common.errors import PerchError
+from perch_reconstruction.config import NodeConfig
+from perch_reconstruction.live import LiveIngest
+
+
+def _feed(ingest: LiveIngest, frames, poses: bool = True) -> None:
+    for frame in frames:
+        if poses:
+            ingest.on_pose(frame.stamp_ns, frame.pose)
+        ingest.on_color(frame.stamp_ns, frame.color)
+        ingest.on_depth(frame.stamp_ns, frame.depth)
+
+
+@pytest.fixture
+def make_ingest():
+    made = []
+
+    def make(**overrides):
+        ingest = LiveIngest(NodeConfig(**overrides), log=lambda message: None)
+        made.append(ingest)
+        return ingest
+
+    yield make
+    for ingest in made:
+        ingest.stop()
+
+
+def test_full_queue_drops_the_oldest_and_counts(synthetic, make_ingest):
+    _, frames, intrinsics = synthetic
+    ingest = make_ingest(queue_size=1)
+    ingest.on_camera_info(intrinsics)
+    _feed(ingest, frames[:15])  # far faster than integration
+    assert ingest.drain(60)
+    status = ingest.status()
+    assert status["dropped"].get("queue_full", 0) >= 5
+    assert status["frames_integrated"] + status["frames_dropped"] == 15
+    assert ingest.recon.stats.trajectory[-1][0] == frames[14].stamp_ns  # the newest view always makes it
+
+
+def test_no_camera_info_reports_topic_and_keeps_running(synthetic, make_ingest):
+    _, frames, intrinsics = synthetic
+    ingest = make_ingest(camera_info_timeout=0.2, queue_size=50)
+    _feed(ingest, frames[:3])
+    assert ingest.drain(10)
+    assert ingest.status()["dropped"] == {"no_camera_info": 3}
+    with pytest.raises(PerchError, match=r"no camera info on /camera/depth/camera_info within 0.2 s"):
+        ingest.finish(None)
+    ingest.on_camera_info(intrinsics)  # the camera info arrives late: integration resumes
+    _feed(ingest, frames[3:8])
+    assert ingest.drain(30)
+    assert ingest.status()["frames_integrated"] == 5
+
+
+def test_bad_depth_units_are_reported_and_integration_kept(synthetic, make_ingest):
+    _, frames, intrinsics = synthetic
+    ingest = make_ingest(queue_size=50)
+    ingest.on_camera_info(intrinsics)
+    _feed(ingest, frames[:4])
+    bad = frames[4]
+    ingest.on_pose(bad.stamp_ns, bad.pose)
+    ingest.on_color(bad.stamp_ns, bad.color)
+    ingest.on_depth(bad.stamp_ns, bad.depth * 1000)  # millimetres as metres
+    assert ingest.drain(30)
+    status = ingest.status()
+    assert status["frames_integrated"] == 4
+    assert "/camera/depth/image_raw: median depth" in status["last_error"]
+    assert ingest.finish(np.array([0, 0, -1.0]))[0].num_faces > 0
+
+
+def test_nothing_received(make_ingest):
+    ingest = make_ingest()
+    with pytest.raises(PerchError, match="no colour\\+depth pairs received on /camera/color/image_raw"):
+        ingest.finish(None)
+
+
+def test_missing_poses_are_counted(synthetic, make_ingest):
+    _, frames, intrinsics = synthetic
+    ingest = make_ingest(queue_size=50, pose_wait=0.05)
+    ingest.on_camera_info(intrinsics)
+    _feed(ingest, frames[:3], poses=False)
+    assert ingest.drain(10)
+    assert ingest.status()["frames_without_pose"] == 3
+
+
+def test_reset_clears_everything(synthetic, make_ingest):
+    _, frames, intrinsics = synthetic
+    ingest = make_ingest(queue_size=50)
+    ingest.on_camera_info(intrinsics)
+    _feed(ingest, frames[:3])
+    assert ingest.drain(30)
+    ingest.reset()
+    status = ingest.status()
+    assert status["frames_integrated"] == 0 and status["frames_dropped"] == 0 and ingest.intrinsics is None

@@ -1,0 +1,130 @@
+"""The node across processes: bag play -> node -> Reconstruct equals the offline CLI; error replies."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from perch_common.ros.testing import call_service, node_process, use_isolated_ros_env
+from perch_reconstruction.core import ReconstructionConfig, reconstruct_bag
+from perch_reconstruction.metrics import chamfer_distance
+
+pytestmark = pytest.mark.ros
+
+VOXEL = ReconstructionConfig().voxel_size
+
+
+@pytest.fixture(scope="module")
+def ros(tmp_path_factory):
+    use_isolated_ros_env()
+    import rclpy
+
+    from perch_common.ros.node_main import ros_context
+
+    log = tmp_path_factory.mktemp("node") / "node.log"
+    with ros_context():
+        client = rclpy.create_node("perch_reconstruction_test")
+        params = {"lossless_replay": True, "queue_size": 200, "gravity": "[0.0, 0.0, -1.0]", "progress_period": 0.5}
+        with node_process("perch_reconstruction.node", params=params, log_path=log) as proc:
+            yield client, proc, log
+        client.destroy_node()
+
+
+def _reconstruct(client, bag_path: str = "", use_poses: bool = True, timeout: float = 120.0):
+    from perch_interfaces.srv import Reconstruct
+
+    return call_service(client, Reconstruct, "/perch/reconstruct",
+                        Reconstruct.Request(bag_path=bag_path, use_poses=use_poses), timeout=timeout)
+
+
+def _progress(client, until=lambda status: True, timeout: float = 60.0) -> list[dict]:
+    """Messages on /perch/reconstruct/progress until one satisfies `until` (or the timeout)."""
+    import time
+
+    import rclpy
+    from std_msgs.msg import String
+
+    received = []
+    sub = client.create_subscription(String, "/perch/reconstruct/progress", lambda m: received.append(m.data), 10)
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline and not (received and until(json.loads(received[-1]))):
+        rclpy.spin_once(client, timeout_sec=0.1)
+    client.destroy_subscription(sub)
+    assert received, f"no progress message within {timeout} s"
+    return [json.loads(r) for r in received]
+
+
+def test_live_replay_matches_offline(ros, synthetic_bag):
+    from perch_common.ros.conversions import mesh_from_msg
+
+    client, proc, log = ros
+    offline, offline_stats = reconstruct_bag(synthetic_bag, ReconstructionConfig(), use_poses=True)
+    # wait for the node before playing (its services appear once its subscriptions exist)
+    from std_srvs.srv import Trigger
+
+    assert call_service(client, Trigger, "/perch/reconstruct/reset", Trigger.Request()).success
+    play = subprocess.run([sys.executable, "-m", "perch_common.cli", "bag", "play", str(synthetic_bag),
+                           "--rate", "1", "--wait-subscribers", "20"], capture_output=True, text=True, timeout=120)
+    assert play.returncode == 0, play.stderr
+    assert json.loads(play.stdout.strip().splitlines()[-1])["published"]["/camera/color/image_raw"] == 40
+    progress = _progress(client, until=lambda status: status["frames_integrated"] == 40)
+    assert all(p["mode"] == "live" for p in progress) and progress[-1]["frames_integrated"] == 40
+    assert progress[-1]["frames_dropped"] == 0 and progress[-1]["last_error"] == ""
+    reply = _reconstruct(client)
+    assert reply.success, reply.message + "\n" + log.read_text()
+    assert reply.frames_integrated == offline_stats.frames_integrated == 40, reply.message + "\n" + log.read_text()
+    assert reply.frames_dropped == 0
+    live = mesh_from_msg(reply.mesh)
+    assert abs(live.num_faces - offline.num_faces) <= 0.01 * offline.num_faces
+    assert chamfer_distance(live, offline, samples=20_000) < 0.1 * VOXEL
+    assert proc.poll() is None
+
+
+def test_offline_bag_through_the_service(ros, synthetic_bag):
+    from perch_common.ros.conversions import mesh_from_msg
+
+    client, proc, _ = ros
+    reply = _reconstruct(client, str(synthetic_bag), use_poses=True)
+    assert reply.success, reply.message
+    offline, _ = reconstruct_bag(synthetic_bag, ReconstructionConfig(), use_poses=True)
+    assert abs(mesh_from_msg(reply.mesh).num_faces - offline.num_faces) <= 0.01 * offline.num_faces
+    assert "up from gravity" in reply.message
+
+
+def test_error_replies_keep_the_node_running(ros, tmp_path):
+    from perch_interfaces.srv import CleanMesh
+    from std_srvs.srv import Trigger
+
+    client, proc, _ = ros
+    reply = _reconstruct(client, str(tmp_path / "missing.mcap"))
+    assert not reply.success and "missing.mcap: no such bag file" in reply.message
+    corrupt = tmp_path / "corrupt.mcap"
+    corrupt.write_bytes(b"\x89MCAP0\r\n" + b"\x00" * 100)
+    reply = _reconstruct(client, str(corrupt))
+    assert not reply.success and "corrupt.mcap" in reply.message
+    reply = call_service(client, CleanMesh, "/perch/clean_mesh", CleanMesh.Request())
+    assert not reply.success and "mesh to clean: mesh is empty" in reply.message
+    assert call_service(client, Trigger, "/perch/reconstruct/reset", Trigger.Request()).success
+    reply = _reconstruct(client)
+    assert not reply.success and reply.message.startswith("nothing integrated")
+    assert proc.poll() is None
+
+
+def test_clean_mesh_service(ros, synthetic):
+    from perch_interfaces.srv import CleanMesh
+
+    from perch_common.ros.conversions import mesh_from_msg, mesh_to_msg, vector_msg
+
+    client, _, _ = ros
+    scene = synthetic[0]
+    request = CleanMesh.Request(mesh=mesh_to_msg(scene.mesh), gravity=vector_msg(np.array([0, 0, -1.0])),
+                                target_faces=5000)
+    reply = call_service(client, CleanMesh, "/perch/clean_mesh", request)
+    assert reply.success, reply.message
+    cleaned = mesh_from_msg(reply.mesh)
+    assert cleaned.num_faces <= 5000 and cleaned.vertex_colors is not None
+    np.testing.assert_allclose(cleaned.bounds(), scene.mesh.bounds(), atol=0.15)

@@ -1,0 +1,134 @@
+"""The core end to end: synthetic frames (always) and the real 7-Scenes kitchen (when present)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from perch_common.errors import PerchError
+from perch_common.raycast import RayScene
+from perch_common.transforms import estimate_up
+from perch_reconstruction.core import ReconstructionConfig, Reconstructor, reconstruct_bag, reconstruct_frames
+from perch_reconstruction.frames import iter_folder_frames, open_frame_folder
+from perch_reconstruction.metrics import ate_rmse, chamfer_distance, refine_alignment
+
+VOXEL = ReconstructionConfig().voxel_size
+
+
+def test_synthetic_with_poses_matches_the_scene(synthetic):
+    scene, frames, intrinsics = synthetic
+    mesh, stats = reconstruct_frames(frames, intrinsics, ReconstructionConfig(), use_poses=True,
+                                     gravity=np.array([0.0, 0.0, -1.0]))
+    assert stats.frames_integrated == len(frames) and stats.frames_dropped == 0
+    assert 20_000 < mesh.num_faces <= 100_000 and stats.clean.up_source == "gravity"
+    np.testing.assert_allclose(stats.clean.rotation, np.eye(3), atol=1e-12)  # scene is z-up already
+    distance = RayScene(scene.mesh).closest_points(mesh.vertices)[2]
+    assert np.median(distance) < 0.4 * VOXEL
+    assert np.quantile(distance, 0.95) < 1.0 * VOXEL
+    assert mesh.vertex_colors is not None and mesh.vertex_colors.std() > 10  # colours survived
+
+
+def test_synthetic_odometry_tracks_the_camera(synthetic):
+    scene, frames, intrinsics = synthetic
+    mesh, stats = reconstruct_frames(frames, intrinsics, ReconstructionConfig(), use_poses=False, clean=False)
+    assert stats.frames_integrated == len(frames) and stats.frames_lost == 0
+    ate, alignment = ate_rmse(stats.trajectory, stats.recorded)
+    assert ate < 0.05
+    aligned = refine_alignment(mesh, scene.mesh, alignment)
+    distance = RayScene(scene.mesh).closest_points(mesh.transformed(aligned).vertices)[2]
+    assert np.median(distance) < 1.0 * VOXEL  # residual drift where only two planes are in view
+
+
+def test_bag_reconstruction_equals_frame_reconstruction(synthetic, synthetic_bag):
+    _, frames, intrinsics = synthetic
+    from_bag, bag_stats = reconstruct_bag(synthetic_bag, ReconstructionConfig(), use_poses=True)
+    direct, _ = reconstruct_frames(frames, intrinsics, ReconstructionConfig(), use_poses=True,
+                                   gravity=np.array([0.0, 0.0, -1.0]))
+    assert bag_stats.frames_integrated == len(frames)
+    assert abs(from_bag.num_faces - direct.num_faces) <= 0.01 * direct.num_faces
+    assert chamfer_distance(from_bag, direct, samples=20_000) < 0.1 * VOXEL
+
+
+def test_block_budget_bounds_memory(synthetic):
+    _, frames, intrinsics = synthetic
+    recon = Reconstructor(ReconstructionConfig(max_blocks=300), use_poses=True)
+    for frame in frames[:20]:
+        recon.add_frame(frame, intrinsics)
+    assert recon.stats.blocks <= 300
+    assert recon.stats.frames_over_budget > 0
+    assert recon.stats.frames_integrated + recon.stats.frames_over_budget == 20
+
+
+def test_bad_frames_are_rejected_and_volume_kept(synthetic):
+    _, frames, intrinsics = synthetic
+    recon = Reconstructor(ReconstructionConfig(), use_poses=True)
+    recon.add_frame(frames[0], intrinsics)
+    recon.add_frame(frames[2], intrinsics)  # surfaces need two observations (weight_threshold 1)
+    blocks = recon.stats.blocks
+    in_mm = dataclasses.replace(frames[1], depth=frames[1].depth * 1000)  # millimetres declared as metres
+    with pytest.raises(PerchError, match="check the depth units"):
+        recon.add_frame(in_mm, intrinsics)
+    small = dataclasses.replace(frames[1], depth=frames[1].depth[::2, ::2])
+    with pytest.raises(PerchError, match="frame sizes differ: colour 320x240, depth 160x120"):
+        recon.add_frame(small, intrinsics)
+    with pytest.raises(PerchError, match="camera intrinsics changed"):
+        recon.add_frame(frames[1], dataclasses.replace(intrinsics, fx=100.0))
+    no_pose = dataclasses.replace(frames[1], pose=None)
+    assert not recon.add_frame(no_pose, intrinsics) and recon.stats.frames_without_pose == 1
+    assert recon.stats.blocks == blocks and recon.stats.frames_integrated == 2
+    assert recon.finish(np.array([0, 0, -1.0])).num_faces > 0
+
+
+def test_nothing_integrated_is_an_error():
+    with pytest.raises(PerchError, match="nothing integrated yet"):
+        Reconstructor(ReconstructionConfig(), use_poses=True).finish()
+
+
+def test_use_poses_on_a_bag_without_poses(synthetic, tmp_path):
+    from perch_reconstruction.bag_write import write_bag
+
+    _, frames, intrinsics = synthetic
+    path = tmp_path / "nopose.mcap"
+    write_bag(path, [dataclasses.replace(f, pose=None) for f in frames[:3]], intrinsics)
+    with pytest.raises(PerchError, match=r"no pose topic /camera/pose.*--odometry"):
+        reconstruct_bag(path, ReconstructionConfig(), use_poses=True)
+
+
+def test_config_is_validated():
+    with pytest.raises(ValueError, match="voxel_size must be > 0"):
+        Reconstructor(ReconstructionConfig(voxel_size=0), use_poses=True)
+
+
+# --- real data ---------------------------------------------------------------------------------
+
+KITCHEN_FRAMES = 40
+
+
+@pytest.fixture(scope="module")
+def kitchen(kitchen_dir):
+    folder = open_frame_folder(kitchen_dir, limit=KITCHEN_FRAMES)
+    return folder, list(iter_folder_frames(folder))
+
+
+def test_kitchen_with_poses_is_gravity_aligned(kitchen):
+    folder, frames = kitchen
+    mesh, stats = reconstruct_frames(frames, folder.intrinsics, ReconstructionConfig(), True, folder.gravity)
+    assert stats.frames_integrated == KITCHEN_FRAMES and stats.clean.up_source == "gravity"
+    assert mesh.num_faces > 30_000
+    up, confidence = estimate_up(mesh.face_normals(), mesh.face_areas())
+    assert abs(up[2]) > np.cos(np.radians(3)) and confidence > 0.2  # floor and table top are horizontal
+    # the recorded gravity, rotated by the cleaning, now points down
+    np.testing.assert_allclose(stats.clean.rotation @ folder.gravity, [0, 0, -1], atol=1e-6)
+
+
+def test_kitchen_odometry_ate_and_chamfer(kitchen):
+    folder, frames = kitchen
+    posed, posed_stats = reconstruct_frames(frames, folder.intrinsics, ReconstructionConfig(), True, clean=False)
+    odo, stats = reconstruct_frames(frames, folder.intrinsics, ReconstructionConfig(), False, clean=False)
+    assert stats.frames_lost == 0
+    ate, alignment = ate_rmse(stats.trajectory, stats.recorded)
+    assert ate < 0.05
+    aligned = refine_alignment(odo, posed, alignment)
+    assert chamfer_distance(odo.transformed(aligned), posed, samples=30_000) < 0.03
