@@ -3,19 +3,17 @@
 from __future__ import annotations
 
 import numpy as np
+# Imported up front: a lazy import here once stalled a node's first pose callback for ~1 s.
+from scipy.spatial.transform import Rotation
 
 
 def quaternion_from_matrix(r: np.ndarray) -> np.ndarray:
     """(x, y, z, w) unit quaternion of a 3x3 rotation matrix."""
-    from scipy.spatial.transform import Rotation
-
     return Rotation.from_matrix(np.asarray(r, np.float64)[:3, :3]).as_quat()
 
 
 def matrix_from_quaternion(q: np.ndarray) -> np.ndarray:
     """3x3 rotation of an (x, y, z, w) quaternion; a zero quaternion is the identity."""
-    from scipy.spatial.transform import Rotation
-
     q = np.asarray(q, np.float64)
     if not np.any(q):
         return np.eye(3)

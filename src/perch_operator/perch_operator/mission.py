@@ -19,7 +19,7 @@ from perch_common.mesh import load_mesh
 from perch_common.ros.conversions import (exclusion_to_msg, mesh_to_msg, placement_from_msg, placement_to_msg,
                                           vector_msg)
 from perch_operator.proposals import Decision, Proposal, ProposalBook
-from perch_operator.stages import MissionCancelled, StageCaller
+from perch_operator.stages import MissionCancelled, StageCaller, StageError
 
 # Rough share of a mission's time per stage, for the feedback fraction.
 STAGE_WEIGHTS = {"reconstruct": 0.30, "clean": 0.05, "crop": 0.02, "segment": 0.20, "filter": 0.25,
@@ -116,7 +116,14 @@ class Mission:
                              f"(got {sum(given)})")
         if goal.bag_path:
             self._planned.remove("clean")
-            return self._call("reconstruct", srv.Reconstruct.Request(bag_path=goal.bag_path, use_poses=True)).mesh
+            try:
+                return self._call("reconstruct", srv.Reconstruct.Request(bag_path=goal.bag_path, use_poses=True)).mesh
+            except StageError as exc:
+                if "use_poses=false" not in str(exc):
+                    raise
+                # The bag records no poses: track the camera instead (RGB-D odometry).
+                self.feedback("reconstruct", self._fraction(), "no poses in the bag: reconstructing with odometry")
+                return self._call("reconstruct", srv.Reconstruct.Request(bag_path=goal.bag_path, use_poses=False)).mesh
         self._planned.remove("reconstruct")
         mesh_msg = goal.mesh if len(goal.mesh.triangles) else mesh_to_msg(load_mesh(goal.mesh_path))
         if not mesh_msg.header.frame_id:

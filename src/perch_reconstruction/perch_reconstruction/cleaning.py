@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from perch_common.mesh import Mesh, MeshError, validate_mesh
-from perch_common.transforms import estimate_up, rotation_between
+from perch_common.transforms import estimate_mesh_up, estimate_up, rotation_between
 from perch_reconstruction.config import ReconstructionConfig
 from perch_reconstruction.mesh_ops import cluster_vertices, remove_small_pieces, weld_vertices
 
@@ -119,8 +119,8 @@ def _up_rotation(mesh: Mesh, gravity: np.ndarray | None, config: ReconstructionC
         up, confidence = estimate_up(normals[near], areas[near])
         confidence *= float(areas[near].sum() / max(areas.sum(), 1e-12))
         up = up if up @ hint >= 0 else -up
-    else:
-        up, confidence = estimate_up(normals, areas)
+    else:  # face positions decide between the three room axes (rooms are wider than tall)
+        up, confidence = estimate_mesh_up(mesh)
     report.up_confidence = confidence
     if confidence < config.min_up_confidence:
         report.warnings.append(f"no dominant floor/ceiling plane (confidence {confidence:.2f} < "
