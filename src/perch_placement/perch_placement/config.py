@@ -8,9 +8,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, replace
 
-
-def _f(description: str, unit: str | None = None) -> dict:
-    return {"description": description, **({"unit": unit} if unit else {})}
+from perch_common.config import param
 
 
 # Intel RealSense D435 depth stream: 1280 x 720 px, 87 x 58 degrees field of view.
@@ -22,22 +20,21 @@ D435_FY = 360.0 / math.tan(math.radians(58.0 / 2))
 class CameraSpec:
     """A stereo depth camera: pinhole intrinsics, Brown-Conrady distortion and stereo error model."""
 
-    name: str = field(default="d435", metadata=_f("camera profile name"))
-    width: int = field(default=1280, metadata=_f("image width", "px"))
-    height: int = field(default=720, metadata=_f("image height", "px"))
-    fx: float = field(default=D435_FX, metadata=_f("focal length along x (87 deg horizontal FOV)", "px"))
-    fy: float = field(default=D435_FY, metadata=_f("focal length along y (58 deg vertical FOV)", "px"))
-    cx: float = field(default=640.0, metadata=_f("principal point x", "px"))
-    cy: float = field(default=360.0, metadata=_f("principal point y", "px"))
-    distortion: tuple = field(default=(0.0, 0.0, 0.0, 0.0, 0.0),
-                              metadata=_f("Brown-Conrady coefficients, OpenCV order k1 k2 p1 p2 k3"))
-    baseline: float = field(default=0.05, metadata=_f("stereo baseline", "m"))
-    subpixel_error: float = field(default=0.08, metadata=_f("disparity (sub-pixel) error", "px"))
-    min_range: float = field(default=0.2, metadata=_f("closest usable depth (r_min)", "m"))
-    max_range: float = field(default=10.0, metadata=_f("farthest depth before the feature-size cap", "m"))
-    min_feature_size: float = field(default=0.05, metadata=_f("smallest feature to track (L_min)", "m"))
-    min_feature_pixels: float = field(default=10.0, metadata=_f("pixels that feature must span (p_min)", "px"))
-    max_zoom: float = field(default=1.0, metadata=_f("largest optical zoom factor (1 = no zoom)"))
+    name: str = param("d435", "camera profile name")
+    width: int = param(1280, "image width", "px")
+    height: int = param(720, "image height", "px")
+    fx: float = param(D435_FX, "focal length along x (87 deg horizontal FOV)", "px")
+    fy: float = param(D435_FY, "focal length along y (58 deg vertical FOV)", "px")
+    cx: float = param(640.0, "principal point x", "px")
+    cy: float = param(360.0, "principal point y", "px")
+    distortion: tuple = param((0.0, 0.0, 0.0, 0.0, 0.0), "Brown-Conrady coefficients, OpenCV order k1 k2 p1 p2 k3")
+    baseline: float = param(0.05, "stereo baseline", "m")
+    subpixel_error: float = param(0.08, "disparity (sub-pixel) error", "px")
+    min_range: float = param(0.2, "closest usable depth (r_min)", "m")
+    max_range: float = param(10.0, "farthest depth before the feature-size cap", "m")
+    min_feature_size: float = param(0.05, "smallest feature to track (L_min)", "m")
+    min_feature_pixels: float = param(10.0, "pixels that feature must span (p_min)", "px")
+    max_zoom: float = param(1.0, "largest optical zoom factor (1 = no zoom)")
 
     @property
     def focal(self) -> float:
@@ -90,57 +87,57 @@ CAMERA_PROFILES = {
 class DroneSpec:
     """A perching drone carrying the camera on a pan/tilt gimbal."""
 
-    radius: float = field(default=0.25, metadata=_f("drone radius for flight clearance", "m"))
-    camera_offset: float = field(default=0.1, metadata=_f("camera distance from the perch surface", "m"))
-    pan_range_deg: float = field(default=90.0, metadata=_f("full gimbal pan range about the drone's forward axis", "deg"))
-    tilt_range_deg: float = field(default=90.0, metadata=_f("full gimbal tilt range", "deg"))
-    gimbal_limited_targeting: bool = field(default=True, metadata=_f(
-        "restrict pan/tilt to a window around the direction to the target centre"))
-    target_deviation_deg: float = field(default=40.0, metadata=_f(
-        "half-width of the targeting window", "deg"))
-    min_spacing: float = field(default=1.0, metadata=_f("minimum distance between perched drones", "m"))
+    radius: float = param(0.25, "drone radius for flight clearance", "m")
+    camera_offset: float = param(0.1, "camera distance from the perch surface", "m")
+    pan_range_deg: float = param(90.0, "full gimbal pan range about the drone's forward axis", "deg")
+    tilt_range_deg: float = param(90.0, "full gimbal tilt range", "deg")
+    gimbal_limited_targeting: bool = param(True,
+        "restrict pan/tilt to a window around the direction to the target centre")
+    target_deviation_deg: float = param(40.0,
+        "half-width of the targeting window", "deg")
+    min_spacing: float = param(1.0, "minimum distance between perched drones", "m")
 
 
 @dataclass
 class PsoConfig:
     """Local-best particle swarm (numpy; one batched evaluation per generation)."""
 
-    particles: int = field(default=50, metadata=_f("swarm size"))
-    iterations: int = field(default=40, metadata=_f("maximum generations"))
-    inertia: float = field(default=0.7, metadata=_f("velocity inertia weight"))
-    cognitive: float = field(default=0.5, metadata=_f("pull towards a particle's own best"))
-    social: float = field(default=0.4, metadata=_f("pull towards the neighbourhood best"))
-    neighbours: int = field(default=5, metadata=_f("neighbourhood size (nearest particles, self included)"))
-    tolerance: float = field(default=0.001, metadata=_f("convergence: least best-fitness gain ..."))
-    patience: int = field(default=5, metadata=_f("... over this many generations"))
-    seeded: int = field(default=25, metadata=_f(
+    particles: int = param(50, "swarm size")
+    iterations: int = param(40, "maximum generations")
+    inertia: float = param(0.7, "velocity inertia weight")
+    cognitive: float = param(0.5, "pull towards a particle's own best")
+    social: float = param(0.4, "pull towards the neighbourhood best")
+    neighbours: int = param(5, "neighbourhood size (nearest particles, self included)")
+    tolerance: float = param(0.001, "convergence: least best-fitness gain ...")
+    patience: int = param(5, "... over this many generations")
+    seeded: int = param(25,
         "particles started at the best candidates of the discrete candidate set (0: all uniform random,"
-        " as the original)"))
-    polish_rounds: int = field(default=6, metadata=_f(
-        "hill-climbing rounds (32 batched samples each) polishing each camera's swarm best (0: none)"))
+        " as the original)")
+    polish_rounds: int = param(6,
+        "hill-climbing rounds (32 batched samples each) polishing each camera's swarm best (0: none)")
 
 
 @dataclass
 class PlacementConfig:
     """Everything the placement search needs besides the scene."""
 
-    num_cameras: int = field(default=5, metadata=_f("cameras to add"))
-    method: str = field(default="pso", metadata=_f("search: pso | celf | random | grid | naive"))
-    encoding: str = field(default="plane", metadata=_f(
-        "position encoding: plane (in-plane coordinates) | mesh (area-weighted face selector)"))
-    target_points: int = field(default=100, metadata=_f("target points sampled in the target volume (N)"))
-    seed: int = field(default=0, metadata=_f("seed of the target samples and of the search"))
-    up_axis: str = field(default="+z", metadata=_f("gravity up direction"))
-    occlusion_epsilon: float = field(default=1e-3, metadata=_f("ignored length at both ends of a sight line", "m"))
-    candidate_spacing: float = field(default=0.15, metadata=_f(
-        "candidate grid spacing on the regions (CELF and the optimality bound)", "m"))
-    candidate_angles: int = field(default=7, metadata=_f("candidate pan and tilt steps (each)"))
-    reference_spacing: float = field(default=0.05, metadata=_f("exhaustive reference grid spacing", "m"))
-    reference_angles: int = field(default=13, metadata=_f("exhaustive reference pan and tilt steps (each)"))
-    compute_bound: bool = field(default=True, metadata=_f("report the greedy online optimality bound"))
-    camera_profile: str = field(default="", metadata=_f(
-        "named camera profile (d435, d455, d405, zed2) overriding camera.*; empty: use camera.*"))
-    introspection: bool = field(default=True, metadata=_f("service introspection (requests/replies recorded)"))
+    num_cameras: int = param(5, "cameras to add")
+    method: str = param("pso", "search: pso | celf | random | grid | naive")
+    encoding: str = param("plane",
+        "position encoding: plane (in-plane coordinates) | mesh (area-weighted face selector)")
+    target_points: int = param(100, "target points sampled in the target volume (N)")
+    seed: int = param(0, "seed of the target samples and of the search")
+    up_axis: str = param("+z", "gravity up direction")
+    occlusion_epsilon: float = param(1e-3, "ignored length at both ends of a sight line", "m")
+    candidate_spacing: float = param(0.15,
+        "candidate grid spacing on the regions (CELF and the optimality bound)", "m")
+    candidate_angles: int = param(7, "candidate pan and tilt steps (each)")
+    reference_spacing: float = param(0.05, "exhaustive reference grid spacing", "m")
+    reference_angles: int = param(13, "exhaustive reference pan and tilt steps (each)")
+    compute_bound: bool = param(True, "report the greedy online optimality bound")
+    camera_profile: str = param("",
+        "named camera profile (d435, d455, d405, zed2) overriding camera.*; empty: use camera.*")
+    introspection: bool = param(True, "service introspection (requests/replies recorded)")
     camera: CameraSpec = field(default_factory=CameraSpec)
     drone: DroneSpec = field(default_factory=DroneSpec)
     pso: PsoConfig = field(default_factory=PsoConfig)

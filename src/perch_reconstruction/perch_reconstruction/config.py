@@ -4,40 +4,35 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-
-def _f(default, description: str, unit: str | None = None):
-    meta = {"description": description}
-    if unit:
-        meta["unit"] = unit
-    return field(default=default, metadata=meta)
+from perch_common.config import param
 
 
 @dataclass
 class ReconstructionConfig:
     # TSDF volume
-    voxel_size: float = _f(0.02, "TSDF voxel edge length", "m")
-    block_resolution: int = _f(16, "voxels per block edge of the VoxelBlockGrid")
-    max_blocks: int = _f(15000, "memory bound: at most this many TSDF blocks (~82 kB each); frames that "
+    voxel_size: float = param(0.02, "TSDF voxel edge length", "m")
+    block_resolution: int = param(16, "voxels per block edge of the VoxelBlockGrid")
+    max_blocks: int = param(15000, "memory bound: at most this many TSDF blocks (~82 kB each); frames that "
                                 "would add more are skipped and counted")
-    depth_min: float = _f(0.1, "ignore depth closer than this", "m")
-    depth_max: float = _f(4.0, "ignore depth farther than this (sensor noise grows with range)", "m")
-    depth_scale: float = _f(0.0, "metres per raw depth unit; 0 = by encoding (16UC1 mm, 32FC1 m)", "m")
-    trunc_voxel_multiplier: float = _f(4.0, "TSDF truncation distance in voxels (4 x 2 cm keeps thin furniture)")
-    weight_threshold: float = _f(1.0, "extract surface where the TSDF weight reaches this")
+    depth_min: float = param(0.1, "ignore depth closer than this", "m")
+    depth_max: float = param(4.0, "ignore depth farther than this (sensor noise grows with range)", "m")
+    depth_scale: float = param(0.0, "metres per raw depth unit; 0 = by encoding (16UC1 mm, 32FC1 m)", "m")
+    trunc_voxel_multiplier: float = param(4.0, "TSDF truncation distance in voxels (4 x 2 cm keeps thin furniture)")
+    weight_threshold: float = param(1.0, "extract surface where the TSDF weight reaches this")
     # Odometry (used when no poses are given)
-    tracking_scale: float = _f(0.25, "image scale for odometry (0.25 = 160x120 from 640x480; never below 160 px wide)")
-    tracking_depth_diff: float = _f(0.07, "max depth difference of an odometry correspondence", "m")
-    tracking_min_fitness: float = _f(0.2, "below this inlier share the frame is not integrated (lost)")
+    tracking_scale: float = param(0.25, "image scale for odometry (0.25 = 160x120 from 640x480; never below 160 px wide)")
+    tracking_depth_diff: float = param(0.07, "max depth difference of an odometry correspondence", "m")
+    tracking_min_fitness: float = param(0.2, "below this inlier share the frame is not integrated (lost)")
     # Time synchronisation
-    sync_tolerance: float = _f(0.005, "colour and depth stamps pair when this close", "s")
-    pose_tolerance: float = _f(0.02, "a pose stamp must lie this close to the frame stamp", "s")
+    sync_tolerance: float = param(0.005, "colour and depth stamps pair when this close", "s")
+    pose_tolerance: float = param(0.02, "a pose stamp must lie this close to the frame stamp", "s")
     # Cleaning (also the /perch/clean_mesh service defaults)
-    merge_distance: float = _f(1e-5, "vertices closer than this are merged", "m")
-    min_piece_diameter: float = _f(0.3, "connected pieces with a smaller bounding-box diagonal are removed", "m")
-    target_faces: int = _f(100_000, "quadric edge-collapse decimation target (0 = no decimation)")
-    gravity_align: bool = _f(True, "rotate the mesh so gravity points along -z")
-    min_up_confidence: float = _f(0.05, "share of floor/ceiling area needed to trust an estimated up axis")
-    seed: int = _f(0, "seed of every random choice (metric sampling)")
+    merge_distance: float = param(1e-5, "vertices closer than this are merged", "m")
+    min_piece_diameter: float = param(0.3, "connected pieces with a smaller bounding-box diagonal are removed", "m")
+    target_faces: int = param(100_000, "quadric edge-collapse decimation target (0 = no decimation)")
+    gravity_align: bool = param(True, "rotate the mesh so gravity points along -z")
+    min_up_confidence: float = param(0.05, "share of floor/ceiling area needed to trust an estimated up axis")
+    seed: int = param(0, "seed of every random choice (metric sampling)")
 
     def validate(self) -> "ReconstructionConfig":
         checks = [
@@ -60,26 +55,26 @@ class ReconstructionConfig:
 class NodeConfig(ReconstructionConfig):
     """The node's parameters: the reconstruction settings plus live-input handling."""
 
-    color_topic: str = _f("/camera/color/image_raw", "colour images (sensor_msgs/Image rgb8/bgr8/...)")
-    depth_topic: str = _f("/camera/depth/image_raw", "depth images registered to colour (16UC1 mm or 32FC1 m)")
-    camera_info_topic: str = _f("/camera/depth/camera_info", "sensor_msgs/CameraInfo of the depth stream")
-    pose_topic: str = _f("/camera/pose", "world-from-camera poses (geometry_msgs/PoseStamped)")
-    pose_type: str = _f("pose", "type on pose_topic: 'pose' (PoseStamped) or 'odometry' (nav_msgs/Odometry)")
-    lossless_replay: bool = _f(False, "subscribe reliable + transient-local as `perch bag play` publishes "
+    color_topic: str = param("/camera/color/image_raw", "colour images (sensor_msgs/Image rgb8/bgr8/...)")
+    depth_topic: str = param("/camera/depth/image_raw", "depth images registered to colour (16UC1 mm or 32FC1 m)")
+    camera_info_topic: str = param("/camera/depth/camera_info", "sensor_msgs/CameraInfo of the depth stream")
+    pose_topic: str = param("/camera/pose", "world-from-camera poses (geometry_msgs/PoseStamped)")
+    pose_type: str = param("pose", "type on pose_topic: 'pose' (PoseStamped) or 'odometry' (nav_msgs/Odometry)")
+    lossless_replay: bool = param(False, "subscribe reliable + transient-local as `perch bag play` publishes "
                                       "(no frame lost); false: best effort, matching camera drivers and "
                                       "`ros2 bag play`")
-    compressed_images: bool = _f(False, "colour and depth arrive as sensor_msgs/CompressedImage")
-    use_poses: bool = _f(True, "live input: integrate the poses from pose_topic (false: RGB-D odometry)")
+    compressed_images: bool = param(False, "colour and depth arrive as sensor_msgs/CompressedImage")
+    use_poses: bool = param(True, "live input: integrate the poses from pose_topic (false: RGB-D odometry)")
     gravity: list = field(default_factory=lambda: [0.0, 0.0, 0.0], metadata={
         "description": "live input: gravity in the pose frame; zeros = estimate from floor/ceiling"})
-    queue_size: int = _f(4, "frames waiting for integration; when full the OLDEST waiting frame is dropped "
+    queue_size: int = param(4, "frames waiting for integration; when full the OLDEST waiting frame is dropped "
                             "(counted) so the reconstruction follows the newest view")
-    camera_info_timeout: float = _f(5.0, "report an error when images arrive without camera info this long", "s")
-    pose_wait: float = _f(0.5, "how long a frame waits for its pose to arrive", "s")
-    drain_timeout: float = _f(60.0, "Reconstruct waits at most this long for queued frames", "s")
-    progress_period: float = _f(1.0, "progress message period on /perch/reconstruct/progress", "s")
-    frame_id: str = _f("map", "frame of the returned mesh")
-    introspection: bool = _f(True, "publish service requests/replies for the operator's recorder")
+    camera_info_timeout: float = param(5.0, "report an error when images arrive without camera info this long", "s")
+    pose_wait: float = param(0.5, "how long a frame waits for its pose to arrive", "s")
+    drain_timeout: float = param(60.0, "Reconstruct waits at most this long for queued frames", "s")
+    progress_period: float = param(1.0, "progress message period on /perch/reconstruct/progress", "s")
+    frame_id: str = param("map", "frame of the returned mesh")
+    introspection: bool = param(True, "publish service requests/replies for the operator's recorder")
 
     def validate(self) -> "NodeConfig":
         super().validate()
