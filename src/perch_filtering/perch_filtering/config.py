@@ -3,42 +3,37 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
-
-def _f(default, description: str, unit: str | None = None):
-    meta = {"description": description}
-    if unit:
-        meta["unit"] = unit
-    return field(default=default, metadata=meta)
+from perch_common.config import param
 
 
 @dataclass
 class FilterConfig:
     """Defaults follow the original system (thesis) unless the description says otherwise."""
 
-    allow_walls: bool = _f(True, "perch on walls")
-    allow_ceiling: bool = _f(True, "perch on ceilings")
-    allow_floor: bool = _f(False, "land on floors (and other upward-facing surfaces)")
-    allow_intermediate: bool = _f(False, "perch on surfaces between the class angles")
-    class_angle_deg: float = _f(15.0, "tolerance of the floor / wall / ceiling classes", "deg")
-    min_recovery_height: float = _f(0.5, "free fall needed below a perch to recover", "m")
-    clearance_radius: float = _f(0.5, "no other geometry within this distance in front of a perch", "m")
-    window_width: float = _f(0.5, "perch window, horizontal side on walls", "m")
-    window_height: float = _f(0.5, "perch window, vertical side on walls (along gravity)", "m")
-    window_ellipse: bool = _f(False, "elliptic perch window instead of a rectangle")
-    raster_density: float = _f(50.0, "raster resolution of each surface", "px/m")
-    drone_radius: float = _f(0.35, "drone radius for flight clearance and the fall corridor", "m")
-    standoff: float = _f(0.5, "point in front of a perch (along its normal) that must be reachable", "m")
-    voxel_size: float = _f(0.05, "voxel size of the flight-reachability occupancy grid", "m")
-    los_offset: float = _f(0.02, "line-of-sight rays start this far in front of the surface", "m")
-    plane_tolerance: float = _f(0.03, "geometry closer to a surface's plane than this is the surface itself", "m")
-    floor_merge_tolerance: float = _f(0.1, "floor pieces within this height of the lowest are one floor", "m")
-    min_floor_area: float = _f(1.0, "smallest horizontal surface that may be the floor", "m^2")
-    min_region_area: float = _f(0.005, "regions smaller than this are dropped", "m^2")
-    max_cells_per_surface: int = _f(4_000_000, "refuse rasters larger than this (absurd density)")
-    max_voxels: int = _f(60_000_000, "refuse occupancy grids larger than this (absurd voxel size)")
-    seed: int = _f(0, "seed of the random samples used to orient surfaces")
+    allow_walls: bool = param(True, "perch on walls")
+    allow_ceiling: bool = param(True, "perch on ceilings")
+    allow_floor: bool = param(False, "land on floors (and other upward-facing surfaces)")
+    allow_intermediate: bool = param(False, "perch on surfaces between the class angles")
+    class_angle_deg: float = param(15.0, "tolerance of the floor / wall / ceiling classes", "deg")
+    min_recovery_height: float = param(0.5, "free fall needed below a perch to recover", "m")
+    clearance_radius: float = param(0.5, "no other geometry within this distance in front of a perch", "m")
+    window_width: float = param(0.5, "perch window, horizontal side on walls", "m")
+    window_height: float = param(0.5, "perch window, vertical side on walls (along gravity)", "m")
+    window_ellipse: bool = param(False, "elliptic perch window instead of a rectangle")
+    raster_density: float = param(50.0, "raster resolution of each surface", "px/m")
+    drone_radius: float = param(0.35, "drone radius for flight clearance and the fall corridor", "m")
+    standoff: float = param(0.5, "point in front of a perch (along its normal) that must be reachable", "m")
+    voxel_size: float = param(0.05, "voxel size of the flight-reachability occupancy grid", "m")
+    los_offset: float = param(0.02, "line-of-sight rays start this far in front of the surface", "m")
+    plane_tolerance: float = param(0.03, "geometry closer to a surface's plane than this is the surface itself", "m")
+    floor_merge_tolerance: float = param(0.1, "floor pieces within this height of the lowest are one floor", "m")
+    min_floor_area: float = param(1.0, "smallest horizontal surface that may be the floor", "m^2")
+    min_region_area: float = param(0.005, "regions smaller than this are dropped", "m^2")
+    max_cells_per_surface: int = param(4_000_000, "refuse rasters larger than this (absurd density)")
+    max_voxels: int = param(60_000_000, "refuse occupancy grids larger than this (absurd voxel size)")
+    seed: int = param(0, "seed of the random samples used to orient surfaces")
 
     @property
     def class_angle(self) -> float:

@@ -17,6 +17,7 @@ from perch_common.polygons import faces_outline, from_shapely
 from perch_common.raycast import RayScene
 from perch_common.target import TargetVolume
 from perch_common.types import FilterRemoval, PerchRegion, Surface
+from perch_common.timing import Laps
 from perch_filtering.checks import clearance_blocked, geometry_in_front, recovery_blocked
 from perch_filtering.config import FilterConfig
 from perch_filtering.holes import hole_patches, patched_occlusion
@@ -72,7 +73,7 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
     config = (config or FilterConfig()).validate()
     validate_mesh(mesh, "environment mesh")
     up = validate_inputs(mesh, surfaces, target, up)
-    clock = _Clock()
+    clock = Laps()
     samples = sample_mesh(mesh, config.voxel_size)
     walls = [s for s in surfaces if abs(s.frame.normal @ up) < np.sin(config.class_angle)]
     rotation = grid_rotation(up, np.array([s.frame.normal for s in walls]) if walls else None,
@@ -212,14 +213,3 @@ def _summary(result: FilterResult) -> str:
     total = sum(r.area_total for r in result.removals)
     return (f"no perch region survived: {worst.replace('_', ' ')} removed the most area "
             f"({removed.get(worst, 0.0):.2f} of {total:.2f} m^2 over {len(result.surfaces)} surfaces)")
-
-
-class _Clock:
-    def __init__(self) -> None:
-        self.laps: dict[str, float] = {}
-        self._last = time.perf_counter()
-
-    def lap(self, name: str) -> None:
-        now = time.perf_counter()
-        self.laps[name] = now - self._last
-        self._last = now

@@ -5,22 +5,18 @@ from __future__ import annotations
 import dataclasses
 import math
 import sys
-import time
-import traceback
 from dataclasses import dataclass, field
 
 import numpy as np
 from perch_interfaces import srv
 from rclpy.node import Node
-from rclpy.qos import qos_profile_services_default
-from rclpy.service_introspection import ServiceIntrospectionState
 
-from perch_common.errors import EXPECTED
 from perch_common.ros.conversions import (mesh_from_msg, region_to_msg, removal_to_msg, surface_from_msg,
                                           surface_to_msg, target_from_msg, xyz)
 from perch_common.ros.node_main import run_node
 from perch_common.ros.params import declare_config, read_config
 from perch_common.transforms import parse_up_axis
+from perch_common.ros.service import answering, create_stage_service
 from perch_filtering.config import FilterConfig
 from perch_filtering.core import filter_surfaces
 
@@ -54,10 +50,7 @@ class FilterNode(Node):
         config.filter_config().validate()  # fail at start-up on a broken configuration
         parse_up_axis(config.up_axis)
         self._warm_up()
-        self.service = self.create_service(srv.Filter, "/perch/filter", self._filter)
-        if config.introspection:
-            self.service.configure_introspection(self.get_clock(), qos_profile_services_default,
-                                                 ServiceIntrospectionState.CONTENTS)
+        self.service = create_stage_service(self, srv.Filter, "/perch/filter", self._filter, config.introspection)
         self.get_logger().info("ready: /perch/filter")
 
     @staticmethod
@@ -68,34 +61,26 @@ class FilterNode(Node):
 
         RayScene(Mesh(np.eye(3), np.array([[0, 1, 2]]))).occluded(np.zeros((1, 3)), np.ones((1, 3)))
 
+    @answering
     def _filter(self, request: srv.Filter.Request, response: srv.Filter.Response) -> srv.Filter.Response:
-        started = time.perf_counter()
+        node_config = read_config(self, FilterNodeConfig)
         try:
-            node_config = read_config(self, FilterNodeConfig)
-            try:
-                config = config_from_spec(request.spec, node_config.filter_config()).validate()
-            except ValueError as exc:
-                raise ValueError(f"perch spec: {exc}") from exc
-            target = target_from_msg(request.target)
-            if target is None:
-                raise ValueError("target volume kind DEFAULT: the filter needs an explicit target "
-                                 "(box or extruded footprint)")
-            up = xyz(request.up)
-            if not np.any(up):
-                up = parse_up_axis(node_config.up_axis)
-            surfaces = [surface_from_msg(s) for s in request.surfaces]
-            result = filter_surfaces(mesh_from_msg(request.mesh, "environment mesh"), surfaces, target, up, config)
-            response.regions = [region_to_msg(r) for r in result.regions]
-            response.removals = [removal_to_msg(r) for r in result.removals]
-            response.surfaces = [surface_to_msg(s) for s in result.surfaces]
-            response.success, response.message = True, result.message
-        except EXPECTED as exc:
-            response.success, response.message = False, str(exc)
-        except Exception as exc:  # keep serving; the traceback goes to the log
-            self.get_logger().error(traceback.format_exc())
-            response.success, response.message = False, f"internal error: {type(exc).__name__}: {exc}"
-        response.seconds = time.perf_counter() - started
-        self.get_logger().info(response.message)
+            config = config_from_spec(request.spec, node_config.filter_config()).validate()
+        except ValueError as exc:
+            raise ValueError(f"perch spec: {exc}") from exc
+        target = target_from_msg(request.target)
+        if target is None:
+            raise ValueError("target volume kind DEFAULT: the filter needs an explicit target "
+                             "(box or extruded footprint)")
+        up = xyz(request.up)
+        if not np.any(up):
+            up = parse_up_axis(node_config.up_axis)
+        surfaces = [surface_from_msg(s) for s in request.surfaces]
+        result = filter_surfaces(mesh_from_msg(request.mesh, "environment mesh"), surfaces, target, up, config)
+        response.regions = [region_to_msg(r) for r in result.regions]
+        response.removals = [removal_to_msg(r) for r in result.removals]
+        response.surfaces = [surface_to_msg(s) for s in result.surfaces]
+        response.success, response.message = True, result.message
         return response
 
 

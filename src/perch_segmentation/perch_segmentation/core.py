@@ -8,7 +8,6 @@ Step 1 (agglomerate.py) grows flat clusters bottom-up by plane-fit energy, step 
 from __future__ import annotations
 
 import math
-import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
@@ -18,6 +17,7 @@ from perch_common.errors import PerchError
 from perch_common.mesh import Mesh, validate_mesh
 from perch_common.transforms import parse_up_axis
 from perch_common.types import Surface
+from perch_common.timing import Laps
 from perch_segmentation import stats as st
 from perch_segmentation.adjacency import face_adjacency
 from perch_segmentation.agglomerate import MergeRules, grow_clusters
@@ -100,7 +100,7 @@ def segment_mesh(mesh: Mesh, config: SegmentationConfig | None = None) -> Segmen
     """Planar surfaces of `mesh`; raises ValueError/MeshError/PerchError on unusable input."""
     config = config or SegmentationConfig()
     config.validate()
-    clock = _Clock()
+    clock = Laps()
     check_mesh(mesh, "mesh to segment")
     up = parse_up_axis(config.up_axis)
     colors = mesh.face_colors()  # mean colours are reported even when not used for merging
@@ -171,14 +171,3 @@ def median_face_colors(mesh: Mesh) -> np.ndarray:
     c = mesh.vertex_colors[mesh.faces]  # (F, 3 corners, 3 channels)
     a, b, d = c[:, 0], c[:, 1], c[:, 2]
     return np.maximum(np.minimum(a, b), np.minimum(np.maximum(a, b), d))
-
-
-class _Clock:
-    def __init__(self) -> None:
-        self.laps: dict[str, float] = {}
-        self._last = time.perf_counter()
-
-    def lap(self, name: str) -> None:
-        now = time.perf_counter()
-        self.laps[name] = now - self._last
-        self._last = now

@@ -4,20 +4,17 @@ from __future__ import annotations
 
 import dataclasses
 import sys
-import time
-import traceback
 from dataclasses import dataclass, field
 
 import numpy as np
 from perch_interfaces import srv
 from rclpy.node import Node
-from rclpy.qos import qos_profile_services_default
-from rclpy.service_introspection import ServiceIntrospectionState
 
-from perch_common.errors import EXPECTED, PerchError
+from perch_common.errors import PerchError
 from perch_common.ros.conversions import mesh_from_msg, surface_to_msg, to_array
 from perch_common.ros.node_main import run_node
 from perch_common.ros.params import declare_config, read_config
+from perch_common.ros.service import answering, create_stage_service
 from perch_segmentation.core import SegmentationConfig, segment_mesh
 
 NO_SURFACE = np.uint32(0xFFFFFFFF)  # Segment.srv: face_labels entry of a face on no surface
@@ -46,40 +43,25 @@ class SegmentationNode(Node):
             config.segmentation_config().validate()
         except ValueError as exc:  # keep serving: every request will explain the problem
             self.get_logger().error(f"parameters: {exc}")
-        self.service = self.create_service(srv.Segment, SERVICE, self._segment)
-        if config.introspection:
-            self.service.configure_introspection(self.get_clock(), qos_profile_services_default,
-                                                 ServiceIntrospectionState.CONTENTS)
+        self.service = create_stage_service(self, srv.Segment, SERVICE, self._segment, config.introspection)
         self.get_logger().info(f"ready: {SERVICE}")
 
+    @answering
     def _segment(self, request: srv.Segment.Request, response: srv.Segment.Response) -> srv.Segment.Response:
-        started = time.perf_counter()
+        config = read_config(self, SegmentationNodeConfig).segmentation_config()
         try:
-            config = read_config(self, SegmentationNodeConfig).segmentation_config()
-            try:
-                config.validate()
-            except ValueError as exc:
-                raise PerchError(f"parameters of perch_segmentation: {exc}") from exc
-            mesh = mesh_from_msg(request.mesh, "request mesh")
-            result = segment_mesh(mesh, config)
-            response.surfaces = [surface_to_msg(s) for s in result.surfaces]
-            response.face_labels = face_labels_array(result.face_labels)
-            labelled = float(np.mean(result.face_labels >= 0)) if len(result.face_labels) else 0.0
-            response.success = True
-            response.message = (f"{len(result.surfaces)} surfaces from {mesh.num_faces} faces "
-                                f"({100 * labelled:.0f}% of faces on a surface)")
-        except EXPECTED as exc:
-            response.success, response.message = False, str(exc)
-        except Exception as exc:  # keep serving; the traceback goes to the log
-            self.get_logger().error(traceback.format_exc())
-            response.success, response.message = False, f"internal error: {type(exc).__name__}: {exc}"
-        response.seconds = time.perf_counter() - started
-        if response.success:  # one call site per severity: rclpy's logger insists
-            self.get_logger().info(f"{response.message} in {response.seconds:.2f} s")
-        else:
-            self.get_logger().warning(f"{response.message} in {response.seconds:.2f} s")
+            config.validate()
+        except ValueError as exc:
+            raise PerchError(f"parameters of perch_segmentation: {exc}") from exc
+        mesh = mesh_from_msg(request.mesh, "request mesh")
+        result = segment_mesh(mesh, config)
+        response.surfaces = [surface_to_msg(s) for s in result.surfaces]
+        response.face_labels = face_labels_array(result.face_labels)
+        labelled = float(np.mean(result.face_labels >= 0)) if len(result.face_labels) else 0.0
+        response.success = True
+        response.message = (f"{len(result.surfaces)} surfaces from {mesh.num_faces} faces "
+                            f"({100 * labelled:.0f}% of faces on a surface)")
         return response
-
 
 def main(args: list[str] | None = None) -> int:
     return run_node(lambda: SegmentationNode(), args)
