@@ -1,6 +1,5 @@
 """Fitness, the searches, constraints, reproducibility, the optimality bound and error handling."""
 
-import math
 from dataclasses import replace
 
 import numpy as np
@@ -9,7 +8,7 @@ import pytest
 from perch_common.errors import PerchError
 from perch_common.mesh import Mesh, MeshError
 from perch_common.target import TargetVolume
-from perch_common.types import ExclusionZone, SurfaceClass
+from perch_common.types import ExclusionZone
 from perch_placement.candidates import CandidateGreedy, build_candidates
 from perch_placement.celf import exhaustive_reference
 from perch_placement.config import PlacementConfig, PsoConfig

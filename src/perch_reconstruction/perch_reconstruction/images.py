@@ -8,9 +8,6 @@ encoder accepts. No rclpy import.
 from __future__ import annotations
 
 import numpy as np
-# The quaternion conversions import this lazily; the first pose callback would then stall ~1 s
-# (long enough for the first frame to miss its pose), so import it with the module.
-import scipy.spatial.transform  # noqa: F401
 
 from perch_common.errors import PerchError
 from perch_common.transforms import matrix_from_quaternion, quaternion_from_matrix
