@@ -29,6 +29,8 @@ def register_plan(sub) -> None:
     p.add_argument("--cameras", type=int, default=0, help="number of cameras (0: the placement node's default)")
     p.add_argument("--seed", type=int, default=-1, help="optimiser seed (negative: the node's default)")
     p.add_argument("--auto-accept", action="store_true", help="accept every proposal (else: perch operator ...)")
+    p.add_argument("--review-surfaces", type=int, default=0, metavar="N",
+                   help="before filtering, wait for `perch operator review ID [--reject ...]` on the N largest surfaces")
     _common(p)
     p.set_defaults(func=_plan)
 
@@ -83,7 +85,8 @@ def _plan(args) -> int:
 
     from perch_common.ros.conversions import mesh_to_msg, target_to_msg
 
-    goal = PlanPerches.Goal(num_cameras=max(0, args.cameras), seed=args.seed, auto_accept=args.auto_accept)
+    goal = PlanPerches.Goal(num_cameras=max(0, args.cameras), seed=args.seed, auto_accept=args.auto_accept,
+                            review_surfaces=max(0, args.review_surfaces))
     goal.target = parse_target(args.target)
     describe = {"cameras_asked": args.cameras, "seed": args.seed}
     if args.mesh:

@@ -23,6 +23,11 @@ def register(sub) -> None:
         a.add_argument("id", type=int, help="proposal id (see `perch operator list`)")
         a.add_argument("--reason", default="", help="why (recorded with the decision)")
         a.set_defaults(func=_decide, decision=name)
+    review = actions.add_parser("review", help="decide a surface review (missions with --review-surfaces N)")
+    review.add_argument("id", type=int, help="review id (published on /perch/surface_review)")
+    review.add_argument("--reject", default="", help="comma-separated surface ids to reject; none: approve all")
+    review.add_argument("--reason", default="")
+    review.set_defaults(func=_review)
     lst = actions.add_parser("list", help="show the proposals of the current mission")
     lst.add_argument("--wait", type=float, default=2.0, help="seconds to collect proposals")
     lst.set_defaults(func=_list)
@@ -57,6 +62,30 @@ def _decide(args) -> int:
         print(reply.message)
         if reply.replacement.id:
             print(_proposal_line(reply.replacement))
+        return 0
+
+    return _with_node("perch_operator_cli", body)
+
+
+def _review(args) -> int:
+    from perch_interfaces.srv import ReviewSurfaces
+
+    from perch_common.ros.testing import call_service
+
+    try:
+        rejected = [int(t) for t in args.reject.replace(" ", "").split(",") if t]
+    except ValueError:
+        raise PerchError(f"--reject '{args.reject}': give surface ids like 3,5") from None
+    request = ReviewSurfaces.Request(review_id=args.id, rejected_surface_ids=rejected, reason=args.reason)
+
+    def body(node) -> int:
+        try:
+            reply = call_service(node, ReviewSurfaces, "/perch/review_surfaces", request, timeout=30, wait=10)
+        except TimeoutError as exc:
+            raise PerchError(f"{exc}; is the graph running (`perch launch`)?") from None
+        if not reply.success:
+            raise PerchError(reply.message)
+        print(reply.message)
         return 0
 
     return _with_node("perch_operator_cli", body)

@@ -22,8 +22,8 @@ from perch_operator.proposals import Decision, Proposal, ProposalBook
 from perch_operator.stages import MissionCancelled, StageCaller, StageError
 
 # Rough share of a mission's time per stage, for the feedback fraction.
-STAGE_WEIGHTS = {"reconstruct": 0.30, "clean": 0.05, "crop": 0.02, "segment": 0.20, "filter": 0.25,
-                 "optimise": 0.40, "confirm": 0.05}
+STAGE_WEIGHTS = {"reconstruct": 0.30, "clean": 0.05, "crop": 0.02, "segment": 0.20, "review": 0.0,
+                 "filter": 0.25, "optimise": 0.40, "confirm": 0.05}
 
 
 @dataclass
@@ -53,7 +53,8 @@ class Mission:
 
     def __init__(self, caller: StageCaller, options: MissionOptions, first_proposal_id: int,
                  feedback: Callable[[str, float, str], None], cancelled: Callable[[], bool],
-                 on_proposal: Callable[[Proposal], None], on_operator: Callable[[Operator], None]):
+                 on_proposal: Callable[[Proposal], None], on_operator: Callable[[Operator], None],
+                 review: Callable[[list], set[int]] | None = None):
         self.caller = caller
         self.options = options
         self.first_proposal_id = first_proposal_id
@@ -61,6 +62,7 @@ class Mission:
         self.cancelled = cancelled
         self.on_proposal = on_proposal
         self.on_operator = on_operator
+        self.review = review  # publishes surfaces for review, returns the rejected ids once decided
         self.stage_names: list[str] = []
         self.stage_seconds: list[float] = []
         self._planned = [s for s in STAGE_WEIGHTS]
@@ -87,7 +89,8 @@ class Mission:
         crop = self._call("crop", srv.Crop.Request(mesh=mesh_msg, keep_boxes=goal.keep_boxes,
                                                    remove_boxes=goal.remove_boxes, target=goal.target))
         segment = self._call("segment", srv.Segment.Request(mesh=crop.mesh))
-        filtered = self._call("filter", srv.Filter.Request(mesh=crop.mesh, surfaces=segment.surfaces,
+        surfaces = self._reviewed(list(segment.surfaces), goal.review_surfaces)
+        filtered = self._call("filter", srv.Filter.Request(mesh=crop.mesh, surfaces=surfaces,
                                                            target=crop.target, up=vector_msg(self.options.up)))
         if not filtered.regions:
             raise ValueError(f"filter left no perch regions on {len(segment.surfaces)} surface(s); nothing to "
@@ -134,6 +137,20 @@ class Mission:
         # The mesh is already gravity-aligned (up_axis): gravity points along -up, so cleaning keeps its frame.
         gravity = vector_msg(-np.asarray(self.options.up, np.float64))
         return self._call("clean", srv.CleanMesh.Request(mesh=mesh_msg, gravity=gravity)).mesh
+
+    def _reviewed(self, surfaces: list, count: int) -> list:
+        """With count > 0, the operator reviews the `count` largest surfaces; rejected ones are dropped."""
+        if count <= 0 or not surfaces:
+            return surfaces
+        if self.review is None:
+            raise ValueError("this coordinator cannot run surface reviews")
+        started = time.monotonic()
+        largest = sorted(surfaces, key=lambda s: -s.area)[:count]
+        self.feedback("review", self._fraction(), f"waiting for review of surfaces {[s.id for s in largest]} "
+                      "(perch operator review ID [--reject ...])")
+        rejected = self.review(largest)
+        self._finish("review", time.monotonic() - started)
+        return [s for s in surfaces if s.id not in rejected]
 
     def _confirm(self, operator: Operator, placements) -> float:
         """Propose every placement and wait until each slot is accepted; returns the seconds spent."""

@@ -32,6 +32,7 @@ from perch_operator.crop import crop_mesh
 from perch_operator.messages import box_from_ros, pose_array_msg, proposal_msg, waypoint_msg
 from perch_operator.mission import Mission, MissionOptions, Operator, replan_slot
 from perch_operator.proposals import Decision, Proposal, ProposalError, Status
+from perch_operator.review import ReviewDesk, ReviewError
 from perch_operator.stages import MissionCancelled, StageCaller, StageError
 
 # Late joiners (a dispatcher started after the mission, a UI) still get every waypoint/proposal.
@@ -54,6 +55,10 @@ class OperatorNode(Node):
                                                  self.config.introspection, callback_group=group)
         self.confirm_service = self.create_service(srv.Confirm, "/perch/confirm", self._confirm,
                                                    callback_group=group)
+        self.review_service = self.create_service(srv.ReviewSurfaces, "/perch/review_surfaces", self._review_decided,
+                                                  callback_group=group)
+        self.review_pub = self.create_publisher(pm.SurfaceReview, "/perch/surface_review", LATCHED_LAST)
+        self.review_desk = ReviewDesk()
         self.proposals_pub = self.create_publisher(pm.Proposal, "/perch/proposals", LATCHED)
         self.waypoints_pub = self.create_publisher(pm.PerchWaypoint, "/perch/waypoints", LATCHED)
         self.poses_pub = self.create_publisher(PoseArray, "/perch/waypoint_poses", LATCHED_LAST)
@@ -62,7 +67,7 @@ class OperatorNode(Node):
         self.operator: Operator | None = None
         self._busy = threading.Lock()
         self._next_proposal_id = 1
-        self.get_logger().info("ready: /perch/crop, /perch/plan_perches, /perch/confirm")
+        self.get_logger().info("ready: /perch/crop, /perch/plan_perches, /perch/confirm, /perch/review_surfaces")
 
     # --- crop ---------------------------------------------------------------------------------
 
@@ -116,8 +121,15 @@ class OperatorNode(Node):
 
         self.stages.service_wait, self.stages.timeout = config.service_wait, config.stage_timeout
         self.stages.gone_grace = config.gone_grace
-        mission = Mission(self.stages, options, self._next_proposal_id, feedback,
-                          lambda: goal_handle.is_cancel_requested, self._publish_proposal, adopt)
+        cancelled = lambda: goal_handle.is_cancel_requested  # noqa: E731
+
+        def review(surfaces: list) -> set[int]:
+            review_id = self.review_desk.open([s.id for s in surfaces])
+            self.review_pub.publish(pm.SurfaceReview(review_id=review_id, surfaces=surfaces))
+            return self.review_desk.wait(review_id, config.confirm_timeout, cancelled)
+
+        mission = Mission(self.stages, options, self._next_proposal_id, feedback, cancelled,
+                          self._publish_proposal, adopt, review)
         try:
             result = mission.run(goal_handle.request)
             result.waypoints = [self._waypoint(p) for p in self.operator.book.accepted()]
@@ -169,6 +181,19 @@ class OperatorNode(Node):
             response.success, response.message = False, str(exc)
         except (StageError, PerchError, TimeoutError) as exc:
             response.success, response.message = False, f"re-optimising failed: {exc}"
+        return response
+
+    def _review_decided(self, request: srv.ReviewSurfaces.Request,
+                        response: srv.ReviewSurfaces.Response) -> srv.ReviewSurfaces.Response:
+        try:
+            rejected = self.review_desk.decide(request.review_id, list(request.rejected_surface_ids))
+            response.success = True
+            response.message = (f"surface review {request.review_id}: "
+                                + (f"rejected {sorted(rejected)}" if rejected else "all approved")
+                                + (f" ({request.reason})" if request.reason else ""))
+        except ReviewError as exc:
+            response.success, response.message = False, str(exc)
+        self.get_logger().info(response.message)
         return response
 
     def _publish_proposal(self, proposal: Proposal) -> None:

@@ -85,3 +85,27 @@ def test_wait_settled_wakes_on_decision_from_another_thread():
 def test_approach_point_is_in_front_of_the_perch_along_the_normal():
     p = placement(1.0)
     np.testing.assert_allclose(approach_point(p, 0.5), [1.5, 0.0, 1.5])
+
+
+def test_surface_review_desk_decisions_and_errors():
+    import threading
+
+    from perch_operator.review import ReviewDesk, ReviewError
+
+    desk = ReviewDesk()
+    review = desk.open([4, 7, 9])
+    waiter: dict = {}
+    thread = threading.Thread(target=lambda: waiter.setdefault("rejected", desk.wait(review, 5, lambda: False)))
+    thread.start()
+    with pytest.raises(ReviewError, match=r"surface\(s\) \[5\] are not part of review 1"):
+        desk.decide(review, [5])
+    assert desk.decide(review, [7]) == {7}
+    thread.join(5)
+    assert waiter["rejected"] == {7}
+    with pytest.raises(ReviewError, match="already decided"):
+        desk.decide(review, [])
+    with pytest.raises(ReviewError, match="no surface review 99"):
+        desk.decide(99, [])
+    second = desk.open([1])
+    with pytest.raises(TimeoutError, match="no decision on surface review 2 within 0.3 s"):
+        desk.wait(second, 0.3, lambda: False)
