@@ -25,6 +25,8 @@ from perch_operator.stages import MissionCancelled, StageCaller, StageError
 STAGE_WEIGHTS = {"reconstruct": 0.30, "clean": 0.05, "crop": 0.02, "segment": 0.20, "review": 0.0,
                  "filter": 0.25, "optimise": 0.40, "confirm": 0.05}
 
+WAITING_FEEDBACK_PERIOD = 3.0  # s between repeated "waiting for decisions" feedback
+
 
 @dataclass
 class MissionOptions:
@@ -163,6 +165,9 @@ class Mission:
             if operator.auto_accept:
                 self.on_proposal(operator.book.decide(proposal.id, Decision.ACCEPT, "auto_accept policy"))
         timeout = self.options.confirm_timeout
+        # Feedback only when the open proposals change, or every few seconds: a steady 4 Hz stream
+        # tells a waiting client nothing new and crowds its short feedback queue.
+        last_open, last_sent = None, 0.0
         while not operator.book.wait_settled(0.25):
             waited = time.monotonic() - started
             if self.cancelled():
@@ -170,9 +175,11 @@ class Mission:
             if timeout > 0 and waited > timeout:
                 raise TimeoutError(f"no operator decision on proposal(s) {self._open_ids(operator)} within "
                                    f"{timeout:g} s (parameter confirm_timeout)")
-            self.feedback("confirm", self._fraction(),
-                          f"waiting for decisions on proposal(s) {self._open_ids(operator)} "
-                          "(perch operator accept|reject ID)")
+            open_ids = self._open_ids(operator)
+            if open_ids != last_open or time.monotonic() - last_sent > WAITING_FEEDBACK_PERIOD:
+                self.feedback("confirm", self._fraction(),
+                              f"waiting for decisions on proposal(s) {open_ids} (perch operator accept|reject ID)")
+                last_open, last_sent = open_ids, time.monotonic()
         return time.monotonic() - started
 
     @staticmethod
