@@ -1,7 +1,6 @@
 # Perch: the two commands a newcomer needs are `make demo` and `make test`.
 .PHONY: setup test demo bench lock clean
 PERCH := .venv/bin/perch
-PYTEST := .venv/bin/python -m pytest
 
 setup:
 	@bash tools/setup.sh

@@ -8,7 +8,6 @@ to point at this venv. Idempotent: files already repaired are left alone.
 
 from __future__ import annotations
 
-import os
 import sys
 import sysconfig
 from pathlib import Path
@@ -61,5 +60,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    os.umask(0o022)
     sys.exit(main())

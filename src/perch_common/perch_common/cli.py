@@ -38,9 +38,8 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 0 if args.command is None else 2
-    with report_errors():
+    with report_errors():  # expected errors exit 1 with one line
         return int(args.func(args) or 0)
-    return 1
 
 
 if __name__ == "__main__":

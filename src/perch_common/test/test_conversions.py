@@ -90,3 +90,11 @@ def test_target_round_trip():
     assert back.volume() == pytest.approx(2.4) and back.base == pytest.approx(0.1)
     from perch_interfaces.msg import TargetVolume as TargetMsg
     assert conv.target_from_msg(TargetMsg()) is None
+
+
+@pytest.mark.parametrize("start", range(6))
+def test_concave_footprint_keeps_its_shape(start):
+    ell = np.roll(np.array([[3, 1], [1, 1], [1, 3], [0, 3.0], [0, 0], [3, 0]]), start, axis=0)
+    back = conv.target_from_msg(conv.target_to_msg(TargetVolume(footprint=ell, base=0.0, height=1.0)))
+    assert back.volume() == pytest.approx(5.0)
+    assert not back.contains(np.array([[2.0, 2.0, 0.5]]))[0]  # the L's missing corner

@@ -176,11 +176,14 @@ def target_to_msg(target: TargetVolume) -> pm.TargetVolume:
         msg.box = pm.OrientedBox(pose=pose_msg(pose), size=vector_msg(target.size))
     else:
         msg.kind = pm.TargetVolume.KIND_EXTRUDED_FOOTPRINT
+        import mapbox_earcut
+
         k = len(target.footprint)
-        # The footprint as a flat fan of triangles at the base height.
+        # The footprint triangulated flat at the base height (ear clipping: concave outlines stay exact).
         vertices = np.column_stack([target.footprint, np.full(k, target.base)])
-        fan = np.column_stack([np.zeros(k - 2), np.arange(1, k - 1), np.arange(2, k)]).astype(np.int64)
-        msg.footprint = mesh_to_msg(Mesh(vertices, fan))
+        triangles = mapbox_earcut.triangulate_float64(np.ascontiguousarray(target.footprint, np.float64),
+                                                      np.array([k], np.uint32)).reshape(-1, 3)
+        msg.footprint = mesh_to_msg(Mesh(vertices, triangles))
         msg.height = float(target.height)
     return msg
 
