@@ -71,6 +71,21 @@ def node_parameters(node_name: str, path: str | Path | None = None) -> dict[str,
     return merged
 
 
+def load_node_config(cls: type[T], node_name: str, path: str | Path | None = None) -> T:
+    """Config dataclass `cls` from `node_name`'s section of `path` (default: config/perch.yaml).
+
+    Without a path and without a project config file, the dataclass defaults are used; a path
+    that was given must be readable.
+    """
+    try:
+        params = node_parameters(node_name, path or default_config_path())
+    except ConfigError:
+        if path:
+            raise
+        params = {}
+    return from_parameters(cls, params)
+
+
 def flatten(mapping: dict, prefix: str = "") -> dict[str, Any]:
     out: dict[str, Any] = {}
     for key, value in mapping.items():

@@ -97,10 +97,11 @@ def _ray_throughput(scene, problem, count: int = 1_000_000) -> float:
 
 
 def _dense_score(dense, placements) -> tuple[float, float]:
+    from perch_placement.fitness import placement_cameras
+
     dense.reset()
-    for p in placements:
-        pose = np.asarray(p.camera_pose, np.float64)
-        dense.commit(pose[:3, 3], pose[:3, :3], max(float(p.zoom), 1.0))
+    if placements:
+        dense.commit(*placement_cameras(placements))
     score = dense.current()
     return float(score.coverage), float(score.mean_uncertainty)
 

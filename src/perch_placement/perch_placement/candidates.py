@@ -255,7 +255,7 @@ class CandidateGreedy:
         if self.c.positions == 0 or k <= 0:
             return float(self.seen.mean())
         unseen = (~self.seen).astype(np.float32)
-        gains = np.matmul(self.c.visible.astype(np.float32), unseen)[..., ] / len(unseen)
+        gains = np.matmul(self.c.visible.astype(np.float32), unseen) / len(unseen)
         self.evaluations += gains.size
         return min(1.0, float(self.seen.mean()) + self._top_sum(gains, k))
 

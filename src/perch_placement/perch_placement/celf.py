@@ -38,13 +38,13 @@ def _refine(ctx: SearchContext, plane: Perches, encodings: list, base_info, base
     """Coordinate-wise hill climbing of each camera (position within its region, pan, tilt) with the
     others fixed: batched Gaussian steps, the step shrinking whenever a round brings no gain."""
     ev = ctx.evaluator
-    views = [_views(ev, plane.decode(x)) for x in encodings]
+    perches = [plane.decode(x) for x in encodings]
+    views = [_views(ev, p) for p in perches]
     for i, x in enumerate(encodings):
-        others = [v for j, v in enumerate(views) if j != i]
-        ev.set_state(base_info + sum((v[1][0] for v in others), np.zeros_like(base_info)),
-                     base_seen | np.any([v[0][0] for v in others] or [np.zeros_like(base_seen)], axis=0))
-        drones = [plane.decode(e).drone_position[0] for j, e in enumerate(encodings) if j != i]
-        neighbours = np.vstack([fixed, np.array(drones).reshape(-1, 3)])
+        others = [j for j in range(len(encodings)) if j != i]
+        ev.set_state(base_info + sum((views[j][1][0] for j in others), np.zeros_like(base_info)),
+                     base_seen | np.any([views[j][0][0] for j in others] or [np.zeros_like(base_seen)], axis=0))
+        neighbours = np.vstack([fixed] + [perches[j].drone_position for j in others])
 
         def objective(batch: np.ndarray) -> np.ndarray:
             perch = plane.decode(batch)
@@ -53,7 +53,8 @@ def _refine(ctx: SearchContext, plane: Perches, encodings: list, base_info, base
 
         x, _, _ = polish(objective, x, float(objective(x[None])[0]), ctx.rng, rounds, samples)
         encodings[i] = x
-        views[i] = _views(ev, plane.decode(x))
+        perches[i] = plane.decode(x)
+        views[i] = _views(ev, perches[i])
     return encodings
 
 

@@ -22,15 +22,13 @@ from perch_common.target import TargetVolume
 from perch_common.transforms import parse_up_axis
 from perch_common.types import CameraPlacement, ExclusionZone, PerchRegion
 from perch_placement.candidates import CandidateGreedy
-from perch_placement.config import (CAMERA_PROFILES, CameraSpec, DroneSpec, PlacementConfig,  # noqa: F401
-                                    PsoConfig)
-from perch_placement.fitness import Evaluator
+from perch_placement.config import PlacementConfig
+from perch_placement.fitness import Evaluator, placement_cameras
 from perch_placement.perches import Perch, Perches
 from perch_placement.celf import celf
 from perch_placement.search import METHODS, SearchContext, greedy, naive_pso
 
-__all__ = ["CameraSpec", "DroneSpec", "PsoConfig", "PlacementConfig", "PlacementResult", "optimise",
-           "scene_for", "METHODS", "CAMERA_PROFILES"]
+__all__ = ["PlacementConfig", "PlacementResult", "optimise", "scene_for", "METHODS"]
 
 
 @dataclass
@@ -87,9 +85,9 @@ def optimise(mesh: Mesh, regions: list[PerchRegion], target: TargetVolume, num_c
     evaluator = Evaluator(scene, points, cfg.camera, cfg.occlusion_epsilon)
     perches = Perches(regions, target.centroid(), cfg.drone, parse_up_axis(cfg.up_axis), cfg.encoding,
                       cfg.camera.max_zoom)
-    for placed in fixed:
-        pose = np.asarray(placed.camera_pose, np.float64)
-        evaluator.commit(pose[:3, 3], pose[:3, :3], max(float(placed.zoom), 1.0))
+    if fixed:
+        evaluator.commit(*placement_cameras(fixed))
+    fixed_state = evaluator.info, evaluator.seen  # replaced, never modified in place, by the searches
     ctx = SearchContext(perches, evaluator, cfg, np.random.default_rng(seed), tuple(exclusions),
                         [np.asarray(p.drone_pose, np.float64)[:3, 3] for p in fixed], len(fixed))
     if num_cameras == 0:
@@ -98,7 +96,7 @@ def optimise(mesh: Mesh, regions: list[PerchRegion], target: TargetVolume, num_c
         outcome = {"celf": lambda: celf(ctx, num_cameras), "naive": lambda: naive_pso(ctx, num_cameras)}.get(
             method, lambda: greedy(ctx, num_cameras, method))()
         outcome_perches, reason = outcome.perches, outcome.stop_reason
-    placements = _placements(evaluator, perches, outcome_perches, fixed)
+    placements = _placements(evaluator, perches, outcome_perches, fixed_state, len(fixed))
     score = evaluator.current()
     bound = float("nan")
     if cfg.compute_bound and outcome_perches:
@@ -113,25 +111,33 @@ def optimise(mesh: Mesh, regions: list[PerchRegion], target: TargetVolume, num_c
                            time.process_time() - cpu_start)
 
 
-def _placements(evaluator: Evaluator, perches: Perches, chosen: list[Perch], fixed) -> list[CameraPlacement]:
-    """Re-commit the chosen cameras in order on top of the fixed ones, recording the score after each."""
-    evaluator.reset()
-    for placed in fixed:
-        pose = np.asarray(placed.camera_pose, np.float64)
-        evaluator.commit(pose[:3, 3], pose[:3, :3], max(float(placed.zoom), 1.0))
-    out = []
+def _placements(evaluator: Evaluator, perches: Perches, chosen: list[Perch], fixed_state: tuple,
+                fixed_count: int) -> list[CameraPlacement]:
+    """Score the chosen cameras in order on top of the fixed ones (one batched view of all of them),
+    recording the score after each, and leave the evaluator holding all of them."""
+    evaluator.set_state(*fixed_state)
+    if not chosen:
+        return []
     before = float(evaluator.current().fitness)
+    mask, info = evaluator.views(np.concatenate([p.camera_position for p in chosen]),
+                                 np.concatenate([p.camera_rotation for p in chosen]),
+                                 np.concatenate([p.zoom for p in chosen]))
+    # Running sums from the fixed state, in placement order (as committing one by one would add them).
+    infos = np.cumsum(np.concatenate([fixed_state[0][None], info]), axis=0)[1:]
+    seens = np.logical_or.accumulate(np.concatenate([fixed_state[1][None], mask]), axis=0)[1:]
+    scores = evaluator.score(infos, seens)
+    evaluator.set_state(infos[-1], seens[-1])
+    out = []
     for i, perch in enumerate(chosen):
-        evaluator.commit(perch.camera_position, perch.camera_rotation, perch.zoom)
-        score = evaluator.current()
+        fitness = float(scores.fitness[i])
         out.append(CameraPlacement(
-            drone_index=len(fixed) + i, region_id=int(perches.regions[int(perch.region[0])].id),
+            drone_index=fixed_count + i, region_id=int(perches.regions[int(perch.region[0])].id),
             drone_pose=_matrix(perch.drone_rotation[0], perch.drone_position[0]),
             camera_pose=_matrix(perch.camera_rotation[0], perch.camera_position[0]),
             pan=float(perch.pan[0]), tilt=float(perch.tilt[0]), zoom=float(perch.zoom[0]),
-            marginal_gain=float(score.fitness) - before, fitness=float(score.fitness),
-            coverage=float(score.coverage), mean_uncertainty=float(score.mean_uncertainty)))
-        before = float(score.fitness)
+            marginal_gain=fitness - before, fitness=fitness,
+            coverage=float(scores.coverage[i]), mean_uncertainty=float(scores.mean_uncertainty[i])))
+        before = fitness
     return out
 
 

@@ -27,6 +27,13 @@ class Score:
     mean_uncertainty: np.ndarray | float
 
 
+def placement_cameras(placements) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Camera positions (K,3), world-from-optical rotations (K,3,3) and zooms (K,) (>= 1) of placements."""
+    poses = np.array([np.asarray(p.camera_pose, np.float64) for p in placements]).reshape(-1, 4, 4)
+    zoom = np.array([max(float(p.zoom), 1.0) for p in placements], np.float64)
+    return poses[:, :3, 3], poses[:, :3, :3], zoom
+
+
 class Evaluator:
     """Scores cameras against N target points; `commit` adds a camera to the cached information sum
     so that scoring one more camera costs only that camera's visibility and information."""
@@ -118,9 +125,10 @@ class Evaluator:
         out[keep] = self.score(self.info[None] + info, self.seen[None] | mask).fitness
         return out
 
-    def commit(self, position: np.ndarray, rotation: np.ndarray, zoom: float = 1.0) -> None:
+    def commit(self, position: np.ndarray, rotation: np.ndarray, zoom=1.0) -> None:
+        """Add one camera (position (3,)) or several (positions (B,3), one batched ray cast)."""
         mask, info = self.views(position, rotation, zoom)
-        self.set_state(self.info + info[0], self.seen | mask[0])
+        self.set_state(self.info + info.sum(axis=0), self.seen | mask.any(axis=0))
 
     def set_state(self, info: np.ndarray, seen: np.ndarray) -> None:
         """Replace the committed information sum and seen mask."""

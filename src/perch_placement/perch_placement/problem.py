@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from perch_common.config import ConfigError, default_config_path, from_parameters, node_parameters
+from perch_common.config import load_node_config
 from perch_common.mesh import Mesh, load_mesh
 from perch_common.target import TargetVolume
 from perch_common.transforms import parse_up_axis
@@ -43,13 +43,7 @@ def add_problem_arguments(parser: argparse.ArgumentParser, mesh_positional: bool
 
 def load_config(path: str | None) -> PlacementConfig:
     """The perch_placement section of the parameter file (defaults where absent)."""
-    try:
-        params = node_parameters("perch_placement", path or default_config_path())
-    except ConfigError:
-        if path:
-            raise
-        params = {}
-    return from_parameters(PlacementConfig, params)
+    return load_node_config(PlacementConfig, "perch_placement", path)
 
 
 def load_problem(args: argparse.Namespace, up=(0.0, 0.0, 1.0)) -> Problem:

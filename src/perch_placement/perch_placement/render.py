@@ -11,9 +11,9 @@ from perch_common.mesh import Mesh
 from perch_common.raycast import RayScene
 from perch_common.target import TargetVolume
 from perch_common.types import CameraPlacement
-from perch_placement.camera import project, undistort
+from perch_placement.camera import point_score, project, undistort
 from perch_placement.config import CameraSpec
-from perch_placement.fitness import Evaluator
+from perch_placement.fitness import Evaluator, placement_cameras
 
 TARGET_COLOUR = (255, 80, 0)          # target edges in front of the scene
 HIDDEN_TARGET_COLOUR = (140, 70, 160)  # target edges behind geometry
@@ -75,7 +75,8 @@ def draw_target(colour: np.ndarray, depth: np.ndarray, target: TargetVolume, pla
     edges = target_outline(target)
     counts = np.maximum(2, (np.linalg.norm(edges[:, 1] - edges[:, 0], axis=1) * samples_per_metre).astype(int))
     edge = np.repeat(np.arange(len(edges)), counts)
-    t = np.concatenate([np.linspace(0, 1, n) for n in counts])
+    first = np.repeat(np.cumsum(counts) - counts, counts)  # each sample's edge's first sample
+    t = (np.arange(len(edge)) - first) / (counts[edge] - 1)  # 0..1 along its edge, as linspace
     pts = edges[edge, 0] + t[:, None] * (edges[edge, 1] - edges[edge, 0])
     local = (pts - pose[:3, 3]) @ pose[:3, :3]
     pix, ok = project(camera, local, max(float(placement.zoom), 1.0))
@@ -131,11 +132,7 @@ def point_scores(mesh: Mesh, placements: list[CameraPlacement], camera: CameraSp
     if not placements:
         empty = np.zeros((0, ev.count))
         return PointScores(ev.points, empty.astype(bool), empty, np.zeros(ev.count))
-    poses = np.array([np.asarray(p.camera_pose, np.float64) for p in placements])
-    zoom = np.array([max(float(p.zoom), 1.0) for p in placements])
-    seen, info = ev.views(poses[:, :3, 3], poses[:, :3, :3], zoom)
-    from perch_placement.camera import point_score
-
+    seen, info = ev.views(*placement_cameras(placements))
     per_camera = point_score(info, seen)[0]
     fused = point_score(info.sum(axis=0), seen.any(axis=0))[0]
     return PointScores(ev.points, seen, per_camera, fused)

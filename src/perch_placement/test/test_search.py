@@ -48,6 +48,13 @@ def test_cached_information_sum_gives_the_same_fitness_as_scoring_all_cameras():
     incremental = ev.evaluate(perch.camera_position[2:], perch.camera_rotation[2:])[0]
     assert incremental == pytest.approx(together, abs=1e-12)
     assert 0 < together <= 1
+    # Committing the three in one batch holds the same state as committing them one by one.
+    ev.commit(perch.camera_position[2], perch.camera_rotation[2])
+    batched = Evaluator(scene_for(ROOM), ev.points, FAST.camera)
+    batched.commit(perch.camera_position, perch.camera_rotation)
+    assert batched.seen.tolist() == ev.seen.tolist() and batched.seen.any()
+    assert batched.info == pytest.approx(ev.info, rel=1e-12, abs=1e-12)
+    assert float(batched.current().fitness) == pytest.approx(together, abs=1e-12)
 
 
 def test_pso_finds_the_optimum_of_a_known_function():
