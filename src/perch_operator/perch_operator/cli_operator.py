@@ -46,47 +46,43 @@ def _with_node(name: str, body):
 def _decide(args) -> int:
     from perch_interfaces.srv import Confirm
 
-    from perch_common.ros.testing import call_service
-
     code = {"accept": Confirm.Request.ACCEPT, "reject": Confirm.Request.REJECT,
             "failed": Confirm.Request.FAILED_IN_FLIGHT}[args.decision]
-    request = Confirm.Request(proposal_id=args.id, decision=code, reason=args.reason)
-
-    def body(node) -> int:
-        try:
-            reply = call_service(node, Confirm, "/perch/confirm", request, timeout=60, wait=10)
-        except TimeoutError as exc:
-            raise PerchError(f"{exc}; is the graph running (`perch launch`)?") from None
-        if not reply.success:
-            raise PerchError(reply.message)
-        print(reply.message)
-        if reply.replacement.id:
-            print(_proposal_line(reply.replacement))
-        return 0
-
-    return _with_node("perch_operator_cli", body)
+    reply = _call_and_report(Confirm, "/perch/confirm",
+                             Confirm.Request(proposal_id=args.id, decision=code, reason=args.reason), timeout=60)
+    if reply.replacement.id:
+        print(_proposal_line(reply.replacement))
+    return 0
 
 
 def _review(args) -> int:
     from perch_interfaces.srv import ReviewSurfaces
 
-    from perch_common.ros.testing import call_service
-
     try:
         rejected = [int(t) for t in args.reject.replace(" ", "").split(",") if t]
     except ValueError:
         raise PerchError(f"--reject '{args.reject}': give surface ids like 3,5") from None
-    request = ReviewSurfaces.Request(review_id=args.id, rejected_surface_ids=rejected, reason=args.reason)
+    _call_and_report(ReviewSurfaces, "/perch/review_surfaces",
+                     ReviewSurfaces.Request(review_id=args.id, rejected_surface_ids=rejected, reason=args.reason),
+                     timeout=30)
+    return 0
 
-    def body(node) -> int:
+
+def _call_and_report(srv_type, name: str, request, timeout: float):
+    """Call an operator service of the running graph, print its message and return the reply.
+
+    No graph or a refused request becomes a PerchError (the CLI's clear-error path)."""
+    from perch_common.ros.testing import call_service
+
+    def body(node):
         try:
-            reply = call_service(node, ReviewSurfaces, "/perch/review_surfaces", request, timeout=30, wait=10)
+            reply = call_service(node, srv_type, name, request, timeout=timeout, wait=10)
         except TimeoutError as exc:
             raise PerchError(f"{exc}; is the graph running (`perch launch`)?") from None
         if not reply.success:
             raise PerchError(reply.message)
         print(reply.message)
-        return 0
+        return reply
 
     return _with_node("perch_operator_cli", body)
 

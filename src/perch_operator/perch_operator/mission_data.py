@@ -88,14 +88,20 @@ def waypoint_dict(msg) -> dict:
             "pan": round(float(msg.pan), 6), "tilt": round(float(msg.tilt), 6), "zoom": round(float(msg.zoom), 6)}
 
 
+def latest_waypoints(waypoints: list[dict]) -> list[dict]:
+    """The last waypoint of each drone (a re-plan supersedes earlier ones), by drone index."""
+    latest = {w["drone_index"]: w for w in waypoints}
+    return [latest[k] for k in sorted(latest)]
+
+
 def write_waypoints_yaml(path: str | Path, waypoints: list[dict]) -> Path:
     """waypoints.yaml: the latest accepted waypoint per drone, for a dispatcher without ROS."""
     import yaml
 
-    latest = {w["drone_index"]: w for w in waypoints}
-    doc = {"frame_id": next(iter(latest.values()))["frame_id"] if latest else "map",
+    latest = latest_waypoints(waypoints)
+    doc = {"frame_id": latest[0]["frame_id"] if latest else "map",
            "units": "metres, radians; orientation is the drone body (z along the perch normal)",
-           "waypoints": [latest[k] for k in sorted(latest)]}
+           "waypoints": latest}
     path = Path(path)
     path.write_text(yaml.safe_dump(doc, sort_keys=False))
     return path

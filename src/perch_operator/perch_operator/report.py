@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from perch_operator.mission_data import MissionData
+from perch_operator.mission_data import MissionData, latest_waypoints
 
 STYLE = """
 body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1100px; color: #222; }
@@ -91,15 +91,10 @@ def write_report(data: MissionData, out_dir: str | Path, title: str = "Perch mis
     parts += ["<h2>Waypoints</h2>", _table(
         ["drone", "proposal", "position (m)", "approach (m)"],
         [(str(w["drone_index"]), str(w["proposal_id"]), _vec(w["position"]), _vec(w["approach"]))
-         for w in _latest(data.waypoints)]), "</body></html>"]
+         for w in latest_waypoints(data.waypoints)]), "</body></html>"]
     path = out_dir / "report.html"
     path.write_text("\n".join(parts))
     return path
-
-
-def _latest(waypoints: list[dict]) -> list[dict]:
-    latest = {w["drone_index"]: w for w in waypoints}
-    return [latest[k] for k in sorted(latest)]
 
 
 def _vec(v) -> str:

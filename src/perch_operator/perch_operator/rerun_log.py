@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from perch_common.mesh import Mesh
-from perch_operator.mission_data import MissionData, target_point_scores
+from perch_operator.mission_data import MissionData, latest_waypoints, target_point_scores
 
 CLASS_COLOURS = {0: ("unknown", (150, 150, 150)), 1: ("floor", (200, 170, 90)), 2: ("wall", (90, 140, 220)),
                  3: ("ceiling", (200, 200, 240)), 4: ("intermediate", (220, 120, 60))}
@@ -103,11 +103,11 @@ def _log_cameras(rr, rec, data: MissionData, views: list | None) -> None:
             if views and i < len(views) and views[i] is not None:
                 rec.log(f"{entity}/view", rr.Image(np.ascontiguousarray(views[i][:, :, ::-1])), static=True)
     if data.waypoints:
-        latest = {w["drone_index"]: w for w in data.waypoints}
-        positions = np.array([latest[k]["position"] for k in sorted(latest)])
-        approach = np.array([latest[k]["approach"] for k in sorted(latest)])
+        latest = latest_waypoints(data.waypoints)
+        positions = np.array([w["position"] for w in latest])
+        approach = np.array([w["approach"] for w in latest])
         rec.log("world/waypoints", rr.Points3D(positions, colors=[(30, 90, 230)], radii=0.06,
-                                               labels=[f"drone {k}" for k in sorted(latest)]), static=True)
+                                               labels=[f"drone {w['drone_index']}" for w in latest]), static=True)
         rec.log("world/waypoints/approach", rr.Arrows3D(origins=approach, vectors=positions - approach,
                                                         colors=[(30, 90, 230)]), static=True)
 

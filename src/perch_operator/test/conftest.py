@@ -1,4 +1,4 @@
-"""Small synthetic meshes shared by the perch_operator tests (importlib mode: via fixtures)."""
+"""Small synthetic meshes and a ROS client node shared by the perch_operator tests (importlib mode: via fixtures)."""
 
 from types import SimpleNamespace
 
@@ -35,3 +35,36 @@ def room() -> Mesh:
 @pytest.fixture
 def meshes() -> SimpleNamespace:
     return SimpleNamespace(grid=grid, merge=merge, room=room)
+
+
+@pytest.fixture(scope="module")
+def ros_node():
+    """A client node on an isolated ROS domain for one test module (rclpy init ... shutdown around it)."""
+    from perch_common.ros import testing
+
+    testing.use_isolated_ros_env()
+    import rclpy
+
+    from perch_common.ros.node_main import ros_context
+
+    with ros_context():
+        node = rclpy.create_node("test_operator_client")
+        try:
+            yield node
+        finally:
+            node.destroy_node()
+
+
+def operator_process(**params):
+    """The perch_operator node as a process, with the repo config and `perch_operator:` parameter overrides."""
+    from perch_common.config import default_config_path
+    from perch_common.ros import testing
+
+    return testing.node_process("perch_operator.node", params_file=default_config_path(),
+                                params={f"perch_operator:{k}": v for k, v in params.items()})
+
+
+@pytest.fixture(scope="session")
+def operator():
+    """`with operator(param=value): ...` runs the perch_operator node for the block."""
+    return operator_process

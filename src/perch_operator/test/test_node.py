@@ -9,21 +9,10 @@ pytestmark = pytest.mark.ros
 
 
 @pytest.fixture(scope="module")
-def ros():
-    testing.use_isolated_ros_env()
-    import rclpy
-
-    from perch_common.config import default_config_path
-
-    rclpy.init()
-    node = rclpy.create_node("test_operator_client")
-    try:
-        with testing.node_process("perch_operator.node", params_file=default_config_path(),
-                                  params={"perch_operator:service_wait": 0.5, "perch_operator:clean_given_mesh": False}):
-            yield node
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+def ros(ros_node, operator):
+    """The client node, with the perch_operator node running for the whole module."""
+    with operator(service_wait=0.5, clean_given_mesh=False):
+        yield ros_node
 
 
 @pytest.fixture

@@ -10,26 +10,7 @@ from perch_common.ros import testing
 pytestmark = pytest.mark.ros
 
 
-@pytest.fixture(scope="module")
-def ros_node():
-    testing.use_isolated_ros_env()
-    import rclpy
-
-    rclpy.init()
-    node = rclpy.create_node("test_record_replay")
-    yield node
-    node.destroy_node()
-    rclpy.try_shutdown()
-
-
-def _operator(**params):
-    from perch_common.config import default_config_path
-
-    return testing.node_process("perch_operator.node", params_file=default_config_path(),
-                                params={f"perch_operator:{k}": v for k, v in params.items()})
-
-
-def test_crop_calls_are_recorded_and_replay_check_catches_a_parameter_change(ros_node, meshes, tmp_path):
+def test_crop_calls_are_recorded_and_replay_check_catches_a_parameter_change(ros_node, operator, meshes, tmp_path):
     from mcap.reader import make_reader
     from perch_interfaces import msg as pm
     from perch_interfaces.srv import Crop
@@ -46,7 +27,7 @@ def test_crop_calls_are_recorded_and_replay_check_catches_a_parameter_change(ros
     pose = np.eye(4)
     pose[:3, 3] = [1.0, 1.5, 1.25]
     keep.keep_boxes = [pm.OrientedBox(pose=pose_msg(pose), size=vector_msg([2.0, 3.2, 3.0]))]
-    with _operator():
+    with operator():
         recorder = MissionRecorder(ros_node, path)
         assert recorder.wait_matched(["/perch/crop/_service_event"], lambda t: spin_for(ros_node, t), 10) == []
         first = testing.call_service(ros_node, Crop, "/perch/crop", Crop.Request(mesh=room), timeout=20)
@@ -71,7 +52,7 @@ def test_crop_calls_are_recorded_and_replay_check_catches_a_parameter_change(ros
         assert all(o.ok for o in clean), out.getvalue()
         assert summary_line(clean, True).startswith("replay check passed: 2 stage call(s)")
 
-    with _operator(**{"crop.target_height": 2.0}):
+    with operator(**{"crop.target_height": 2.0}):
         out = io.StringIO()
         changed = replay(ros_node, path, check=True, out=out)
         text = out.getvalue()
