@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from perch_operator.msgdefs import full_definition, message_class
+from perch_common.ros.msgdefs import full_definition, message_class
 from perch_operator.stages import STAGES
 
 EVENT_SUFFIX = "/_service_event"

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterator
 
-from perch_operator.msgdefs import message_class
+from perch_common.ros.msgdefs import message_class
 from perch_operator.recorder import EVENT_SUFFIX
 from perch_operator.stages import STAGES
 
