@@ -25,6 +25,15 @@ def load_config(path: str | None = None) -> ReconstructionConfig:
     return from_parameters(ReconstructionConfig, params).validate()
 
 
+def _config_with(path: str | None, **overrides) -> ReconstructionConfig:
+    """load_config(path) with the command-line values that were given (None = keep the file's)."""
+    config = load_config(path)
+    for name, value in overrides.items():
+        if value is not None:
+            setattr(config, name, value)
+    return config.validate()
+
+
 def _topic_args(parser) -> None:
     d = BagTopics()
     parser.add_argument("--color-topic", default=d.color)
@@ -131,14 +140,8 @@ def _clean(args) -> int:
     from perch_common.mesh import load_mesh, save_mesh
     from perch_reconstruction.cleaning import clean_mesh_with_report
 
-    config = load_config(args.config)
-    if args.target_faces is not None:
-        config.target_faces = args.target_faces
-    if args.min_piece is not None:
-        config.min_piece_diameter = args.min_piece
-    if args.no_align:
-        config.gravity_align = False
-    config.validate()
+    config = _config_with(args.config, target_faces=args.target_faces, min_piece_diameter=args.min_piece,
+                          gravity_align=False if args.no_align else None)
     mesh, report = clean_mesh_with_report(load_mesh(args.mesh), np.array(args.gravity) if args.gravity else None,
                                           config)
     save_mesh(args.output, mesh)
@@ -174,12 +177,7 @@ def _reconstruct(args) -> int:
     from perch_common.mesh import save_mesh
     from perch_reconstruction.core import reconstruct_bag, reconstruct_frames
 
-    config = load_config(args.config)
-    if args.voxel_size is not None:
-        config.voxel_size = args.voxel_size
-    if args.target_faces is not None:
-        config.target_faces = args.target_faces
-    config.validate()
+    config = _config_with(args.config, voxel_size=args.voxel_size, target_faces=args.target_faces)
     progress = lambda s: print(f"  {s.frames_integrated}/{s.frames_received} frames integrated", flush=True)
     if args.bag:
         mesh, stats = reconstruct_bag(args.bag, config, args.use_poses, _topics(args), progress=progress)

@@ -13,11 +13,11 @@ from perch_common.mesh import Mesh
 from perch_reconstruction.config import ReconstructionConfig
 from perch_reconstruction.frames import Intrinsics, RGBDFrame
 
-INITIAL_BLOCKS = 2000
-DEPTH_SCALE = 1000.0  # Open3D integrates (uint16 depth, uint8 colour): depth goes in as millimetres  # the hash map grows on demand up to config.max_blocks
-MAX_MODEL_CORRECTION_M = 0.1
+INITIAL_BLOCKS = 2000  # the hash map grows on demand up to config.max_blocks
+DEPTH_SCALE = 1000.0  # Open3D integrates (uint16 depth, uint8 colour): depth goes in as millimetres
+MAX_MODEL_CORRECTION_M = 0.1  # larger frame-to-model corrections are treated as failures
 BUDGET_MARGIN_FACTOR = 4
-MIN_TRACKING_WIDTH = 160  # px  # larger frame-to-model corrections are treated as failures
+MIN_TRACKING_WIDTH = 160  # px
 
 
 def depth_mm(depth_m: np.ndarray) -> np.ndarray:
@@ -111,7 +111,7 @@ class TsdfVolume:
     def track_to_model(self, frame_small, pose_guess: np.ndarray, intrinsics: Intrinsics):
         """Point-to-plane alignment of a (tracking-scale) slam.Frame to the volume seen from pose_guess.
 
-        Returns (pose, fitness)."""
+        Returns (pose, fitness, correction length in m)."""
         o3d = _o3d()
         odo = o3d.t.pipelines.odometry
         rendered = self.render_depth(pose_guess, intrinsics)
