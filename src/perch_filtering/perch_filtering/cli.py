@@ -21,7 +21,7 @@ def register(sub) -> None:
                                    "(oriented, classed surfaces) and OUT/regions.ply.")
     p.add_argument("mesh", help="environment mesh (z-up unless --up says otherwise)")
     p.add_argument("--surfaces", required=True,
-                   help="surfaces JSON ({'surfaces': [...]}, as written to OUT/surfaces.json), or 'segment' "
+                   help="surfaces file (YAML or JSON, as written by `perch segment` or to OUT/surfaces.json), or 'segment' "
                         "to segment the mesh first with perch_segmentation")
     add_target_arguments(p)
     p.add_argument("--up", default=None, help="up axis (+z, -y, or 'x y z'); default: the config's up_axis")
@@ -69,16 +69,15 @@ def load_config(path: str | None, overrides: list[str]) -> tuple[FilterConfig, s
 
 
 def segment_surfaces(mesh: Mesh) -> list:
-    try:
-        from perch_segmentation.core import SegmentationConfig, segment_mesh
-    except ImportError as exc:
-        raise ValueError("--surfaces segment needs perch_segmentation installed") from exc
+    from perch_segmentation.core import SegmentationConfig, segment_mesh
+
     return segment_mesh(mesh, SegmentationConfig()).surfaces
 
 
 def run(args) -> int:
     from perch_filtering.core import filter_surfaces
-    from perch_filtering.files import read_surfaces, write_result
+    from perch_filtering.files import write_result
+    from perch_segmentation.io import read_surfaces
 
     config, up_axis = load_config(args.config, args.param)
     mesh = load_mesh(args.mesh)

@@ -1,4 +1,6 @@
-"""Surfaces, perch regions and removals as JSON files (and the regions as a coloured mesh) for the CLI."""
+"""Perch regions and removals as JSON files (and the regions as a coloured mesh) for the CLI.
+
+Surfaces files have one format, perch_segmentation.io's: read and written through it."""
 
 from __future__ import annotations
 
@@ -8,7 +10,8 @@ from pathlib import Path
 import numpy as np
 
 from perch_common.mesh import Mesh, save_mesh
-from perch_common.types import FilterRemoval, PerchRegion, PlaneFrame, Surface, SurfaceClass
+from perch_common.types import FilterRemoval, PerchRegion, PlaneFrame, SurfaceClass
+from perch_segmentation.io import write_surfaces
 
 CLASS_COLORS = {SurfaceClass.WALL: (60, 140, 230), SurfaceClass.CEILING: (240, 170, 40),
                 SurfaceClass.FLOOR: (90, 190, 90), SurfaceClass.INTERMEDIATE: (200, 80, 200)}
@@ -18,52 +21,8 @@ def frame_dict(frame: PlaneFrame) -> dict:
     return {k: np.round(getattr(frame, k), 9).tolist() for k in ("origin", "axis_u", "axis_v", "normal")}
 
 
-def frame_from_dict(data: dict) -> PlaneFrame:
-    return PlaneFrame(*(np.asarray(data[k], np.float64) for k in ("origin", "axis_u", "axis_v", "normal")))
-
-
 def polygons_list(polygons: list) -> list:
     return [[np.round(np.asarray(ring, np.float64), 6).tolist() for ring in poly] for poly in polygons]
-
-
-def surface_dict(s: Surface) -> dict:
-    return {"id": int(s.id), "surface_class": SurfaceClass(s.surface_class).name.lower(),
-            "frame": frame_dict(s.frame), "area": float(s.area), "rms_distance": float(s.rms_distance),
-            "mean_color": np.asarray(s.mean_color, np.float64).tolist(),
-            "face_indices": np.asarray(s.face_indices, np.int64).tolist(), "boundary": polygons_list(s.boundary)}
-
-
-def surface_from_dict(d: dict) -> Surface:
-    cls = d.get("surface_class", 0)
-    cls = SurfaceClass[cls.upper()] if isinstance(cls, str) else SurfaceClass(int(cls))
-    return Surface(id=int(d["id"]), frame=frame_from_dict(d["frame"]), area=float(d.get("area", 0.0)),
-                   face_indices=np.asarray(d.get("face_indices", []), np.int64), surface_class=cls,
-                   rms_distance=float(d.get("rms_distance", 0.0)),
-                   mean_color=np.asarray(d.get("mean_color", [0, 0, 0]), np.float64),
-                   boundary=[[np.asarray(r, np.float64).reshape(-1, 2) for r in poly] for poly in d.get("boundary", [])])
-
-
-def read_surfaces(path: str | Path) -> list[Surface]:
-    """A JSON file holding {"surfaces": [...]} (or a bare list) in the layout of `surface_dict`."""
-    path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise ValueError(f"{path}: cannot read surfaces ({exc})") from exc
-    items = data.get("surfaces") if isinstance(data, dict) else data
-    if not isinstance(items, list):
-        raise ValueError(f"{path}: expected a list of surfaces or {{\"surfaces\": [...]}}")
-    try:
-        return [surface_from_dict(d) for d in items]
-    except (KeyError, TypeError, ValueError) as exc:
-        raise ValueError(f"{path}: malformed surface ({exc!r})") from exc
-
-
-def write_surfaces(path: str | Path, surfaces: list[Surface]) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps({"surfaces": [surface_dict(s) for s in surfaces]}))
-    return path
 
 
 def region_dict(r: PerchRegion) -> dict:

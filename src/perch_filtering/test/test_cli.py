@@ -7,7 +7,7 @@ import pytest
 from filtering_scenes import Builder, structure
 from perch_common.cli import main
 from perch_common.mesh import load_mesh, save_mesh
-from perch_filtering.files import read_surfaces, write_surfaces
+from perch_segmentation.io import read_surfaces, write_surfaces
 
 
 def test_perch_filter_writes_regions_and_removals(tmp_path, capsys):
@@ -16,9 +16,9 @@ def test_perch_filter_writes_regions_and_removals(tmp_path, capsys):
     b.box("table", [2.0, 0.05, 0.0], [3.2, 0.85, 0.75])
     save_mesh(tmp_path / "room.ply", b.mesh())
     surfaces = b.surfaces(structure(b))
-    write_surfaces(tmp_path / "surfaces.json", surfaces)
+    write_surfaces(tmp_path / "surfaces.yaml", surfaces)  # the default of `perch segment -o FOLDER`
     out = tmp_path / "out"
-    code = main(["filter", str(tmp_path / "room.ply"), "--surfaces", str(tmp_path / "surfaces.json"),
+    code = main(["filter", str(tmp_path / "room.ply"), "--surfaces", str(tmp_path / "surfaces.yaml"),
                  "--target-box", "3", "2.5", "1", "2", "1.5", "1.2", "-p", "allow_ceiling=false", "-o", str(out)])
     assert code == 0
     summary = json.loads((out / "regions.json").read_text())

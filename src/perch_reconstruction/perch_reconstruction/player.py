@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import importlib
 import time
 from pathlib import Path
 
 from perch_common.errors import PerchError
+from perch_common.ros.msgdefs import message_class as installed_message_class
 from perch_reconstruction.bag_read import bag_info, iter_raw
 
 
@@ -18,8 +18,7 @@ SETTLE_S = 1.0
 def message_class(type_name: str):
     """The Python class of 'pkg/msg/Type' (must be installed)."""
     try:
-        package, kind, name = type_name.split("/")
-        return getattr(importlib.import_module(f"{package}.{kind}"), name)
+        return installed_message_class(type_name)
     except (ValueError, ImportError, AttributeError) as exc:
         raise PerchError(f"message type '{type_name}' is not installed here; cannot publish it") from exc
 

@@ -101,7 +101,7 @@ def segment_mesh(mesh: Mesh, config: SegmentationConfig | None = None) -> Segmen
     config = config or SegmentationConfig()
     config.validate()
     clock = Laps()
-    check_mesh(mesh, "mesh to segment")
+    validate_mesh(mesh, "mesh to segment")
     up = parse_up_axis(config.up_axis)
     colors = mesh.face_colors()  # mean colours are reported even when not used for merging
     color_threshold = config.color_threshold if (config.use_color and colors is not None) else None
@@ -155,11 +155,6 @@ def segment_mesh(mesh: Mesh, config: SegmentationConfig | None = None) -> Segmen
                               config.boundary_simplify, config.threads)
     clock.lap("step3_surfaces")
     return SegmentationResult(surfaces, face_labels, clusters_step1, clusters_step2, clock.laps)
-
-
-def check_mesh(mesh: Mesh, what: str) -> None:
-    """Raise MeshError naming every fatal problem (perch_common's checks, without the census)."""
-    validate_mesh(mesh, what)
 
 
 def median_face_colors(mesh: Mesh) -> np.ndarray:

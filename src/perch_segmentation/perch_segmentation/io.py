@@ -1,4 +1,6 @@
-"""Writing a segmentation to disk: surfaces as YAML or JSON, a mesh coloured by surface."""
+"""A segmentation on disk: surfaces as YAML or JSON (written and read back), a mesh coloured by surface.
+
+The one surfaces file format of the pipeline: perch_filtering reads and writes it through here."""
 
 from __future__ import annotations
 
@@ -8,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from perch_common.mesh import Mesh, save_mesh
-from perch_common.types import Surface
+from perch_common.types import PlaneFrame, Surface, SurfaceClass
 from perch_segmentation.render import label_colors
 
 SURFACE_SUFFIXES = (".yaml", ".yml", ".json")
@@ -30,6 +32,43 @@ def surface_record(surface: Surface) -> dict:
     }
 
 
+def surface_from_record(record: dict) -> Surface:
+    """The inverse of `surface_record`; surface_class may be its number or its name ("wall")."""
+    cls = record.get("surface_class", 0)
+    cls = SurfaceClass[cls.upper()] if isinstance(cls, str) else SurfaceClass(int(cls))
+    frame = PlaneFrame(*(np.asarray(record["frame"][k], np.float64) for k in ("origin", "axis_u", "axis_v", "normal")))
+    return Surface(id=int(record["id"]), frame=frame, area=float(record.get("area", 0.0)),
+                   face_indices=np.asarray(record.get("face_indices", []), np.int64), surface_class=cls,
+                   rms_distance=float(record.get("rms_distance", 0.0)),
+                   mean_color=np.asarray(record.get("mean_color", [0, 0, 0]), np.float64),
+                   boundary=[[np.asarray(ring, np.float64).reshape(-1, 2) for ring in polygon]
+                             for polygon in record.get("boundary", [])])
+
+
+def read_surfaces(path: str | Path) -> list[Surface]:
+    """Surfaces from a file written by `write_surfaces` (.json, else YAML); {"surfaces": [...]} or a bare list.
+
+    Raises ValueError naming the file when it cannot be read or a surface is malformed."""
+    import yaml
+
+    path = Path(path)
+    try:
+        text = path.read_text()
+        if path.suffix.lower() == ".json":
+            document = json.loads(text)
+        else:
+            document = yaml.load(text, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
+    except (OSError, ValueError, yaml.YAMLError) as exc:
+        raise ValueError(f"{path}: cannot read surfaces ({exc})") from exc
+    records = document.get("surfaces") if isinstance(document, dict) else document
+    if not isinstance(records, list):
+        raise ValueError(f"{path}: expected a list of surfaces or {{\"surfaces\": [...]}}")
+    try:
+        return [surface_from_record(record) for record in records]
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: malformed surface ({exc!r})") from exc
+
+
 def output_paths(out: str | Path) -> tuple[Path, Path]:
     """(surfaces file, coloured mesh) for OUT: a .yaml/.yml/.json file (mesh beside it) or a folder."""
     out = Path(out)
@@ -39,6 +78,7 @@ def output_paths(out: str | Path) -> tuple[Path, Path]:
 
 
 def write_surfaces(path: str | Path, surfaces: list[Surface], source: str = "", frame_id: str = "map") -> Path:
+    """{"source", "frame_id", "surfaces": [surface_record...]} as JSON (.json suffix) or YAML."""
     import yaml
 
     path = Path(path)

@@ -63,6 +63,7 @@ class SegmentationNode(Node):
                             f"({100 * labelled:.0f}% of faces on a surface)")
         return response
 
+
 def main(args: list[str] | None = None) -> int:
     return run_node(lambda: SegmentationNode(), args)
 

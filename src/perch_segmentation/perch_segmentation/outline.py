@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-_MAX_PIXELS = 4096
-_FILL_ABOVE = 4.0  # cells; triangles with longer edges are scan-converted instead of sampled  # per side; coarser cells for huge surfaces keep memory bounded
+_MAX_PIXELS = 4096  # per side; coarser cells for huge surfaces keep memory bounded
+_FILL_ABOVE = 4.0  # cells; triangles with longer edges are scan-converted instead of sampled
 
 
 def _barycentric_grid(k: int) -> np.ndarray:

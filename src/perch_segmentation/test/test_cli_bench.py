@@ -66,3 +66,28 @@ def test_bench_scene_prints_accuracy_and_baseline(tmp_path, capsys, baseline):
     assert result["plane_recall"] >= 0.95
     assert result["baseline"]["seconds"] > 0 and "plane_recall" in result["baseline"]
     assert (tmp_path / "scene_room_0.png").is_file()
+
+
+@pytest.mark.parametrize("suffix", [".yaml", ".json"])
+def test_surfaces_file_round_trips(tmp_path, suffix):
+    from perch_common.types import SurfaceClass
+    from perch_segmentation.core import SegmentationConfig, segment_mesh
+    from perch_segmentation.io import read_surfaces, write_surfaces
+
+    surfaces = segment_mesh(box_room(door=True)[0], SegmentationConfig()).surfaces
+    surfaces[0].surface_class = SurfaceClass.WALL
+    back = read_surfaces(write_surfaces(tmp_path / f"s{suffix}", surfaces))
+    assert [s.id for s in back] == [s.id for s in surfaces] and back[0].surface_class == SurfaceClass.WALL
+    for a, b in zip(surfaces, back):
+        np.testing.assert_array_equal(a.face_indices, b.face_indices)
+        np.testing.assert_allclose(a.frame.normal, b.frame.normal)
+        assert b.area == pytest.approx(a.area) and len(b.boundary) == len(a.boundary)
+        np.testing.assert_allclose(b.boundary[0][0], a.boundary[0][0], atol=1e-5)
+
+
+def test_read_surfaces_names_the_bad_file(tmp_path):
+    from perch_segmentation.io import read_surfaces
+
+    (tmp_path / "bad.yaml").write_text("surfaces: [{id: 0}]")
+    with pytest.raises(ValueError, match="bad.yaml: malformed surface"):
+        read_surfaces(tmp_path / "bad.yaml")
