@@ -20,6 +20,16 @@ def matrix_from_quaternion(q: np.ndarray) -> np.ndarray:
     return Rotation.from_quat(q).as_matrix()
 
 
+def pose_to_matrix(pose) -> np.ndarray:
+    """4x4 of anything shaped like geometry_msgs/Pose (position.x.., orientation.x..w), e.g. a
+    message decoded from a bag without the message packages."""
+    o, p = pose.orientation, pose.position
+    out = np.eye(4)
+    out[:3, :3] = matrix_from_quaternion(np.array([o.x, o.y, o.z, o.w], np.float64))
+    out[:3, 3] = [p.x, p.y, p.z]
+    return out
+
+
 def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The smallest rotation taking unit direction a onto unit direction b."""
     a = np.asarray(a, np.float64) / np.linalg.norm(a)

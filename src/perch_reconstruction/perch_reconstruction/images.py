@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from perch_common.errors import PerchError
-from perch_common.transforms import matrix_from_quaternion, quaternion_from_matrix
+from perch_common.transforms import pose_to_matrix, quaternion_from_matrix
 from perch_reconstruction.frames import Intrinsics
 
 COLOR_ENCODINGS = {"rgb8": (3, False), "bgr8": (3, True), "rgba8": (4, False), "bgra8": (4, True),
@@ -97,12 +97,7 @@ def intrinsics_from_camera_info(msg, topic: str) -> Intrinsics:
 
 def pose_from_msg(msg) -> np.ndarray:
     """4x4 world-from-camera of a PoseStamped or Odometry."""
-    pose = msg.pose.pose if hasattr(msg, "child_frame_id") else msg.pose
-    o, p = pose.orientation, pose.position
-    out = np.eye(4)
-    out[:3, :3] = matrix_from_quaternion(np.array([o.x, o.y, o.z, o.w]))
-    out[:3, 3] = [p.x, p.y, p.z]
-    return out
+    return pose_to_matrix(msg.pose.pose if hasattr(msg, "child_frame_id") else msg.pose)
 
 
 def stamp_ns(msg) -> int:

@@ -10,7 +10,7 @@ from perch_interfaces import msg as pm
 
 from perch_common.mesh import Mesh, MeshError
 from perch_common.target import TargetVolume
-from perch_common.transforms import matrix_from_quaternion, quaternion_from_matrix
+from perch_common.transforms import pose_to_matrix, quaternion_from_matrix
 from perch_common.types import (CameraPlacement, ExclusionZone, FilterRemoval, PerchRegion, PlaneFrame,
                                 Surface, SurfaceClass)
 
@@ -51,11 +51,7 @@ def pose_msg(matrix: np.ndarray) -> Pose:
 
 
 def pose_matrix(pose: Pose) -> np.ndarray:
-    o = pose.orientation
-    out = np.eye(4)
-    out[:3, :3] = matrix_from_quaternion(np.array([o.x, o.y, o.z, o.w]))
-    out[:3, 3] = xyz(pose.position)
-    return out
+    return pose_to_matrix(pose)
 
 
 # --- mesh -----------------------------------------------------------------------------------
