@@ -20,7 +20,10 @@ from perch_common.processes import stop_process
 def isolated_ros_env(domain_id: int | None = None) -> dict[str, str]:
     """Environment for a test graph on loopback only, on its own DDS domain."""
     env = dict(os.environ)
-    env["ROS_DOMAIN_ID"] = str(domain_id if domain_id is not None else 100 + os.getpid() % 100)
+    if domain_id is None:
+        # PERCH_TEST_DOMAIN pins the domain, so that test runs started side by side never share one.
+        domain_id = int(os.environ.get("PERCH_TEST_DOMAIN") or 100 + os.getpid() % 100)
+    env["ROS_DOMAIN_ID"] = str(domain_id)
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     env.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
     env.setdefault("OMP_NUM_THREADS", "2")
