@@ -26,9 +26,8 @@ def scene():
 
 
 def make_goal(scene, auto_accept: bool = True, cameras: int = CAMERAS):
-    from perch_interfaces.action import PlanPerches
-
     from perch_common.ros.conversions import mesh_to_msg, target_to_msg
+    from perch_interfaces.action import PlanPerches
 
     return PlanPerches.Goal(mesh=mesh_to_msg(scene.mesh), target=target_to_msg(scene.target),
                             num_cameras=cameras, auto_accept=auto_accept, seed=-1)
@@ -121,11 +120,11 @@ class LiveMission:
     """A mission driven from the test: goal sent, proposals watched, decisions sent, all async."""
 
     def __init__(self, node, goal):
+        from rclpy.action import ActionClient
+
         from perch_interfaces.action import PlanPerches
         from perch_interfaces.msg import Proposal
         from perch_interfaces.srv import Confirm
-        from rclpy.action import ActionClient
-
         from perch_operator.node import LATCHED
 
         self.node = node
@@ -222,11 +221,10 @@ def test_accept_reject_and_failed_in_flight(graph, scene):
 
 
 def test_surface_review_rejection_keeps_perches_off_the_rejected_surface(graph, scene):
-    from perch_interfaces.msg import SurfaceReview
-    from perch_interfaces.srv import ReviewSurfaces
-
     from perch_common.polygons import to_shapely
     from perch_common.ros.conversions import surface_from_msg
+    from perch_interfaces.msg import SurfaceReview
+    from perch_interfaces.srv import ReviewSurfaces
     from perch_operator.node import LATCHED_LAST
 
     reviews: list = []
@@ -262,9 +260,9 @@ def test_surface_review_rejection_keeps_perches_off_the_rejected_surface(graph, 
 
 
 def test_killed_stage_ends_the_mission_with_its_name_and_the_next_one_succeeds(graph, scene, restart_with):
-    from perch_interfaces.srv import Optimise
     from rclpy.qos import qos_profile_services_default
 
+    from perch_interfaces.srv import Optimise
     from perch_operator.client import run_mission
 
     # A deliberately long search, so that the stage dies in the middle of its call.

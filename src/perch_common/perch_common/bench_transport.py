@@ -43,11 +43,11 @@ def _median_time(fn, repeats: int) -> float:
 
 def _run(args) -> int:
     import rclpy
-    from perch_interfaces.srv import InspectMesh
 
     from perch_common.ros.conversions import mesh_from_msg, mesh_to_msg
     from perch_common.ros.node_main import ros_context
     from perch_common.ros.testing import call_service, node_process, use_isolated_ros_env
+    from perch_interfaces.srv import InspectMesh
 
     mesh = grid_mesh(args.faces)
     msg = mesh_to_msg(mesh)

@@ -5,7 +5,6 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass, field
 
-from perch_interfaces.srv import InspectMesh
 from rclpy.node import Node
 
 from perch_common.mesh import inspect_mesh
@@ -14,6 +13,7 @@ from perch_common.ros.node_main import run_node
 from perch_common.ros.params import declare_config
 from perch_common.ros.service import answering
 from perch_common.transforms import estimate_mesh_up
+from perch_interfaces.srv import InspectMesh
 
 
 @dataclass

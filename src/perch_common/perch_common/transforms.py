@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+
 # Imported up front: a lazy import here once stalled a node's first pose callback for ~1 s.
 from scipy.spatial.transform import Rotation
 

@@ -7,7 +7,13 @@ import pytest
 
 from perch_common.config import ConfigError, from_parameters, node_names, node_parameters, to_parameters
 from perch_common.target import TargetVolume
-from perch_common.transforms import estimate_mesh_up, matrix_from_quaternion, parse_up_axis, quaternion_from_matrix, rotation_between
+from perch_common.transforms import (
+    estimate_mesh_up,
+    matrix_from_quaternion,
+    parse_up_axis,
+    quaternion_from_matrix,
+    rotation_between,
+)
 
 
 @dataclass

@@ -21,9 +21,8 @@ def ros_node():
 
 
 def call(node, mesh_msg, echo=False):
-    from perch_interfaces.srv import InspectMesh
-
     from perch_common.ros.testing import call_service
+    from perch_interfaces.srv import InspectMesh
 
     return call_service(node, InspectMesh, "/perch/inspect_mesh", InspectMesh.Request(mesh=mesh_msg, echo=echo), timeout=60)
 
@@ -45,10 +44,9 @@ def test_large_mesh_round_trip(ros_node):
 
 
 def test_bad_meshes_get_clear_replies_and_node_keeps_serving(ros_node):
-    from perch_interfaces.msg import TriangleMesh
-
     from perch_common.mesh import Mesh
     from perch_common.ros.conversions import mesh_to_msg, to_array
+    from perch_interfaces.msg import TriangleMesh
 
     node, proc = ros_node
     nan_mesh = mesh_to_msg(Mesh([[0, 0, np.nan], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]]))

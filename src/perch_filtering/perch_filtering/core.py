@@ -16,13 +16,12 @@ from perch_common.mesh import Mesh, validate_mesh
 from perch_common.polygons import faces_outline, from_shapely
 from perch_common.raycast import RayScene
 from perch_common.target import TargetVolume
-from perch_common.types import FilterRemoval, PerchRegion, Surface
 from perch_common.timing import Laps
+from perch_common.types import FilterRemoval, PerchRegion, Surface
 from perch_filtering.checks import clearance_blocked, geometry_in_front, recovery_blocked
 from perch_filtering.config import FilterConfig
 from perch_filtering.holes import hole_patches, patched_occlusion
-from perch_filtering.orientation import (class_enabled, find_floor, orient, oriented_copy, visibility_scores,
-                                         winding_votes)
+from perch_filtering.orientation import class_enabled, find_floor, orient, oriented_copy, visibility_scores, winding_votes
 from perch_filtering.raster import SurfaceRaster, erode_window, rasterise, window_kernel
 from perch_filtering.regions import mask_polygons, triangulate
 from perch_filtering.sampling import SampleIndex, project, sample_mesh

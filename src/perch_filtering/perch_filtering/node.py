@@ -8,17 +8,24 @@ import sys
 from dataclasses import dataclass, field
 
 import numpy as np
-from perch_interfaces import srv
 from rclpy.node import Node
 
-from perch_common.ros.conversions import (mesh_from_msg, region_to_msg, removal_to_msg, surface_from_msg,
-                                          surface_to_msg, target_from_msg, xyz)
+from perch_common.ros.conversions import (
+    mesh_from_msg,
+    region_to_msg,
+    removal_to_msg,
+    surface_from_msg,
+    surface_to_msg,
+    target_from_msg,
+    xyz,
+)
 from perch_common.ros.node_main import run_node
 from perch_common.ros.params import declare_config, read_config
-from perch_common.transforms import parse_up_axis
 from perch_common.ros.service import answering, create_stage_service
+from perch_common.transforms import parse_up_axis
 from perch_filtering.config import FilterConfig
 from perch_filtering.core import filter_surfaces
+from perch_interfaces import srv
 
 
 @dataclass

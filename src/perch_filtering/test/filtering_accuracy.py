@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 import shapely
-
 from filtering_checker import SceneOracle, Spec, sample_mesh_surface, sample_plane
+
 from perch_common.scene_generator import GeneratedScene, SemanticClass
 
 NOT_PERCHABLE = (SemanticClass.DOOR, SemanticClass.WINDOW)

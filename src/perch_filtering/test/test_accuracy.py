@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import pytest
-
 from filtering_accuracy import evaluate, filter_input_surfaces, spec_from
+
 from perch_common.scene_generator import generate_scene
 from perch_filtering.core import FilterConfig, filter_surfaces
 

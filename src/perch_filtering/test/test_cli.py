@@ -3,8 +3,8 @@
 import json
 
 import pytest
-
 from filtering_scenes import Builder, structure
+
 from perch_common.cli import main
 from perch_common.mesh import load_mesh, save_mesh
 from perch_segmentation.io import read_surfaces, write_surfaces

@@ -6,8 +6,8 @@ import copy
 
 import numpy as np
 import pytest
-
 from filtering_scenes import Builder, structure
+
 from perch_common.mesh import Mesh, MeshError
 from perch_common.target import TargetVolume
 from perch_filtering.core import FilterConfig, filter_surfaces

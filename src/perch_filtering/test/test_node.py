@@ -3,7 +3,6 @@
 import copy
 
 import pytest
-
 from filtering_scenes import Builder, structure
 
 pytestmark = pytest.mark.ros
@@ -25,10 +24,9 @@ def ros_node():
 
 @pytest.fixture(scope="module")
 def room_request():
-    from perch_interfaces.srv import Filter
-
     from perch_common.ros.conversions import mesh_to_msg, surface_to_msg, target_to_msg
     from perch_common.target import TargetVolume
+    from perch_interfaces.srv import Filter
 
     b = Builder()
     b.room("room", [[0, 0], [6, 0], [6, 5], [0, 5]], 2.8)
@@ -40,9 +38,8 @@ def room_request():
 
 
 def call(node, request):
-    from perch_interfaces.srv import Filter
-
     from perch_common.ros.testing import call_service
+    from perch_interfaces.srv import Filter
 
     return call_service(node, Filter, "/perch/filter", request, timeout=60)
 

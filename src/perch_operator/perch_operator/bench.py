@@ -28,11 +28,10 @@ def register(sub) -> None:
 
 
 def build_goal(args):
-    from perch_interfaces.action import PlanPerches
-
     from perch_common.mesh import load_mesh
     from perch_common.ros.conversions import mesh_to_msg, target_to_msg
     from perch_common.target import TargetVolume
+    from perch_interfaces.action import PlanPerches
 
     goal = PlanPerches.Goal(num_cameras=args.cameras, auto_accept=True, seed=-1)
     if args.mesh:
@@ -55,10 +54,8 @@ def _run(args) -> int:
     import rclpy
 
     from perch_common.bench import emit, peak_rss_mb
-    from perch_common.launch import GraphProcesses
+    from perch_common.launch import GraphProcesses, use_fast_liveliness
     from perch_operator.client import run_mission
-
-    from perch_common.launch import use_fast_liveliness
     from perch_operator.runner import client_context
 
     use_fast_liveliness()
@@ -109,10 +106,9 @@ def _growth(values: list[float]) -> float:
 
 def _time_rejection(node, result) -> float:
     """Reject the first proposal of the last mission; seconds until the replacement arrives."""
+    from perch_common.ros.testing import call_service
     from perch_interfaces.msg import Proposal
     from perch_interfaces.srv import Confirm
-
-    from perch_common.ros.testing import call_service
     from perch_operator.node import LATCHED
     from perch_operator.runner import spin_for
 

@@ -55,11 +55,10 @@ def _common(p) -> None:
 
 def parse_target(spec: str | None):
     """The TargetVolume message for --target (None: the scene's / crop's default)."""
-    from perch_interfaces import msg as pm
-
     from perch_common.mesh import load_mesh
     from perch_common.ros.conversions import target_to_msg
     from perch_common.target import TargetVolume
+    from perch_interfaces import msg as pm
 
     if spec is None or spec == "floor":
         return pm.TargetVolume(kind=pm.TargetVolume.KIND_DEFAULT)
@@ -81,9 +80,8 @@ def parse_target(spec: str | None):
 
 
 def _plan(args) -> int:
-    from perch_interfaces.action import PlanPerches
-
     from perch_common.ros.conversions import mesh_to_msg, target_to_msg
+    from perch_interfaces.action import PlanPerches
 
     goal = PlanPerches.Goal(num_cameras=max(0, args.cameras), seed=args.seed, auto_accept=args.auto_accept,
                             review_surfaces=max(0, args.review_surfaces))
@@ -147,10 +145,9 @@ def _mission_and_outputs(node, goal, args, describe: dict, started: float) -> in
 
 def _demo(args) -> int:
     """`make demo`: launch the graph, plan on the seeded apartment with auto-accept, print the summary."""
-    from perch_interfaces.action import PlanPerches
-
     from perch_common.ros.conversions import mesh_to_msg, target_to_msg
     from perch_common.scene_generator import generate_scene
+    from perch_interfaces.action import PlanPerches
 
     # The demo's graph talks on this machine only; it never disturbs (or joins) a networked graph.
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")

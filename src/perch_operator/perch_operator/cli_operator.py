@@ -98,7 +98,6 @@ def _proposal_line(p) -> str:
 
 def _list(args) -> int:
     from perch_interfaces.msg import Proposal
-
     from perch_operator.node import LATCHED
     from perch_operator.runner import spin_for
 

@@ -6,10 +6,10 @@ import time
 from typing import Callable
 
 import rclpy
-from perch_interfaces.action import PlanPerches
 from rclpy.action import ActionClient
 
 from perch_common.errors import PerchError
+from perch_interfaces.action import PlanPerches
 
 ACTION = "/perch/plan_perches"
 

@@ -10,9 +10,9 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from perch_interfaces.msg import PerchWaypoint
 from rclpy.node import Node
 
+from perch_interfaces.msg import PerchWaypoint
 from perch_operator.mission_data import waypoint_dict, write_waypoints_yaml
 from perch_operator.node import LATCHED
 

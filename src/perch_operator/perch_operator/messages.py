@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 from geometry_msgs.msg import PoseArray, PoseStamped
-from perch_interfaces import msg as pm
 
 from perch_common.ros.conversions import box_from_msg, placement_to_msg, point_msg, pose_msg
+from perch_interfaces import msg as pm
 from perch_operator.crop import Box
 from perch_operator.proposals import Proposal, approach_point
 

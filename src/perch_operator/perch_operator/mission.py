@@ -12,12 +12,11 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
-from perch_interfaces import srv
-from perch_interfaces.action import PlanPerches
 
 from perch_common.mesh import load_mesh
-from perch_common.ros.conversions import (exclusion_to_msg, mesh_to_msg, placement_from_msg, placement_to_msg,
-                                          vector_msg)
+from perch_common.ros.conversions import exclusion_to_msg, mesh_to_msg, placement_from_msg, placement_to_msg, vector_msg
+from perch_interfaces import srv
+from perch_interfaces.action import PlanPerches
 from perch_operator.proposals import Decision, Proposal, ProposalBook
 from perch_operator.stages import MissionCancelled, StageCaller, StageError
 

@@ -34,8 +34,14 @@ class MissionData:
 
 def load_mission(path: str | Path) -> MissionData:
     """Read the stage replies, proposals and waypoints of one recorded mission."""
-    from perch_common.ros.conversions import (mesh_from_msg, placement_from_msg, region_from_msg,
-                                              removal_from_msg, surface_from_msg, target_from_msg)
+    from perch_common.ros.conversions import (
+        mesh_from_msg,
+        placement_from_msg,
+        region_from_msg,
+        removal_from_msg,
+        surface_from_msg,
+        target_from_msg,
+    )
     from perch_operator.runfile import iter_messages, metadata, stage_calls
 
     data = MissionData()
@@ -117,10 +123,9 @@ def target_point_scores(data: MissionData) -> tuple[np.ndarray, np.ndarray] | No
 
     if data.target is None or data.mesh is None or importlib.util.find_spec("perch_placement") is None:
         return None
+    from perch_common.raycast import RayScene
     from perch_placement.camera import point_score
     from perch_placement.fitness import Evaluator
-
-    from perch_common.raycast import RayScene
 
     config = placement_config()
     points = data.target.sample(config.target_points, seed=config.seed)
@@ -134,9 +139,8 @@ def target_point_scores(data: MissionData) -> tuple[np.ndarray, np.ndarray] | No
 
 def placement_config():
     """The placement stage's configuration as the graph runs it (config/perch.yaml)."""
-    from perch_placement.config import PlacementConfig
-
     from perch_common.config import ConfigError, from_parameters, node_parameters
+    from perch_placement.config import PlacementConfig
 
     try:
         return from_parameters(PlacementConfig, node_parameters("perch_placement")).resolved()

@@ -12,9 +12,6 @@ import threading
 
 import numpy as np
 from geometry_msgs.msg import PoseArray
-from perch_interfaces import msg as pm
-from perch_interfaces import srv
-from perch_interfaces.action import PlanPerches
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
@@ -27,6 +24,9 @@ from perch_common.ros.node_main import run_node
 from perch_common.ros.params import declare_config, read_config
 from perch_common.ros.service import answering, create_stage_service
 from perch_common.transforms import parse_up_axis
+from perch_interfaces import msg as pm
+from perch_interfaces import srv
+from perch_interfaces.action import PlanPerches
 from perch_operator.config import OperatorConfig
 from perch_operator.crop import crop_mesh
 from perch_operator.messages import box_from_ros, pose_array_msg, proposal_msg, waypoint_msg

@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
 from perch_common.ros.msgdefs import full_definition, message_class
 from perch_operator.stages import STAGES
 

@@ -119,9 +119,8 @@ def camera_views(data: MissionData) -> list[np.ndarray | None]:
     if importlib.util.find_spec("perch_placement") is None or \
             importlib.util.find_spec("perch_placement.render") is None or data.mesh is None:
         return []
-    from perch_placement.render import render_view
-
     from perch_operator.mission_data import placement_config
+    from perch_placement.render import render_view
 
     camera = placement_config().camera
     out: list[np.ndarray | None] = []

@@ -12,9 +12,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from perch_interfaces.action import PlanPerches
-
 from perch_common.errors import PerchError
+from perch_interfaces.action import PlanPerches
 from perch_operator.recorder import EVENT_SUFFIX, MissionRecorder
 from perch_operator.stages import STAGES
 

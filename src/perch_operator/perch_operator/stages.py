@@ -11,9 +11,8 @@ import time
 from dataclasses import dataclass
 from typing import Callable
 
-from perch_interfaces import srv
-
 from perch_common.errors import PerchError
+from perch_interfaces import srv
 
 
 @dataclass(frozen=True)

@@ -3,11 +3,11 @@
 import array
 
 import pytest
+
+from perch_common.ros.msgdefs import full_definition, message_class
 from perch_interfaces import msg as pm
 from perch_interfaces import srv
-
 from perch_operator.diff import Tolerance, diff_messages
-from perch_common.ros.msgdefs import full_definition, message_class
 
 
 def optimise_reply(x: float, fitness: float = 0.5, count: int = 2) -> srv.Optimise.Response:

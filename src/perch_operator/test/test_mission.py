@@ -2,11 +2,11 @@
 
 import numpy as np
 import pytest
+
+from perch_common.ros.conversions import mesh_to_msg
 from perch_interfaces import msg as pm
 from perch_interfaces import srv
 from perch_interfaces.action import PlanPerches
-
-from perch_common.ros.conversions import mesh_to_msg
 from perch_operator.mission import Mission, MissionOptions, replan_slot
 from perch_operator.proposals import Decision, Status
 from perch_operator.stages import StageError

@@ -23,10 +23,9 @@ def room_msg(meshes):
 
 
 def test_crop_service_keeps_box_and_resolves_default_target(ros, room_msg):
+    from perch_common.ros.conversions import from_array, mesh_from_msg, pose_msg, target_from_msg, vector_msg
     from perch_interfaces import msg as pm
     from perch_interfaces.srv import Crop
-
-    from perch_common.ros.conversions import from_array, mesh_from_msg, pose_msg, target_from_msg, vector_msg
 
     request = Crop.Request(mesh=room_msg)
     pose = np.eye(4)
@@ -44,10 +43,9 @@ def test_crop_service_keeps_box_and_resolves_default_target(ros, room_msg):
 
 
 def test_crop_bad_input_is_a_clear_error_and_node_survives(ros, room_msg):
+    from perch_common.ros.conversions import vector_msg
     from perch_interfaces import msg as pm
     from perch_interfaces.srv import Crop
-
-    from perch_common.ros.conversions import vector_msg
 
     bad = Crop.Request(mesh=room_msg)
     bad.keep_boxes = [pm.OrientedBox(size=vector_msg([1.0, -1.0, 1.0]))]
@@ -69,7 +67,6 @@ def test_confirm_without_a_mission_is_refused(ros):
 
 def test_mission_with_a_missing_stage_names_it(ros, room_msg):
     from perch_interfaces.action import PlanPerches
-
     from perch_operator.client import run_mission
 
     goal = PlanPerches.Goal(mesh=room_msg, auto_accept=True)

@@ -84,7 +84,6 @@ def test_waypoints_yaml_keeps_the_latest_per_drone(mission, tmp_path):
 def test_summary_table_lists_scores_and_stage_times():
     from perch_interfaces.action import PlanPerches
     from perch_interfaces.msg import CameraPlacement as PlacementMsg
-
     from perch_operator.runner import summary_table
 
     result = PlanPerches.Result(success=True, coverage=0.815, mean_uncertainty=float("nan"), fitness=0.5,
@@ -97,7 +96,6 @@ def test_summary_table_lists_scores_and_stage_times():
 
 def test_target_spec_parsing(tmp_path):
     from perch_interfaces import msg as pm
-
     from perch_operator.cli import parse_target
 
     assert parse_target(None).kind == pm.TargetVolume.KIND_DEFAULT

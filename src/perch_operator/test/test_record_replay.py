@@ -12,10 +12,10 @@ pytestmark = pytest.mark.ros
 
 def test_crop_calls_are_recorded_and_replay_check_catches_a_parameter_change(ros_node, operator, meshes, tmp_path):
     from mcap.reader import make_reader
-    from perch_interfaces import msg as pm
-    from perch_interfaces.srv import Crop
 
     from perch_common.ros.conversions import from_array, mesh_to_msg, pose_msg, vector_msg
+    from perch_interfaces import msg as pm
+    from perch_interfaces.srv import Crop
     from perch_operator.recorder import MissionRecorder
     from perch_operator.replay import replay, summary_line
     from perch_operator.runfile import channel_counts, stage_calls

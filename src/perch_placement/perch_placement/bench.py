@@ -122,9 +122,9 @@ def _summary(runs, dense) -> dict:
 
 
 def _reference(problem, config, scene, k: int, dense) -> dict:
+    from perch_placement.celf import exhaustive_reference
     from perch_placement.fitness import Evaluator
     from perch_placement.perches import Perches
-    from perch_placement.celf import exhaustive_reference
     from perch_placement.search import SearchContext
 
     started = time.perf_counter()

@@ -10,7 +10,6 @@ from dataclasses import dataclass, field, replace
 
 from perch_common.config import param
 
-
 # Intel RealSense D435 depth stream: 1280 x 720 px, 87 x 58 degrees field of view.
 D435_FX = 640.0 / math.tan(math.radians(87.0 / 2))
 D435_FY = 360.0 / math.tan(math.radians(58.0 / 2))

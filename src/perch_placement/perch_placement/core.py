@@ -22,10 +22,10 @@ from perch_common.target import TargetVolume
 from perch_common.transforms import parse_up_axis
 from perch_common.types import CameraPlacement, ExclusionZone, PerchRegion
 from perch_placement.candidates import CandidateGreedy
+from perch_placement.celf import celf
 from perch_placement.config import PlacementConfig
 from perch_placement.fitness import Evaluator, placement_cameras
 from perch_placement.perches import Perch, Perches
-from perch_placement.celf import celf
 from perch_placement.search import METHODS, SearchContext, greedy, naive_pso
 
 __all__ = ["PlacementConfig", "PlacementResult", "optimise", "scene_for", "METHODS"]

@@ -5,14 +5,20 @@ from __future__ import annotations
 import math
 import sys
 
-from perch_interfaces import srv
 from rclpy.node import Node
 
-from perch_common.ros.conversions import (exclusion_from_msg, mesh_from_msg, placement_from_msg,
-                                          placement_to_msg, region_from_msg, target_from_msg)
+from perch_common.ros.conversions import (
+    exclusion_from_msg,
+    mesh_from_msg,
+    placement_from_msg,
+    placement_to_msg,
+    region_from_msg,
+    target_from_msg,
+)
 from perch_common.ros.node_main import run_node
 from perch_common.ros.params import declare_config, read_config
 from perch_common.ros.service import answering, create_stage_service
+from perch_interfaces import srv
 from perch_placement.config import CameraSpec, DroneSpec, PlacementConfig
 from perch_placement.core import optimise
 

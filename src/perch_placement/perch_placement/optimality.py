@@ -90,12 +90,12 @@ def bound_check_suite(instances: int = 10, k_max: int = 3, points: int = 30, spa
     import math
 
     from perch_common.scene_generator import generate_scene
+    from perch_placement.candidates import build_candidates
     from perch_placement.config import PlacementConfig
     from perch_placement.core import scene_for
     from perch_placement.fitness import Evaluator
     from perch_placement.perches import Perches
     from perch_placement.scenes import unfiltered_regions
-    from perch_placement.candidates import build_candidates
 
     cfg = PlacementConfig().resolved()
     checks = []

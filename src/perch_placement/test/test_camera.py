@@ -6,9 +6,19 @@ import numpy as np
 import pytest
 
 from perch_common.raycast import RayScene
-from perch_placement.camera import (covariance, distort, full_matrix, in_view, information6,
-                                    max_covariance_norm, min_eigenvalue, point_score, project, sigmas,
-                                    undistort)
+from perch_placement.camera import (
+    covariance,
+    distort,
+    full_matrix,
+    in_view,
+    information6,
+    max_covariance_norm,
+    min_eigenvalue,
+    point_score,
+    project,
+    sigmas,
+    undistort,
+)
 from perch_placement.config import CameraSpec
 from perch_placement.fitness import Evaluator
 from perch_placement.scenes import box_mesh

@@ -27,9 +27,8 @@ def ros_node():
 
 
 def request(num_cameras=2, regions=True, **fields):
-    from perch_interfaces.srv import Optimise
-
     from perch_common.ros.conversions import mesh_to_msg, region_to_msg, target_to_msg
+    from perch_interfaces.srv import Optimise
 
     mesh, room_regions = box_room()
     target = TargetVolume(center=np.array([3.0, 2.5, 0.8]), size=np.array([2.0, 2.0, 1.2]))
@@ -41,16 +40,15 @@ def request(num_cameras=2, regions=True, **fields):
 
 
 def call(node, req):
-    from perch_interfaces.srv import Optimise
-
     from perch_common.ros.testing import call_service
+    from perch_interfaces.srv import Optimise
 
     return call_service(node, Optimise, "/perch/optimise", req, timeout=60)
 
 
 def test_optimise_places_cameras_and_reoptimises_after_a_rejection(ros_node):
-    from perch_interfaces.msg import ExclusionZone
     from perch_common.ros.conversions import point_msg, pose_matrix
+    from perch_interfaces.msg import ExclusionZone
 
     node, proc = ros_node
     reply = call(node, request(2))

@@ -35,8 +35,8 @@ def write_bag(path: str | Path, frames: Iterable[RGBDFrame], intrinsics: Intrins
     compressed: colour as JPEG and depth as 16-bit PNG in sensor_msgs/CompressedImage.
     pose_type: "pose" (geometry_msgs/PoseStamped) or "odometry" (nav_msgs/Odometry).
     """
-    from mcap.writer import CompressionType, Writer
     from mcap.well_known import MessageEncoding, SchemaEncoding
+    from mcap.writer import CompressionType, Writer
     from mcap_ros2._dynamic import serialize_dynamic
 
     if pose_type not in ("pose", "odometry"):

@@ -51,8 +51,8 @@ def subdivide(mesh: Mesh) -> Mesh:
 
 
 def run(args) -> int:
-    from perch_reconstruction.cli import load_config
     from perch_reconstruction.cleaning import clean_mesh_with_report
+    from perch_reconstruction.cli import load_config
     from perch_reconstruction.core import reconstruct_bag
     from perch_reconstruction.metrics import ate_rmse, chamfer_distance, refine_alignment
 

@@ -17,10 +17,9 @@ import numpy as np
 from perch_common.errors import PerchError
 from perch_common.mesh import Mesh
 from perch_reconstruction.config import NodeConfig
-from perch_reconstruction.core import Reconstructor, ReconstructionStats
+from perch_reconstruction.core import ReconstructionStats, Reconstructor
 from perch_reconstruction.frames import Intrinsics, RGBDFrame
 from perch_reconstruction.sync import FrameAssembler, PoseBuffer
-
 
 QUIET_S = 0.5
 MAX_QUIET_WAIT_S = 3.0

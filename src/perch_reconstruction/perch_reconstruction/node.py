@@ -12,7 +12,6 @@ import json
 import sys
 
 import numpy as np
-from perch_interfaces import srv
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -24,6 +23,7 @@ from perch_common.ros.conversions import mesh_from_msg, mesh_to_msg, xyz
 from perch_common.ros.node_main import run_node
 from perch_common.ros.params import declare_config
 from perch_common.ros.service import answering, create_stage_service
+from perch_interfaces import srv
 from perch_reconstruction import images
 from perch_reconstruction.bag_write import BagTopics
 from perch_reconstruction.cleaning import clean_mesh_with_report

@@ -9,7 +9,6 @@ from perch_common.errors import PerchError
 from perch_common.ros.msgdefs import message_class as installed_message_class
 from perch_reconstruction.bag_read import bag_info, iter_raw
 
-
 # A publisher sees its subscriber a moment before the subscriber's side of the match is complete;
 # samples sent in between are lost even when reliable.
 SETTLE_S = 1.0

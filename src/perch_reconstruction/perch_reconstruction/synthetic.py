@@ -89,8 +89,9 @@ def synthetic_room_frames(seed: int = 0, count: int = 40, intrinsics: Intrinsics
 def write_frame_folder(folder, frames: list[RGBDFrame], intrinsics: Intrinsics,
                        gravity: np.ndarray | None = None) -> None:
     """Write frames in the 7-Scenes layout (colour PNG, 16-bit depth PNG in mm, pose, intrinsics)."""
-    import cv2
     from pathlib import Path
+
+    import cv2
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)

@@ -96,8 +96,9 @@ def test_offline_bag_through_the_service(ros, synthetic_bag):
 
 
 def test_error_replies_keep_the_node_running(ros, tmp_path):
-    from perch_interfaces.srv import CleanMesh
     from std_srvs.srv import Trigger
+
+    from perch_interfaces.srv import CleanMesh
 
     client, proc, _ = ros
     reply = _reconstruct(client, str(tmp_path / "missing.mcap"))
@@ -115,9 +116,8 @@ def test_error_replies_keep_the_node_running(ros, tmp_path):
 
 
 def test_clean_mesh_service(ros, synthetic):
-    from perch_interfaces.srv import CleanMesh
-
     from perch_common.ros.conversions import mesh_from_msg, mesh_to_msg, vector_msg
+    from perch_interfaces.srv import CleanMesh
 
     client, _, _ = ros
     scene = synthetic[0]

@@ -73,8 +73,8 @@ def run(args: argparse.Namespace) -> int:
           f"{mesh.num_faces} faces in {seconds:.2f} s")
     print(f"surfaces: {surfaces_path}\ncoloured mesh: {mesh_path}")
     if args.png:
-        from perch_segmentation.render import render_segmentation
         from perch_common.transforms import parse_up_axis
+        from perch_segmentation.render import render_segmentation
 
         print(f"picture: {render_segmentation(mesh, result.face_labels, args.png, parse_up_axis(config.up_axis))}")
     return 0

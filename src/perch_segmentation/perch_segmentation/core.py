@@ -15,9 +15,9 @@ import numpy as np
 
 from perch_common.errors import PerchError
 from perch_common.mesh import Mesh, validate_mesh
+from perch_common.timing import Laps
 from perch_common.transforms import parse_up_axis
 from perch_common.types import Surface
-from perch_common.timing import Laps
 from perch_segmentation import stats as st
 from perch_segmentation.adjacency import face_adjacency
 from perch_segmentation.agglomerate import MergeRules, grow_clusters

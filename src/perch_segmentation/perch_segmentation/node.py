@@ -7,7 +7,6 @@ import sys
 from dataclasses import dataclass, field
 
 import numpy as np
-from perch_interfaces import srv
 from rclpy.node import Node
 
 from perch_common.errors import PerchError
@@ -15,6 +14,7 @@ from perch_common.ros.conversions import mesh_from_msg, surface_to_msg, to_array
 from perch_common.ros.node_main import run_node
 from perch_common.ros.params import declare_config, read_config
 from perch_common.ros.service import answering, create_stage_service
+from perch_interfaces import srv
 from perch_segmentation.core import SegmentationConfig, segment_mesh
 
 NO_SURFACE = np.uint32(0xFFFFFFFF)  # Segment.srv: face_labels entry of a face on no surface

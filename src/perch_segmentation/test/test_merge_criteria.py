@@ -8,8 +8,16 @@ import pytest
 from perch_segmentation import stats as st
 from perch_segmentation.agglomerate import MergeRules, grow_clusters
 from perch_segmentation.fragments import absorb_fragments
-from perch_segmentation.merge_pass import (Geometry, PlaneRules, boundary_plane_groups, colors_close,
-                                           merge_coplanar, normals_agree, planes_close, side_by_side)
+from perch_segmentation.merge_pass import (
+    Geometry,
+    PlaneRules,
+    boundary_plane_groups,
+    colors_close,
+    merge_coplanar,
+    normals_agree,
+    planes_close,
+    side_by_side,
+)
 from perch_segmentation.testing import grid_rect, weld
 
 RULES = PlaneRules(theta_max_deg=15.0, theta_min_deg=70.0, d_max=0.2, color_threshold=20.0)

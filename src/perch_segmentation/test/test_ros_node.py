@@ -21,9 +21,8 @@ def ros_node():
 
 
 def call(node, mesh_msg):
-    from perch_interfaces.srv import Segment
-
     from perch_common.ros.testing import call_service
+    from perch_interfaces.srv import Segment
 
     return call_service(node, Segment, "/perch/segment", Segment.Request(mesh=mesh_msg), timeout=60)
 

@@ -11,7 +11,6 @@ from perch_common.mesh import Mesh, MeshError
 from perch_common.polygons import to_shapely
 from perch_common.types import SurfaceClass
 from perch_segmentation.core import SegmentationConfig, segment_mesh
-
 from perch_segmentation.testing import box_room
 
 
