@@ -124,8 +124,7 @@ def target_point_scores(data: MissionData) -> tuple[np.ndarray, np.ndarray] | No
     if data.target is None or data.mesh is None or importlib.util.find_spec("perch_placement") is None:
         return None
     from perch_common.raycast import RayScene
-    from perch_placement.camera import point_score
-    from perch_placement.fitness import Evaluator
+    from perch_placement.fitness import Evaluator, point_score
 
     config = placement_config()
     points = data.target.sample(config.target_points, seed=config.seed)

@@ -120,12 +120,14 @@ def camera_views(data: MissionData) -> list[np.ndarray | None]:
             importlib.util.find_spec("perch_placement.render") is None or data.mesh is None:
         return []
     from perch_operator.mission_data import placement_config
+    from perch_placement.core import scene_for
     from perch_placement.render import render_view
 
     camera = placement_config().camera
+    scene = scene_for(data.mesh) if data.placements else None  # one BVH for every view
     out: list[np.ndarray | None] = []
     for placement in data.placements:
-        rgb, _depth = render_view(data.mesh, placement, camera, data.target)
+        rgb, _depth = render_view(data.mesh, placement, camera, data.target, scene=scene)
         rgb = np.asarray(rgb)
         if rgb.dtype != np.uint8:
             rgb = (np.clip(rgb, 0, 1) * 255).astype(np.uint8)

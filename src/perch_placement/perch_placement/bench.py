@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from perch_common.bench import emit, peak_rss_mb
-from perch_placement.problem import add_problem_arguments, load_config, load_problem, up_of
+from perch_placement.cli_problem import add_problem_arguments, load_config, load_problem, up_of
 
 LABELS = {"pso": "Greedy PSO", "random": "Random", "grid": "Grid", "naive": "Naive PSO", "celf": "CELF + refine",
           "pso-unseeded": "Greedy PSO (unseeded)"}
@@ -37,13 +37,14 @@ def register(sub) -> None:
 def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
-    from perch_placement.core import optimise, scene_for
+    from perch_placement.core import PlacementCache, optimise
     from perch_placement.fitness import Evaluator
 
     config = load_config(args.params).resolved()
     problem = load_problem(args, up_of(config))
     started = time.perf_counter()
-    scene = scene_for(problem.mesh)
+    cache = PlacementCache()  # one scene and candidate set for every run, as the node keeps them
+    scene = cache.scene(problem.mesh)
     build_seconds = time.perf_counter() - started
     dense = Evaluator(scene, problem.target.sample(density=args.density, seed=config.seed + 1), config.camera,
                       config.occlusion_epsilon)
@@ -61,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
         per_count = {}
         for k in counts:
             runs = [optimise(problem.mesh, problem.regions, problem.target, k, cfg, method=name, seed=s,
-                             scene=scene) for s in range(args.seeds)]
+                             cache=cache) for s in range(args.seeds)]
             per_count[str(k)] = _summary(runs, dense)
             print(f"{method} k={k}: fitness {per_count[str(k)]['fitness_mean']:.4f} "
                   f"median {per_count[str(k)]['seconds_median']:.3f} s", file=sys.stderr)
@@ -113,7 +114,8 @@ def _summary(runs, dense) -> dict:
     return {"fitness_mean": float(fitness.mean()), "fitness_std": float(fitness.std()),
             "fitness_min": float(fitness.min()), "seconds_median": float(np.median(seconds)),
             "seconds_mean": float(seconds.mean()), "seconds_first": float(seconds[0]),
-            "cpu_seconds_median": float(np.median([r.cpu_seconds for r in runs])), "evaluations_mean": float(np.mean([r.evaluations for r in runs])),
+            "cpu_seconds_median": float(np.median([r.cpu_seconds for r in runs])),
+            "evaluations_mean": float(np.mean([r.evaluations for r in runs])),
             "candidate_evaluations_mean": float(np.mean([r.candidate_evaluations for r in runs])),
             "ray_tests_mean": float(np.mean([r.ray_tests for r in runs])),
             "upper_bound_mean": float(np.nanmean([r.upper_bound for r in runs])),
@@ -122,10 +124,10 @@ def _summary(runs, dense) -> dict:
 
 
 def _reference(problem, config, scene, k: int, dense) -> dict:
-    from perch_placement.celf import exhaustive_reference
     from perch_placement.fitness import Evaluator
     from perch_placement.perches import Perches
     from perch_placement.search import SearchContext
+    from perch_placement.search.exhaustive import exhaustive_reference
 
     started = time.perf_counter()
     ev = Evaluator(scene, problem.target.sample(config.target_points, seed=config.seed), config.camera,

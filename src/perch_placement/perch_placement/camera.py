@@ -1,16 +1,16 @@
 """The camera simulator: projection with Brown-Conrady distortion, visibility and stereo covariance.
 
-Batched over B cameras and N points. Information matrices are stored as 6 components
-(xx, yy, zz, xy, xz, yz) and scaled by ||C_max|| so that a point's score is 1 - 1/lambda_min.
+Batched over B cameras and N points. Information matrices are packed as 6 components
+(perch_common.symmetric) and scaled by ||C_max|| so that a point's score (perch_placement.fitness)
+is 1 - 1/lambda_min.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from perch_common.symmetric import SYM6
 from perch_placement.config import CameraSpec
-
-SYM6 = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
 
 
 def distort(x: np.ndarray, y: np.ndarray, coeffs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -115,35 +115,3 @@ def information6(camera: CameraSpec, distance: np.ndarray, unit: np.ndarray, zoo
     for k, (i, j) in enumerate(SYM6):
         out[..., k] = (c - a) * unit[..., i] * unit[..., j] + (a if i == j else 0.0)
     return out
-
-
-def full_matrix(info6: np.ndarray) -> np.ndarray:
-    """(..., 6) symmetric components to (..., 3, 3)."""
-    out = np.empty(info6.shape[:-1] + (3, 3))
-    for k, (i, j) in enumerate(SYM6):
-        out[..., i, j] = info6[..., k]
-        out[..., j, i] = info6[..., k]
-    return out
-
-
-def min_eigenvalue(m: np.ndarray) -> np.ndarray:
-    """Smallest eigenvalue of symmetric 3x3 matrices given as (..., 6), closed form (trigonometric)."""
-    a, d, f, b, c, e = (m[..., k] for k in range(6))  # xx yy zz xy xz yz
-    q = (a + d + f) / 3
-    p1 = b * b + c * c + e * e
-    p2 = (a - q) ** 2 + (d - q) ** 2 + (f - q) ** 2 + 2 * p1
-    p = np.sqrt(np.maximum(p2, 0) / 6)
-    safe = np.where(p > 1e-300, p, 1.0)
-    ba, bd, bf, bb, bc, be = (a - q) / safe, (d - q) / safe, (f - q) / safe, b / safe, c / safe, e / safe
-    det = ba * (bd * bf - be * be) - bb * (bb * bf - be * bc) + bc * (bb * be - bd * bc)
-    phi = np.arccos(np.clip(det / 2, -1.0, 1.0)) / 3
-    smallest = q + 2 * p * np.cos(phi + 2 * np.pi / 3)
-    return np.where(p > 1e-300, smallest, q)
-
-
-def point_score(info6: np.ndarray, seen: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per-point score s = 1 - ||C||/||C_max|| (0 when unseen) and ||C||/||C_max|| (inf when unseen),
-    from information scaled by ||C_max||: the spectral norm of C = J^-1 is 1/lambda_min(J)."""
-    lam = min_eigenvalue(info6)
-    ratio = np.where(seen, 1.0 / np.maximum(lam, 1e-300), np.inf)
-    return np.where(seen, np.clip(1.0 - ratio, 0.0, 1.0), 0.0), ratio

@@ -3,25 +3,28 @@
 Occlusion and range depend only on the camera position, so they are ray-cast once per position;
 each orientation only adds a frustum test. A greedy step then scores every candidate with one
 matrix product: gain(c) = sum_n visible(c, n) * (s_n(with c's position) - s_n) / N. This makes the
-dense exhaustive reference, lazy greedy (CELF) and the greedy online bound cheap.
+dense exhaustive reference, lazy greedy (CELF, perch_placement.search.celf) and the greedy online
+bound cheap.
 """
 
 from __future__ import annotations
 
 import hashlib
-from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
 
 from perch_common.types import ExclusionZone
-from perch_placement.camera import information6, on_sensor, point_score
-from perch_placement.fitness import Evaluator
+from perch_placement.cache import PlacementCache
+from perch_placement.camera import on_sensor
+from perch_placement.fitness import Evaluator, point_score
 from perch_placement.perches import Perch, Perches
 
 
 @dataclass
 class CandidateSet:
+    """Candidate perches with their visibility and information, grouped by position."""
+
     perch: Perch            # C = P * A candidates, grouped by position (A orientations each)
     gimbal: np.ndarray      # (A,2) pan/tilt coordinates in [0,1] of each orientation
     visible: np.ndarray     # (P,A,N) bool, occlusion and range included
@@ -30,16 +33,19 @@ class CandidateSet:
 
     @property
     def positions(self) -> int:
+        """Number of candidate positions (P)."""
         return self.visible.shape[0]
 
     @property
     def orientations(self) -> int:
+        """Gimbal orientations per position (A)."""
         return self.visible.shape[1]
 
     def __len__(self) -> int:
         return self.positions * self.orientations
 
     def drone_positions(self) -> np.ndarray:
+        """(P,3) drone position of each candidate position."""
         return self.perch.drone_position[::self.orientations]
 
     def subset(self, keep: np.ndarray) -> "CandidateSet":
@@ -49,28 +55,25 @@ class CandidateSet:
                             self.reach[keep])
 
 
-_CACHE: OrderedDict = OrderedDict()
-
-
 def cached_candidates(perches: Perches, evaluator: Evaluator, spacing: float, angles: int,
-                      exclusions: tuple[ExclusionZone, ...] = (), fixed: np.ndarray = np.zeros((0, 3))) -> CandidateSet:
-    """build_candidates, reusing the unconstrained set of an identical earlier request (same scene,
-    target points, regions, camera and drone) and applying exclusions and fixed drones afterwards:
-    re-optimising after a rejection then costs no candidate ray casting."""
-    key = _key(perches, evaluator, spacing, angles)
-    entry = _CACHE.get(key)
-    if entry is None or entry[0] is not evaluator.scene:  # the entry holds its scene: ids stay unique
-        entry = _CACHE[key] = (evaluator.scene, build_candidates(perches, evaluator, spacing, angles))
-        while len(_CACHE) > 2:
-            _CACHE.popitem(last=False)
-    _CACHE.move_to_end(key)
-    full = entry[1]
+                      exclusions: tuple[ExclusionZone, ...] = (), fixed: np.ndarray = np.zeros((0, 3)),
+                      cache: PlacementCache | None = None, scene_key: str = "") -> CandidateSet:
+    """build_candidates, reusing from `cache` the unconstrained set of an identical earlier request (same
+    scene content `scene_key`, target points, regions, camera and drone) and applying exclusions and fixed
+    drones afterwards: re-optimising after a rejection then costs no candidate ray casting."""
+    def build() -> CandidateSet:
+        return build_candidates(perches, evaluator, spacing, angles)
+
+    if cache is None or not scene_key:
+        full = build()
+    else:
+        full = cache.candidates(_candidate_key(perches, evaluator, spacing, angles, scene_key), build)
     probe = full.perch.take(np.arange(0, len(full), full.orientations))
     return full.subset(perches.feasible(probe, fixed, exclusions))
 
 
-def _key(perches: Perches, evaluator: Evaluator, spacing: float, angles: int) -> str:
-    h = hashlib.blake2b(digest_size=16)
+def _candidate_key(perches: Perches, evaluator: Evaluator, spacing: float, angles: int, scene_key: str) -> str:
+    h = hashlib.blake2b(scene_key.encode(), digest_size=16)
     for region in perches.regions:
         f = region.frame
         h.update(np.concatenate([f.origin, f.axis_u, f.axis_v, f.normal]).tobytes())
@@ -78,7 +81,7 @@ def _key(perches: Perches, evaluator: Evaluator, spacing: float, angles: int) ->
             for ring in poly:
                 h.update(np.ascontiguousarray(ring, np.float64).tobytes())
     h.update(evaluator.points.tobytes())
-    h.update(repr((id(evaluator.scene), evaluator.camera, evaluator.epsilon, perches.drone, perches.up.tolist(),
+    h.update(repr((evaluator.camera, evaluator.epsilon, perches.drone, perches.up.tolist(),
                    perches.target_centre.tolist(), spacing, angles)).encode())
     return h.hexdigest()
 
@@ -101,15 +104,7 @@ def build_candidates(perches: Perches, evaluator: Evaluator, spacing: float, ang
     cam = evaluator.camera
     targets = evaluator.points
     cam_pos = perch.camera_position[::a]
-    delta = targets[None] - cam_pos[:, None]
-    distance = np.linalg.norm(delta, axis=-1)
-    unit = delta / np.maximum(distance, 1e-12)[..., None]
-    reach = (distance >= cam.min_range) & (distance <= cam.max_distance())
-    pos, pt = np.nonzero(reach)
-    if len(pos):
-        blocked = evaluator.scene.occluded(cam_pos[pos], targets[pt], evaluator.epsilon)
-        reach[pos[blocked], pt[blocked]] = False
-        evaluator.ray_tests += len(pos)
+    reach, delta, distance, unit = evaluator.reach(cam_pos)
     # Frustum tests for every orientation at a position as one matrix product:
     # local[p, n, a, j] = sum_k delta[p, n, k] R[p, a, k, j] (row-vector R^T d).
     visible = np.zeros((len(region), a, len(targets)), bool)
@@ -122,12 +117,14 @@ def build_candidates(perches: Perches, evaluator: Evaluator, spacing: float, ang
         visible[sl] = (in_frame & reach[sl, :, None]).transpose(0, 2, 1)
     reach = visible.any(axis=1)
     info = np.zeros(distance.shape + (6,))
-    info[reach] = information6(cam, distance[reach], unit[reach], 1.0, evaluator.scale)
+    info[reach] = evaluator.information(distance[reach], unit[reach])
     return CandidateSet(perch, gimbal, visible, info, reach)
 
 
 @dataclass
 class GreedyPick:
+    """Candidates chosen by a greedy run, their gains and the work it took."""
+
     chosen: list            # candidate indices, in order
     gains: list             # marginal fitness gains
     evaluations: int        # candidate gains computed
@@ -143,18 +140,19 @@ class CandidateGreedy:
         self.min_spacing = min_spacing
         self.valid = np.ones(cands.positions, bool)
         self.evaluations = 0
-        self._score = point_score(self.info, self.seen)[0]
+        self.scores = point_score(self.info, self.seen)[0]  # (N,) per-point scores of the current set
 
     @property
     def fitness(self) -> float:
-        return float(self._score.mean())
+        """Fitness of the base state plus the candidates added so far."""
+        return float(self.scores.mean())
 
-    def _delta(self, positions: np.ndarray) -> np.ndarray:
+    def point_gains(self, positions: np.ndarray) -> np.ndarray:
         """(P',N) score gain of each point if a camera at these positions saw it."""
-        out = np.zeros((len(positions), len(self._score)))
+        out = np.zeros((len(positions), len(self.scores)))
         p, n = np.nonzero(self.c.reach[positions])
         new = point_score(self.info[n] + self.c.info[positions[p], n], np.ones(len(n), bool))[0]
-        out[p, n] = np.maximum(new - self._score[n], 0.0)
+        out[p, n] = np.maximum(new - self.scores[n], 0.0)
         return out
 
     def gains(self, positions: np.ndarray | None = None, chunk: int = 512) -> np.ndarray:
@@ -163,11 +161,11 @@ class CandidateGreedy:
         out = np.zeros((len(positions), self.c.orientations))
         for start in range(0, len(positions), chunk):
             sel = positions[start:start + chunk]
-            delta = self._delta(sel)
+            delta = self.point_gains(sel)
             out[start:start + chunk] = np.matmul(self.c.visible[sel].astype(np.float32),
                                                  delta[..., None].astype(np.float32))[..., 0]
         self.evaluations += out.size
-        return out / len(self._score)
+        return out / len(self.scores)
 
     def add(self, index: int) -> float:
         """Commit candidate `index`; returns its marginal gain."""
@@ -176,7 +174,7 @@ class CandidateGreedy:
         seen = self.c.visible[p, o]
         self.info = self.info + self.c.info[p] * seen[:, None]
         self.seen = self.seen | seen
-        self._score = point_score(self.info, self.seen)[0]
+        self.scores = point_score(self.info, self.seen)[0]
         if self.min_spacing > 0:
             where = self.c.drone_positions()
             self.valid &= np.linalg.norm(where - where[p], axis=1) >= self.min_spacing
@@ -194,51 +192,16 @@ class CandidateGreedy:
         index = int(pos[i]) * self.c.orientations + int(j)
         return index, self.add(index)
 
-    def run(self, k: int, lazy: bool = False, block: int = 64) -> GreedyPick:
+    def run(self, k: int) -> GreedyPick:
+        """Plain greedy for up to k candidates (CELF's lazy variant: perch_placement.search.celf)."""
         chosen, gains = [], []
-        bounds = None
         for _ in range(k):
-            picked = self._lazy_step(bounds, block) if lazy and bounds is not None else None
+            picked = self.step()
             if picked is None:
-                pos = np.flatnonzero(self.valid)
-                if len(pos) == 0:
-                    break
-                g = np.full((self.c.positions, self.c.orientations), -np.inf)
-                g[pos] = self.gains(pos)
-                bounds = g.reshape(-1)
-                best = int(np.argmax(bounds))
-                if not bounds[best] > 0:
-                    break
-                picked = (best, self.add(best))
+                break
             chosen.append(picked[0])
             gains.append(picked[1])
         return GreedyPick(chosen, gains, self.evaluations)
-
-    def _lazy_step(self, bounds: np.ndarray, block: int) -> tuple[int, float] | None:
-        """CELF: re-score the candidates with the highest stale gains in blocks until a freshly scored
-        one beats every stale bound (valid when gains only shrink, i.e. for submodular objectives)."""
-        a = self.c.orientations
-        valid = np.repeat(self.valid, a)
-        bounds[~valid] = -np.inf
-        fresh = np.zeros(len(bounds), bool)
-        while True:
-            stale = np.where(fresh, -np.inf, bounds)
-            best_fresh = np.max(np.where(fresh, bounds, -np.inf))
-            top = np.argpartition(-stale, min(block, len(stale) - 1))[:block]
-            top = top[np.isfinite(stale[top])]
-            if len(top) == 0 or best_fresh >= stale[top].max():
-                break
-            p, o = np.divmod(top, a)
-            upos, inv = np.unique(p, return_inverse=True)
-            delta = self._delta(upos)
-            bounds[top] = (self.c.visible[p, o] * delta[inv]).sum(-1) / len(self._score)
-            self.evaluations += len(top)
-            fresh[top] = True
-            block *= 2  # gains that grew (fusion is not submodular) can take many rounds
-        best = int(np.argmax(np.where(fresh, bounds, -np.inf)))
-        if not fresh[best] or not bounds[best] > 0:
-            return None
-        return best, self.add(best)
 
     def online_bound(self, k: int) -> float:
         """f(S) + the k largest marginal gains over the candidate set (spacing among the new cameras

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from perch_placement.problem import add_problem_arguments, load_config, load_problem, up_of
+from perch_placement.cli_problem import add_problem_arguments, load_config, load_problem, up_of
 from perch_placement.search import METHODS
 
 
@@ -66,11 +66,13 @@ def write_placements(path: Path, problem, result, config) -> None:
 def write_views(out: Path, problem, placements, config, scale: float) -> list[Path]:
     import cv2
 
+    from perch_placement.core import scene_for
     from perch_placement.render import render_view
 
     written = []
+    scene = scene_for(problem.mesh) if placements else None  # one BVH for every view
     for p in placements:
-        rgb, depth = render_view(problem.mesh, p, config.camera, problem.target, scale=scale)
+        rgb, depth = render_view(problem.mesh, p, config.camera, problem.target, scale=scale, scene=scene)
         colour_path = out / f"view_{p.drone_index}.png"
         cv2.imwrite(str(colour_path), rgb[:, :, ::-1])
         cv2.imwrite(str(out / f"depth_{p.drone_index}.png"), np.clip(depth * 1000, 0, 65535).astype(np.uint16))

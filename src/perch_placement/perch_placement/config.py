@@ -112,8 +112,11 @@ class PsoConfig:
     seeded: int = param(25,
         "particles started at the best candidates of the discrete candidate set (0: all uniform random,"
         " as the original)")
-    polish_rounds: int = param(6,
-        "hill-climbing rounds (32 batched samples each) polishing each camera's swarm best (0: none)")
+    polish_rounds: int = param(6, "hill-climbing rounds polishing each camera's swarm best (0: none)")
+    polish_samples: int = param(32, "batched samples per hill-climbing round (polish and CELF refinement)")
+    polish_step: float = param(0.05, "first hill-climbing step (standard deviation in [0,1] coordinates)")
+    initial_speed: float = param(0.1, "initial particle velocities are uniform in +-this")
+    seeded_speed: float = param(0.2, "velocity factor of seeded particles (they search near their start first)")
 
 
 @dataclass
@@ -131,6 +134,7 @@ class PlacementConfig:
     candidate_spacing: float = param(0.15,
         "candidate grid spacing on the regions (CELF and the optimality bound)", "m")
     candidate_angles: int = param(7, "candidate pan and tilt steps (each)")
+    refine_rounds: int = param(6, "CELF: hill-climbing rounds refining each chosen camera (0: none)")
     reference_spacing: float = param(0.05, "exhaustive reference grid spacing", "m")
     reference_angles: int = param(13, "exhaustive reference pan and tilt steps (each)")
     compute_bound: bool = param(True, "report the greedy online optimality bound")

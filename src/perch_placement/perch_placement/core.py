@@ -8,9 +8,7 @@ Never imports rclpy.
 
 from __future__ import annotations
 
-import hashlib
 import time
-from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -21,18 +19,19 @@ from perch_common.raycast import RayScene
 from perch_common.target import TargetVolume
 from perch_common.transforms import parse_up_axis
 from perch_common.types import CameraPlacement, ExclusionZone, PerchRegion
-from perch_placement.candidates import CandidateGreedy
-from perch_placement.celf import celf
+from perch_placement.cache import PlacementCache, mesh_digest
 from perch_placement.config import PlacementConfig
 from perch_placement.fitness import Evaluator, placement_cameras
 from perch_placement.perches import Perch, Perches
-from perch_placement.search import METHODS, SearchContext, greedy, naive_pso
+from perch_placement.search import METHODS, SearchContext
 
-__all__ = ["PlacementConfig", "PlacementResult", "optimise", "scene_for", "METHODS"]
+__all__ = ["PlacementConfig", "PlacementCache", "PlacementResult", "optimise", "scene_for", "METHODS"]
 
 
 @dataclass
 class PlacementResult:
+    """The added cameras and the score of the whole arrangement, with the work it took."""
+
     placements: list[CameraPlacement]   # the added cameras, in placement order
     fitness: float                      # of all cameras (fixed + added)
     coverage: float
@@ -47,29 +46,18 @@ class PlacementResult:
     cpu_seconds: float = 0.0            # CPU time of this process (all threads) during the call
 
 
-_SCENES: OrderedDict = OrderedDict()
-
-
 def scene_for(mesh: Mesh) -> RayScene:
-    """The ray-cast scene of a (validated) mesh, cached by content: re-optimising after a rejection
-    reuses it. Raises MeshError for an unusable mesh."""
-    digest = hashlib.blake2b(np.ascontiguousarray(mesh.vertices).tobytes(), digest_size=16)
-    digest.update(np.ascontiguousarray(mesh.faces).tobytes())
-    key = digest.hexdigest()
-    if key not in _SCENES:
-        _SCENES[key] = RayScene(validate_mesh(mesh, "environment mesh"))
-        while len(_SCENES) > 2:
-            _SCENES.popitem(last=False)
-    _SCENES.move_to_end(key)
-    return _SCENES[key]
+    """The ray-cast scene of a mesh, validated first (raises MeshError for an unusable mesh)."""
+    return RayScene(validate_mesh(mesh, "environment mesh"))
 
 
 def optimise(mesh: Mesh, regions: list[PerchRegion], target: TargetVolume, num_cameras: int,
              config: PlacementConfig | None = None, fixed: tuple[CameraPlacement, ...] | list = (),
              exclusions: tuple[ExclusionZone, ...] | list = (), method: str = "pso", seed: int = 0,
-             scene: RayScene | None = None) -> PlacementResult:
+             cache: PlacementCache | None = None) -> PlacementResult:
     """Add `num_cameras` cameras to the `fixed` ones. Raises ValueError/PerchError on unusable input;
-    returns fewer cameras (with the reason in .message) when no further perch adds fitness."""
+    returns fewer cameras (with the reason in .message) when no further perch adds fitness. A `cache`
+    kept by the caller makes repeated requests on the same scene reuse its ray-cast scene and candidates."""
     start, cpu_start = time.perf_counter(), time.process_time()
     cfg = (config or PlacementConfig()).resolved()
     if method not in METHODS:
@@ -81,7 +69,9 @@ def optimise(mesh: Mesh, regions: list[PerchRegion], target: TargetVolume, num_c
     points = target.sample(cfg.target_points, seed=cfg.seed)
     if len(points) == 0:
         raise PerchError("the target volume yields no sample points (is it degenerate?)")
-    scene = scene or scene_for(mesh)  # validates the mesh when it is new
+    cache = cache or PlacementCache()
+    digest = mesh_digest(mesh)
+    scene = cache.scene(mesh, digest)  # validates the mesh when it is new
     evaluator = Evaluator(scene, points, cfg.camera, cfg.occlusion_epsilon)
     perches = Perches(regions, target.centroid(), cfg.drone, parse_up_axis(cfg.up_axis), cfg.encoding,
                       cfg.camera.max_zoom)
@@ -89,20 +79,17 @@ def optimise(mesh: Mesh, regions: list[PerchRegion], target: TargetVolume, num_c
         evaluator.commit(*placement_cameras(fixed))
     fixed_state = evaluator.info, evaluator.seen  # replaced, never modified in place, by the searches
     ctx = SearchContext(perches, evaluator, cfg, np.random.default_rng(seed), tuple(exclusions),
-                        [np.asarray(p.drone_pose, np.float64)[:3, 3] for p in fixed], len(fixed))
+                        [np.asarray(p.drone_pose, np.float64)[:3, 3] for p in fixed], len(fixed), cache, digest)
     if num_cameras == 0:
         outcome_perches, reason = [], ""
     else:
-        outcome = {"celf": lambda: celf(ctx, num_cameras), "naive": lambda: naive_pso(ctx, num_cameras)}.get(
-            method, lambda: greedy(ctx, num_cameras, method))()
+        outcome = METHODS[method](ctx, num_cameras)
         outcome_perches, reason = outcome.perches, outcome.stop_reason
     placements = _placements(evaluator, perches, outcome_perches, fixed_state, len(fixed))
     score = evaluator.current()
     bound = float("nan")
     if cfg.compute_bound and outcome_perches:
-        state = CandidateGreedy(ctx.candidates(), evaluator.info, evaluator.seen,
-                                cfg.drone.min_spacing)
-        bound = state.online_bound(len(outcome_perches))
+        bound = ctx.online_bound(len(outcome_perches))
     seconds = time.perf_counter() - start
     return PlacementResult(placements, float(score.fitness), float(score.coverage),
                            float(score.mean_uncertainty), bound, evaluator.evaluations, seconds,

@@ -13,8 +13,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from perch_common.raycast import RayScene
-from perch_placement.camera import in_view, information6, max_covariance_norm, point_score
+from perch_common.symmetric import smallest_eigenvalue
+from perch_placement.camera import in_view, information6, max_covariance_norm
 from perch_placement.config import CameraSpec
+
+
+def point_score(info6: np.ndarray, seen: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-point score s = 1 - ||C||/||C_max|| (0 when unseen) and ||C||/||C_max|| (inf when unseen),
+    from information scaled by ||C_max||: the spectral norm of C = J^-1 is 1/lambda_min(J)."""
+    lam = smallest_eigenvalue(info6)
+    ratio = np.where(seen, 1.0 / np.maximum(lam, 1e-300), np.inf)
+    return np.where(seen, np.clip(1.0 - ratio, 0.0, 1.0), 0.0), ratio
 
 
 @dataclass
@@ -53,6 +62,7 @@ class Evaluator:
 
     @property
     def count(self) -> int:
+        """Number of target points (N)."""
         return len(self.points)
 
     def views(self, positions: np.ndarray, rotations: np.ndarray, zoom=1.0) -> tuple[np.ndarray, np.ndarray]:
@@ -61,15 +71,32 @@ class Evaluator:
         rotations = np.asarray(rotations, np.float64).reshape(-1, 3, 3)
         zoom = np.broadcast_to(np.asarray(zoom, np.float64), (len(positions),))
         mask, distance, unit = in_view(self.camera, positions, rotations, self.points, zoom)
+        self.occlude(positions, mask)
+        info = np.zeros(mask.shape + (6,))
+        info[mask] = self.information(distance[mask], unit[mask], np.broadcast_to(zoom[:, None], mask.shape)[mask])
+        return mask, info
+
+    def reach(self, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """What an unzoomed camera at each position (P,3) could see by turning: points within range and
+        not occluded (P,N), with the offsets (P,N,3), distances (P,N) and unit directions (P,N,3)."""
+        delta = self.points[None] - positions[:, None]
+        distance = np.linalg.norm(delta, axis=-1)
+        unit = delta / np.maximum(distance, 1e-12)[..., None]
+        reach = (distance >= self.camera.min_range) & (distance <= self.camera.max_distance())
+        self.occlude(positions, reach)
+        return reach, delta, distance, unit
+
+    def occlude(self, positions: np.ndarray, mask: np.ndarray) -> None:
+        """Clear mask[b, n] (in place) where the sight line from camera b to point n is blocked."""
         cam, pt = np.nonzero(mask)
         if len(cam):
             blocked = self.scene.occluded(positions[cam], self.points[pt], self.epsilon)
             mask[cam[blocked], pt[blocked]] = False
             self.ray_tests += len(cam)
-        info = np.zeros(mask.shape + (6,))
-        info[mask] = information6(self.camera, distance[mask], unit[mask], np.broadcast_to(
-            zoom[:, None], mask.shape)[mask], self.scale)
-        return mask, info
+
+    def information(self, distance: np.ndarray, unit: np.ndarray, zoom=1.0) -> np.ndarray:
+        """(..., 6) scaled information of seen points at these distances and directions."""
+        return information6(self.camera, distance, unit, zoom, self.scale)
 
     def score(self, info: np.ndarray, seen: np.ndarray) -> Score:
         """Score of summed information (..., N, 6) and seen masks (..., N)."""
@@ -135,4 +162,5 @@ class Evaluator:
         self.info, self.seen, self._base = info, seen, None
 
     def reset(self) -> None:
+        """Forget every committed camera."""
         self.set_state(np.zeros_like(self.info), np.zeros_like(self.seen))

@@ -20,7 +20,7 @@ from perch_common.ros.params import declare_config, read_config
 from perch_common.ros.service import answering, create_stage_service
 from perch_interfaces import srv
 from perch_placement.config import CameraSpec, DroneSpec, PlacementConfig
-from perch_placement.core import optimise
+from perch_placement.core import PlacementCache, optimise
 
 
 def camera_from_msg(msg) -> CameraSpec:
@@ -43,6 +43,7 @@ class PlacementNode(Node):
         super().__init__("perch_placement")
         config = declare_config(self, PlacementConfig)
         config.resolved()  # fail at start-up on a broken configuration
+        self.cache = PlacementCache()  # re-optimising after a rejection reuses the scene and candidates
         self.service = create_stage_service(self, srv.Optimise, "/perch/optimise", self.optimise,
                                             config.introspection)
         self.get_logger().info("ready: /perch/optimise")
@@ -71,7 +72,7 @@ class PlacementNode(Node):
             fixed=[placement_from_msg(p) for p in request.fixed],
             exclusions=[exclusion_from_msg(z) for z in request.exclusions],
             method=request.method or config.method,
-            seed=int(request.seed) if request.seed >= 0 else config.seed)
+            seed=int(request.seed) if request.seed >= 0 else config.seed, cache=self.cache)
         response.placements = [placement_to_msg(p) for p in result.placements]
         response.fitness, response.coverage = result.fitness, result.coverage
         response.mean_uncertainty, response.upper_bound = result.mean_uncertainty, result.upper_bound

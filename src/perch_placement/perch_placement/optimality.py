@@ -14,8 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from perch_placement.camera import point_score
 from perch_placement.candidates import CandidateGreedy, CandidateSet
+from perch_placement.fitness import point_score
 
 
 @dataclass
@@ -91,11 +91,11 @@ def bound_check_suite(instances: int = 10, k_max: int = 3, points: int = 30, spa
 
     from perch_common.scene_generator import generate_scene
     from perch_placement.candidates import build_candidates
+    from perch_placement.cli_problem import unfiltered_regions
     from perch_placement.config import PlacementConfig
     from perch_placement.core import scene_for
     from perch_placement.fitness import Evaluator
     from perch_placement.perches import Perches
-    from perch_placement.scenes import unfiltered_regions
 
     cfg = PlacementConfig().resolved()
     checks = []

@@ -11,9 +11,9 @@ from perch_common.mesh import Mesh
 from perch_common.raycast import RayScene
 from perch_common.target import TargetVolume
 from perch_common.types import CameraPlacement
-from perch_placement.camera import point_score, project, undistort
+from perch_placement.camera import project, undistort
 from perch_placement.config import CameraSpec
-from perch_placement.fitness import Evaluator, placement_cameras
+from perch_placement.fitness import Evaluator, placement_cameras, point_score
 
 TARGET_COLOUR = (255, 80, 0)          # target edges in front of the scene
 HIDDEN_TARGET_COLOUR = (140, 70, 160)  # target edges behind geometry

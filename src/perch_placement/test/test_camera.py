@@ -4,24 +4,22 @@ import math
 
 import numpy as np
 import pytest
+from placement_rooms import box_mesh
 
 from perch_common.raycast import RayScene
+from perch_common.symmetric import unpack
 from perch_placement.camera import (
     covariance,
     distort,
-    full_matrix,
     in_view,
     information6,
     max_covariance_norm,
-    min_eigenvalue,
-    point_score,
     project,
     sigmas,
     undistort,
 )
 from perch_placement.config import CameraSpec
-from perch_placement.fitness import Evaluator
-from perch_placement.scenes import box_mesh
+from perch_placement.fitness import Evaluator, point_score
 
 CAM = CameraSpec()
 LOOK_X = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])  # optical z = world +x, y = world -z
@@ -101,7 +99,7 @@ def test_covariance_closed_form_and_information_is_its_inverse():
     c = covariance(CAM, d, u)
     assert np.linalg.eigvalsh(c[1]) == pytest.approx(sorted([s_xy[1] ** 2, s_xy[1] ** 2, s_z[1] ** 2]))
     assert c[1] @ u[1] == pytest.approx(s_z[1] ** 2 * u[1])  # along the ray: sigma_z^2
-    info = full_matrix(information6(CAM, d, u, scale=1.0))
+    info = unpack(information6(CAM, d, u, scale=1.0))
     assert np.einsum("nij,njk->nik", info, c) == pytest.approx(np.broadcast_to(np.eye(3), (2, 3, 3)), abs=1e-9)
 
 
@@ -113,7 +111,7 @@ def test_fusion_of_two_orthogonal_cameras_matches_the_closed_form():
     info = information6(CAM, np.array([d, d]), u).sum(axis=0)
     # Per axis the information adds: x and y get 1/s_z^2 + 1/s_xy^2, z gets 2/s_xy^2.
     expected = np.diag([1 / s_z ** 2 + 1 / s_xy ** 2, 1 / s_z ** 2 + 1 / s_xy ** 2, 2 / s_xy ** 2])
-    fused = np.linalg.inv(full_matrix(info) / scale)
+    fused = np.linalg.inv(unpack(info) / scale)
     assert fused == pytest.approx(np.linalg.inv(expected), rel=1e-9)
     score, ratio = point_score(info[None], np.array([True]))
     assert ratio[0] == pytest.approx(np.linalg.eigvalsh(fused).max() / scale, rel=1e-6)
@@ -121,15 +119,3 @@ def test_fusion_of_two_orthogonal_cameras_matches_the_closed_form():
     assert single[0] == pytest.approx(1 - s_z ** 2 / scale, rel=1e-9)  # one camera: 1 - (d / R_max)^4
     assert single[0] == pytest.approx(1 - (d / CAM.max_distance()) ** 4, rel=1e-9)
     assert score[0] > single[0]
-
-
-def test_closed_form_min_eigenvalue_matches_numpy():
-    rng = np.random.default_rng(3)
-    a = rng.normal(size=(500, 3, 3))
-    m = a @ a.transpose(0, 2, 1) + np.eye(3) * rng.random((500, 1, 1))
-    m6 = np.stack([m[:, 0, 0], m[:, 1, 1], m[:, 2, 2], m[:, 0, 1], m[:, 0, 2], m[:, 1, 2]], -1)
-    assert min_eigenvalue(m6) == pytest.approx(np.linalg.eigvalsh(m).min(axis=1), rel=1e-7, abs=1e-9)
-    # Repeated eigenvalues (one camera: a, a, c) and a multiple of the identity.
-    one = information6(CAM, np.array([2.0]), np.array([[0.0, 0.6, 0.8]]))
-    assert min_eigenvalue(one)[0] == pytest.approx(np.linalg.eigvalsh(full_matrix(one)[0]).min(), rel=1e-6)
-    assert min_eigenvalue(np.array([[2.0, 2.0, 2.0, 0, 0, 0]]))[0] == pytest.approx(2.0)

@@ -4,11 +4,11 @@ import math
 
 import numpy as np
 import pytest
+from placement_rooms import box_room, rectangle_region
 
 from perch_common.types import ExclusionZone, SurfaceClass
 from perch_placement.config import DroneSpec
 from perch_placement.perches import Perches
-from perch_placement.scenes import box_room, rectangle_region
 
 TARGET = np.array([3.0, 2.5, 0.8])
 

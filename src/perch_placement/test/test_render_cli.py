@@ -3,12 +3,12 @@
 import numpy as np
 import pytest
 import yaml
+from placement_rooms import box_room
 
 from perch_common.target import TargetVolume
 from perch_common.types import CameraPlacement
 from perch_placement.config import CameraSpec
 from perch_placement.render import TARGET_COLOUR, point_scores, render_view
-from perch_placement.scenes import box_room
 
 ROOM, REGIONS = box_room()
 

@@ -4,9 +4,9 @@ import math
 
 import numpy as np
 import pytest
+from placement_rooms import box_room
 
 from perch_common.target import TargetVolume
-from perch_placement.scenes import box_room
 
 pytestmark = pytest.mark.ros
 

@@ -4,21 +4,22 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from placement_rooms import box_room, rectangle_region
 
 from perch_common.errors import PerchError
 from perch_common.mesh import Mesh, MeshError
 from perch_common.target import TargetVolume
 from perch_common.types import ExclusionZone
 from perch_placement.candidates import CandidateGreedy, build_candidates
-from perch_placement.celf import exhaustive_reference
 from perch_placement.config import PlacementConfig, PsoConfig
 from perch_placement.core import optimise, scene_for
 from perch_placement.fitness import Evaluator
 from perch_placement.optimality import check_bound
 from perch_placement.perches import Perches
-from perch_placement.pso import local_best_pso
-from perch_placement.scenes import box_room, rectangle_region
 from perch_placement.search import SearchContext
+from perch_placement.search.celf import lazy_greedy
+from perch_placement.search.exhaustive import exhaustive_reference
+from perch_placement.search.swarm import local_best_pso
 
 ROOM, REGIONS = box_room()
 TARGET = TargetVolume(center=np.array([3.0, 2.5, 0.8]), size=np.array([2.0, 2.0, 1.2]))
@@ -163,8 +164,8 @@ def test_lazy_greedy_matches_plain_greedy_with_fewer_evaluations():
     cfg = FAST.resolved()
     ev = Evaluator(scene_for(ROOM), TARGET.sample(60, seed=1), cfg.camera)
     cands = build_candidates(Perches(REGIONS, TARGET.centroid(), cfg.drone), ev, 0.6, 3)
-    plain = CandidateGreedy(cands, ev.info, ev.seen, 1.0).run(3, lazy=False)
-    lazy = CandidateGreedy(cands, ev.info, ev.seen, 1.0).run(3, lazy=True)
+    plain = CandidateGreedy(cands, ev.info, ev.seen, 1.0).run(3)
+    lazy = lazy_greedy(CandidateGreedy(cands, ev.info, ev.seen, 1.0), 3)
     assert lazy.evaluations < plain.evaluations
     assert sum(lazy.gains) == pytest.approx(sum(plain.gains), abs=0.02)
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from perch_common.symmetric import eigenvalues
 from perch_segmentation import stats as st
 from perch_segmentation.adjacency import unique_edges
 from perch_segmentation.agglomerate import components
@@ -51,7 +52,7 @@ def absorb_fragments(table: np.ndarray, edges: np.ndarray, min_area: float, max_
         # Larger flat fragments are surfaces of their own (a box's side, a shelf): they must be
         # parallel to the host; crumbs and crumpled patches of a rough scan need not be.
         cov = st.covariance(table[frag, st.AREA], table[frag, st.FIRST], table[frag, st.SECOND])
-        values = st.eigenvalues(cov)
+        values = np.maximum(eigenvalues(cov), 0.0)
         flat = values[:, 0] <= (_FLATNESS ** 2) * values[:, 1]
         guarded = (table[frag, st.AREA] >= guard_area) & flat
         _, frag_normal = st.plane_normals(table[frag])

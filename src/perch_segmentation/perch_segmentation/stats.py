@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from perch_common import symmetric
+
 AREA = 0
 FIRST = slice(1, 4)
 SECOND = slice(4, 10)
@@ -31,7 +33,7 @@ def face_table(triangles: np.ndarray, areas: np.ndarray, unit_normals: np.ndarra
     sums = [c.sum(axis=1) for c in coords]
     columns = [areas] + [areas * s / 3.0 for s in sums]
     # Exact second moment of a triangle: A/12 (sum_i v_i v_i^T + s s^T).
-    for i, j in ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)):
+    for i, j in symmetric.SYM6:
         vv = np.einsum("ij,ij->i", coords[i], coords[j])
         columns.append(areas / 12.0 * (vv + sums[i] * sums[j]))
     n = [np.ascontiguousarray(unit_normals[:, k]) for k in range(3)]
@@ -78,27 +80,9 @@ def covariance(area: np.ndarray, first: np.ndarray, second: np.ndarray) -> np.nd
     return cov
 
 
-def eigenvalues(cov: np.ndarray) -> np.ndarray:
-    """(n,3) ascending eigenvalues of symmetric 3x3 (n,6) matrices, closed form (trigonometric)."""
-    xx, yy, zz, xy, xz, yz = (cov[:, k] for k in range(6))
-    q = (xx + yy + zz) / 3.0
-    off = xy * xy + xz * xz + yz * yz
-    p2 = (xx - q) ** 2 + (yy - q) ** 2 + (zz - q) ** 2 + 2.0 * off
-    p = np.sqrt(p2 / 6.0)
-    safe = np.where(p > 0, p, 1.0)
-    bxx, byy, bzz = (xx - q) / safe, (yy - q) / safe, (zz - q) / safe
-    bxy, bxz, byz = xy / safe, xz / safe, yz / safe
-    det = bxx * (byy * bzz - byz * byz) - bxy * (bxy * bzz - byz * bxz) + bxz * (bxy * byz - byy * bxz)
-    phi = np.arccos(np.clip(det / 2.0, -1.0, 1.0)) / 3.0
-    largest = q + 2.0 * p * np.cos(phi)
-    smallest = q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
-    middle = 3.0 * q - largest - smallest
-    return np.maximum(np.stack([smallest, middle, largest], axis=1), 0.0)
-
-
 def smallest_eigenvalue(cov: np.ndarray) -> np.ndarray:
-    """Smallest eigenvalue of each symmetric 3x3 (n,6) matrix."""
-    return eigenvalues(cov)[:, 0]
+    """Smallest eigenvalue of each (n,6) covariance, at least 0 (covariances are positive semi-definite)."""
+    return np.maximum(symmetric.smallest_eigenvalue(cov), 0.0)
 
 
 def plane_energy(table: np.ndarray) -> np.ndarray:

@@ -24,14 +24,6 @@ def test_triangle_second_moment_matches_monte_carlo():
     np.testing.assert_allclose(table[0, st.FIRST] / area[0], tri[0].mean(axis=0))
 
 
-def test_closed_form_eigen_matches_numpy():
-    rng = np.random.default_rng(0)
-    a = rng.normal(size=(200, 3, 3))
-    mats = a @ a.transpose(0, 2, 1)
-    six = np.stack([mats[:, 0, 0], mats[:, 1, 1], mats[:, 2, 2], mats[:, 0, 1], mats[:, 0, 2], mats[:, 1, 2]], 1)
-    np.testing.assert_allclose(st.eigenvalues(six), np.linalg.eigvalsh(mats), rtol=1e-8, atol=1e-9)
-
-
 def test_plane_normals_of_a_tilted_noisy_patch():
     rng = np.random.default_rng(1)
     normal = np.array([1.0, 2.0, 2.0]) / 3.0

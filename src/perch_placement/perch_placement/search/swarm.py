@@ -15,6 +15,8 @@ from perch_placement.config import PsoConfig
 
 @dataclass
 class SwarmResult:
+    """The swarm's best position and fitness, and what it took to find them."""
+
     best: np.ndarray          # (D,) best position found
     fitness: float
     evaluations: int
@@ -29,11 +31,11 @@ def local_best_pso(objective: Callable[[np.ndarray], np.ndarray], dims: int, cfg
     first M particles (the rest are uniform random)."""
     n = cfg.particles
     x = rng.random((n, dims))
-    v = rng.uniform(-0.1, 0.1, (n, dims))
+    v = rng.uniform(-cfg.initial_speed, cfg.initial_speed, (n, dims))
     if initial is not None and len(initial):
         m = min(len(initial), n)
         x[:m] = np.clip(initial[:m], 0, 1)
-        v[:m] *= 0.2  # seeded particles search near their start first
+        v[:m] *= cfg.seeded_speed  # seeded particles search near their start first
     f = objective(x)
     p_best, p_fit = x.copy(), f.copy()
     history = [float(p_fit.max())]

@@ -1,0 +1,136 @@
+"""What every search shares: the search context (perches, evaluator, configuration, seeded generator),
+the outcome, the greedy one-camera-at-a-time loop, committing a camera and hill-climbing polish."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from perch_common.types import ExclusionZone
+from perch_placement.cache import PlacementCache
+from perch_placement.candidates import CandidateGreedy, CandidateSet, cached_candidates
+from perch_placement.config import PlacementConfig
+from perch_placement.fitness import Evaluator
+from perch_placement.perches import Perch, Perches
+
+
+@dataclass
+class SearchContext:
+    """One search's problem and state: the perches, the evaluator holding the committed cameras,
+    the configuration and the seeded generator every random choice draws from."""
+
+    perches: Perches
+    evaluator: Evaluator           # holds the fixed cameras' information
+    config: PlacementConfig
+    rng: np.random.Generator
+    exclusions: tuple[ExclusionZone, ...] = ()
+    others: list = field(default_factory=list)  # drone positions already perched (fixed, then added)
+    fixed_count: int = 0                         # how many of `others` are fixed drones
+    cache: PlacementCache | None = None          # keeps the unconstrained candidate set between requests
+    scene_key: str = ""                          # content digest of the scene's mesh (cache key)
+    _candidates: CandidateSet | None = None
+    _plane: Perches | None = None
+
+    @property
+    def plane(self) -> Perches:
+        """The regions in the plane encoding (candidate sets and refinement work in it)."""
+        if self._plane is None:
+            p = self.perches
+            self._plane = p if p.encoding == "plane" else Perches(
+                p.regions, p.target_centre, p.drone, p.up, "plane", p.max_zoom)
+        return self._plane
+
+    def candidates(self) -> CandidateSet:
+        """The discrete candidate set (built once; excludes exclusion zones and the fixed drones' spacing)."""
+        if self._candidates is None:
+            cfg = self.config
+            fixed = np.array(self.others[:self.fixed_count]).reshape(-1, 3)
+            self._candidates = cached_candidates(self.plane, self.evaluator, cfg.candidate_spacing,
+                                                 cfg.candidate_angles, self.exclusions, fixed,
+                                                 self.cache, self.scene_key)
+        return self._candidates
+
+    def online_bound(self, k: int) -> float:
+        """The greedy online bound for k cameras on the candidate set, from the committed cameras."""
+        state = CandidateGreedy(self.candidates(), self.evaluator.info, self.evaluator.seen,
+                                self.config.drone.min_spacing)
+        return state.online_bound(k)
+
+    def objective(self, x: np.ndarray) -> np.ndarray:
+        """Fitness (B,) of adding one camera at each encoding x (B,D); infeasible perches score 0."""
+        perch = self.perches.decode(x)
+        ok = self.perches.feasible(perch, np.array(self.others).reshape(-1, 3), self.exclusions)
+        return self.evaluator.evaluate(perch.camera_position, perch.camera_rotation, perch.zoom, ok)
+
+
+@dataclass
+class SearchOutcome:
+    """The chosen perches, in placement order, and why fewer than asked were placed."""
+
+    perches: list                   # Perch of one camera each, in placement order
+    stop_reason: str = ""           # why fewer cameras than asked were placed ("" if all)
+
+
+# One camera's search: the best encoding found (None if none) and its fitness.
+CameraSearch = Callable[[SearchContext], tuple[np.ndarray | None, float]]
+
+
+def greedy(ctx: SearchContext, k: int, best_camera: CameraSearch) -> SearchOutcome:
+    """One camera at a time, each search seeing the ones placed before; stops when none adds fitness."""
+    chosen = []
+    for _ in range(k):
+        before = float(ctx.evaluator.current().fitness)
+        x, f = best_camera(ctx)
+        if x is None or not f > before + 1e-12:
+            return SearchOutcome(chosen, no_gain_reason(ctx, len(chosen)))
+        perch = ctx.perches.decode(x)
+        commit(ctx, perch)
+        chosen.append(perch)
+    return SearchOutcome(chosen)
+
+
+def commit(ctx: SearchContext, perch: Perch) -> None:
+    """Add a chosen camera to the evaluator and its drone to the spacing constraint."""
+    ctx.evaluator.commit(perch.camera_position, perch.camera_rotation, perch.zoom)
+    ctx.others.append(perch.drone_position[0])
+
+
+def no_gain_reason(ctx: SearchContext, placed: int) -> str:
+    """Why the search stopped before placing every camera."""
+    if placed == 0 and not ctx.evaluator.seen.any():
+        return "the target is not visible from any feasible perch on the given regions"
+    return (f"no feasible perch adds fitness (min spacing {ctx.config.drone.min_spacing:g} m, "
+            f"{len(ctx.exclusions)} exclusion zone(s))")
+
+
+def per_camera_budget(cfg: PlacementConfig) -> int:
+    """The evaluations baselines get per camera: the swarm's maximum (particles x iterations)."""
+    return cfg.pso.particles * cfg.pso.iterations
+
+
+def polish(objective, x: np.ndarray, fitness: float, rng: np.random.Generator, rounds: int,
+           samples: int, step: float) -> tuple[np.ndarray, float, int]:
+    """Batched hill climbing from x (region selector kept): Gaussian steps in [0,1]^D, the step
+    halving whenever a round brings no gain. Returns (x, fitness, evaluations)."""
+    evaluations = 0
+    for _ in range(rounds):
+        trial = np.clip(x + rng.normal(0.0, step, (samples, len(x))), 0.0, 1.0)
+        trial[:, 0] = x[0]  # stay on the same region
+        f = objective(trial)
+        evaluations += samples
+        j = int(np.argmax(f))
+        if f[j] > fitness:
+            x, fitness = trial[j], float(f[j])
+        else:
+            step *= 0.5
+    return x, fitness, evaluations
+
+
+def candidate_encoding(plane: Perches, cands: CandidateSet, index: int) -> np.ndarray:
+    """The plane encoding of candidate `index` (position, gimbal coordinates, no zoom)."""
+    region = int(cands.perch.region[index])
+    x = plane.encode_position(region, cands.perch.drone_position[index])
+    zoom = [0.0] if plane.max_zoom > 1 else []
+    return np.concatenate([x, cands.gimbal[index % cands.orientations], zoom])
