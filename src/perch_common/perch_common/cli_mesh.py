@@ -1,16 +1,15 @@
-"""`perch mesh info FILE`: size, bounds, up axis and problems of a mesh file."""
+"""`perch mesh info FILE`: size, bounds, up axis (estimate, evidence, confidence) and problems of a mesh file."""
 
 from __future__ import annotations
 
 import json
 
-import numpy as np
-
 from perch_common.mesh import inspect_mesh, load_mesh
-from perch_common.transforms import estimate_mesh_up
+from perch_common.up_axis import estimate_mesh_up, file_convention
 
 
 def register(sub) -> None:
+    """Add `perch mesh info` to the CLI."""
     p = sub.add_parser("mesh", help="inspect mesh files")
     verbs = p.add_subparsers(dest="verb", metavar="VERB")
     info = verbs.add_parser("info", help="faces, bounds, up axis and problems found")
@@ -21,20 +20,20 @@ def register(sub) -> None:
 
 
 def mesh_summary(path: str) -> dict:
+    """Size, bounds, up estimate (with evidence and confidence) and problems of a mesh file."""
     mesh = load_mesh(path, validate=False)
     problems = inspect_mesh(mesh)
     summary = {"file": str(path), "vertices": mesh.num_vertices, "faces": mesh.num_faces,
                "vertex_colors": mesh.vertex_colors is not None, "problems": problems.fatal + problems.warnings}
     if not problems.fatal:
         lo, hi = mesh.bounds()
-        up, confidence = estimate_mesh_up(mesh)
-        axis = int(np.argmax(np.abs(up)))
+        estimate = estimate_mesh_up(mesh)
         summary.update({
             "bounds_min": lo.round(4).tolist(), "bounds_max": hi.round(4).tolist(),
             "size": (hi - lo).round(4).tolist(), "area_m2": round(float(mesh.face_areas().sum()), 3),
-            "up_estimate": up.round(4).tolist(),
-            "up_axis": ("+" if up[axis] > 0 else "-") + "xyz"[axis] if abs(up[axis]) > 0.95 else "oblique",
-            "up_confidence": round(confidence, 3)})
+            "up_estimate": estimate.up.round(4).tolist(), "up_axis": estimate.axis_name(),
+            "up_confidence": round(estimate.confidence, 3), "up_confident": estimate.confident,
+            "up_evidence": estimate.evidence(), "file_convention_up": file_convention(path)})
     return summary
 
 
@@ -47,7 +46,10 @@ def _info(args) -> int:
           f"{', vertex colours' if s['vertex_colors'] else ''}")
     if "size" in s:
         print(f"  bounds {s['bounds_min']} .. {s['bounds_max']} (size {s['size']} m, area {s['area_m2']} m^2)")
-        print(f"  up axis {s['up_axis']} (estimate {s['up_estimate']}, "
-              f"{100 * s['up_confidence']:.0f}% of the area is floor/ceiling-like)")
+        verdict = "confident" if s["up_confident"] else (
+            f"NOT confident: `--up auto` falls back to the file's convention {s['file_convention_up']}")
+        print(f"  up axis {s['up_axis']} (estimate {s['up_estimate']}, confidence {s['up_confidence']:.2f}, {verdict})")
+        for line in s["up_evidence"]:
+            print(f"    {line}")
     print("  problems: " + ("; ".join(s["problems"]) if s["problems"] else "none"))
     return 0 if "size" in s else 1

@@ -12,7 +12,7 @@ from perch_common.ros.conversions import mesh_from_msg, point_msg, vector_msg
 from perch_common.ros.node_main import run_node
 from perch_common.ros.params import declare_config
 from perch_common.ros.service import answering
-from perch_common.transforms import estimate_mesh_up
+from perch_common.up_axis import estimate_mesh_up
 from perch_interfaces.srv import InspectMesh
 
 
@@ -39,9 +39,8 @@ class MeshToolsNode(Node):
             response.message = "unusable mesh: " + "; ".join(problems.fatal)
         else:
             lo, hi = mesh.bounds()
-            up, _ = estimate_mesh_up(mesh)
             response.bounds_min, response.bounds_max = point_msg(lo), point_msg(hi)
-            response.up_estimate = vector_msg(up)
+            response.up_estimate = vector_msg(estimate_mesh_up(mesh).up)
             response.message = f"{mesh.num_faces} faces, {mesh.num_vertices} vertices" + (
                 f" ({len(problems.warnings)} warning(s))" if problems.warnings else "")
         if request.echo:

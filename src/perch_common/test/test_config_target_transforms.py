@@ -8,7 +8,6 @@ import pytest
 from perch_common.config import ConfigError, from_parameters, node_names, node_parameters, to_parameters
 from perch_common.target import TargetVolume
 from perch_common.transforms import (
-    estimate_mesh_up,
     matrix_from_quaternion,
     parse_up_axis,
     quaternion_from_matrix,
@@ -84,40 +83,8 @@ def test_rotations():
     assert np.allclose(matrix_from_quaternion(np.zeros(4)), np.eye(3))
 
 
-def test_up_axis_auto_uses_the_mesh():
-    from perch_common.scene_generator import generate_scene
-    from perch_common.transforms import resolve_up_axis
-    assert np.allclose(resolve_up_axis("auto", generate_scene(0, "room").mesh), [0, 0, 1], atol=1e-6)
-    assert resolve_up_axis("-y").tolist() == [0, -1, 0]
-    with pytest.raises(ValueError, match="needs a mesh"):
-        resolve_up_axis("auto")
-
-
 def test_up_axis_parsing():
     assert parse_up_axis("+y").tolist() == [0, 1, 0] and parse_up_axis("-z").tolist() == [0, 0, -1]
     assert np.allclose(parse_up_axis("0 0 2"), [0, 0, 1])
     with pytest.raises(ValueError, match="up axis 'sideways'"):
         parse_up_axis("sideways")
-
-
-@pytest.mark.parametrize("kind, ceiling", [("room", False), ("room", True), ("apartment", True)])
-def test_up_estimate_on_tilted_generated_rooms(kind, ceiling):
-    from perch_common.scene_generator import generate_scene
-    scene = generate_scene(1, kind, ceiling=ceiling)
-    tilt = np.eye(4)
-    tilted_up = np.array([0.0, 1.0, 0.3]) / np.linalg.norm([0, 1, 0.3])
-    tilt[:3, :3] = rotation_between(np.array([0, 0, 1.0]), tilted_up)
-    up, confidence = estimate_mesh_up(scene.mesh.transformed(tilt))
-    assert np.degrees(np.arccos(up @ tilted_up)) < 1.0
-    assert confidence > 0.2
-
-
-def test_up_estimate_on_the_real_apartment():
-    from perch_common.data import shared_file
-    from perch_common.mesh import load_mesh
-    path = shared_file("meshes", "apartment.ply")
-    if path is None:
-        pytest.skip("../shared/data/meshes/apartment.ply not found (real data is optional)")
-    mesh = load_mesh(path)
-    up, _ = estimate_mesh_up(mesh)
-    assert up[2] > np.cos(np.radians(3))

@@ -8,21 +8,24 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from perch_common.mesh import Mesh, MeshError, validate_mesh
-from perch_common.transforms import estimate_mesh_up, estimate_up, rotation_between
+from perch_common.transforms import rotation_between
+from perch_common.up_axis import UpEstimate, estimate_mesh_up
 from perch_reconstruction.config import ReconstructionConfig
 from perch_reconstruction.mesh_ops import cluster_vertices, remove_small_pieces, weld_vertices
 
 PRECLUSTER_FACTOR = 2
-HINT_CONE_DEG = 35.0  # how far the true up may lie from the cameras' mean image-up axis
 
 
 @dataclass
 class CleanReport:
+    """What cleaning did: face counts, the up axis found and the rotation applied."""
+
     faces_in: int
     faces_out: int
     pieces_removed_faces: int = 0
-    up_source: str = "none"          # "gravity", "planes" or "none"
+    up_source: str = "none"          # "gravity", "planes", "planes, sign kept" or "none"
     up_confidence: float = 0.0
+    up_estimate: UpEstimate | None = None
     rotation: np.ndarray = field(default_factory=lambda: np.eye(3))  # applied: out = R @ in
     seconds: float = 0.0
     warnings: list[str] = field(default_factory=list)
@@ -107,24 +110,22 @@ def _quadric_decimate(mesh: Mesh, target: int) -> Mesh:
 
 def _up_rotation(mesh: Mesh, gravity: np.ndarray | None, config: ReconstructionConfig,
                  report: CleanReport, down_hint: np.ndarray | None) -> np.ndarray | None:
-    if gravity is not None:
-        report.up_source, report.up_confidence = "gravity", 1.0
-        return rotation_between(-gravity, np.array([0.0, 0.0, 1.0]))
-    normals, areas = mesh.face_normals(), mesh.face_areas()
-    hint = None
-    if down_hint is not None and np.linalg.norm(down_hint) > 1e-9:
-        hint = -np.asarray(down_hint, np.float64) / np.linalg.norm(down_hint)
-        # Walls can out-area the floor in a scan; only plane orientations near the hint may be "up".
-        near = np.abs(normals @ hint) > np.cos(np.radians(HINT_CONE_DEG))
-        up, confidence = estimate_up(normals[near], areas[near])
-        confidence *= float(areas[near].sum() / max(areas.sum(), 1e-12))
-        up = up if up @ hint >= 0 else -up
-    else:  # face positions decide between the three room axes (rooms are wider than tall)
-        up, confidence = estimate_mesh_up(mesh)
-    report.up_confidence = confidence
-    if confidence < config.min_up_confidence:
-        report.warnings.append(f"no dominant floor/ceiling plane (confidence {confidence:.2f} < "
-                               f"{config.min_up_confidence}); mesh left in its own orientation")
-        return None
-    report.up_source = "planes"
-    return rotation_between(up, np.array([0.0, 0.0, 1.0]))
+    """The rotation taking the estimated (or recorded) up onto +z, or None to keep the mesh's orientation."""
+    z = np.array([0.0, 0.0, 1.0])
+    estimate = estimate_mesh_up(mesh, down_hint, gravity)
+    report.up_estimate, report.up_confidence = estimate, estimate.confidence
+    if estimate.source == "gravity":
+        report.up_source = "gravity"
+        return rotation_between(estimate.up, z)
+    if estimate.confidence >= config.min_up_confidence:
+        report.up_source = "planes"
+        return rotation_between(estimate.up, z)
+    if estimate.axis_confidence >= config.min_up_confidence:
+        # The vertical is clear but not which end is up: keep the end nearer the mesh's own +z.
+        report.up_source = "planes, sign kept"
+        report.warnings.append(f"up axis found but its sign is uncertain (confidence {estimate.sign_confidence:.2f}); "
+                               "kept the end nearer the mesh's +z. Pass the gravity direction if it is wrong")
+        return rotation_between(estimate.toward(z), z)
+    report.warnings.append(f"no clear up axis (confidence {estimate.confidence:.2f} < {config.min_up_confidence}); "
+                           "mesh left in its own orientation. " + "; ".join(estimate.notes))
+    return None

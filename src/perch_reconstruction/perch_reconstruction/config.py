@@ -31,7 +31,7 @@ class ReconstructionConfig:
     min_piece_diameter: float = param(0.3, "connected pieces with a smaller bounding-box diagonal are removed", "m")
     target_faces: int = param(100_000, "quadric edge-collapse decimation target (0 = no decimation)")
     gravity_align: bool = param(True, "rotate the mesh so gravity points along -z")
-    min_up_confidence: float = param(0.05, "share of floor/ceiling area needed to trust an estimated up axis")
+    min_up_confidence: float = param(0.5, "confidence (0..1, perch_common.up_axis) needed to trust an estimated up axis")
     seed: int = param(0, "seed of every random choice (metric sampling)")
 
     def validate(self) -> "ReconstructionConfig":

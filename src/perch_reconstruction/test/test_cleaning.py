@@ -98,11 +98,26 @@ def test_gravity_vector_aligns_z_up():
 
 
 def test_up_estimated_from_floor_and_ceiling():
+    """An empty box shows the vertical but not which end is up: the end nearer the mesh's +z is kept."""
     tilt = Rotation.from_euler("xyz", [20, 15, 0], degrees=True).as_matrix()
     out, report = clean_mesh_with_report(room_box(tilt), None, ReconstructionConfig(target_faces=0))
-    assert report.up_source == "planes" and report.up_confidence > 0.5
+    assert report.up_source == "planes, sign kept" and report.up_estimate.axis_confidence > 0.5
+    assert "sign is uncertain" in report.warnings[0]
     up_now = report.rotation @ tilt @ [0, 0, 1.0]
-    assert abs(up_now[2]) > np.cos(np.radians(1))
+    assert up_now[2] > np.cos(np.radians(1))
+
+
+def test_furniture_tops_give_the_sign_even_upside_down():
+    """A room with a table, turned upside down: the table top faces the real up, so cleaning turns it back."""
+    table = grid_patch(1.0, 10, z=0.75)
+    table = Mesh(table.vertices + [1.5, 1.0, 0], table.faces, table.vertex_colors)
+    flip = Rotation.from_euler("x", 180, degrees=True).as_matrix()
+    room = merge(room_box(), table)
+    t = np.eye(4)
+    t[:3, :3] = flip
+    out, report = clean_mesh_with_report(room.transformed(t), None, ReconstructionConfig(target_faces=0))
+    assert report.up_source == "planes" and report.up_confidence >= 0.5
+    np.testing.assert_allclose(report.rotation @ flip @ [0, 0, 1.0], [0, 0, 1.0], atol=1e-6)
 
 
 def test_input_is_not_modified():

@@ -9,7 +9,7 @@ import pytest
 
 from perch_common.errors import PerchError
 from perch_common.raycast import RayScene
-from perch_common.transforms import estimate_up
+from perch_common.up_axis import estimate_mesh_up
 from perch_reconstruction.core import ReconstructionConfig, Reconstructor, reconstruct_bag, reconstruct_frames
 from perch_reconstruction.frames import iter_folder_frames, open_frame_folder
 from perch_reconstruction.metrics import ate_rmse, chamfer_distance, refine_alignment
@@ -117,8 +117,8 @@ def test_kitchen_with_poses_is_gravity_aligned(kitchen):
     mesh, stats = reconstruct_frames(frames, folder.intrinsics, ReconstructionConfig(), True, folder.gravity)
     assert stats.frames_integrated == KITCHEN_FRAMES and stats.clean.up_source == "gravity"
     assert mesh.num_faces > 30_000
-    up, confidence = estimate_up(mesh.face_normals(), mesh.face_areas())
-    assert abs(up[2]) > np.cos(np.radians(3)) and confidence > 0.2  # floor and table top are horizontal
+    estimate = estimate_mesh_up(mesh)
+    assert estimate.up[2] > np.cos(np.radians(3)) and estimate.confident  # floor and table top are horizontal
     # the recorded gravity, rotated by the cleaning, now points down
     np.testing.assert_allclose(stats.clean.rotation @ folder.gravity, [0, 0, -1], atol=1e-6)
 

@@ -1,0 +1,66 @@
+"""Static transforms on /tf_static (tf2_msgs/msg/TFMessage), as tf2_ros's static broadcaster sends them.
+
+/tf_static is latched with depth 1, so every message carries all of this node's static transforms:
+a new one replaces the old transform of the same child frame and the whole set is sent again.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from geometry_msgs.msg import Quaternion, TransformStamped, Vector3
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from perch_common.transforms import matrix_from_quaternion, quaternion_from_matrix
+from tf2_msgs.msg import TFMessage
+
+TF_STATIC_TOPIC = "/tf_static"
+# tf2_ros's StaticBroadcasterQoS: reliable, transient local, depth 1.
+TF_STATIC_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                           durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def transform_msg(parent_frame: str, child_frame: str, matrix: np.ndarray, stamp=None) -> TransformStamped:
+    """The TransformStamped of a 4x4 (or 3x3) matrix taking child-frame coordinates to the parent frame."""
+    if not parent_frame or not child_frame or parent_frame == child_frame:
+        raise ValueError(f"a transform needs two different frame names (got '{parent_frame}' and '{child_frame}')")
+    m = np.eye(4)
+    given = np.asarray(matrix, np.float64)
+    m[:given.shape[0], :given.shape[1]] = given
+    q = quaternion_from_matrix(m[:3, :3])
+    msg = TransformStamped()
+    msg.header.frame_id, msg.child_frame_id = parent_frame, child_frame
+    if stamp is not None:
+        msg.header.stamp = stamp
+    msg.transform.translation = Vector3(x=float(m[0, 3]), y=float(m[1, 3]), z=float(m[2, 3]))
+    msg.transform.rotation = Quaternion(x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3]))
+    return msg
+
+
+def matrix_from_transform(msg: TransformStamped) -> np.ndarray:
+    """4x4 matrix of a TransformStamped (child-frame coordinates to the parent frame)."""
+    t, r = msg.transform.translation, msg.transform.rotation
+    out = np.eye(4)
+    out[:3, :3] = matrix_from_quaternion(np.array([r.x, r.y, r.z, r.w], np.float64))
+    out[:3, 3] = [t.x, t.y, t.z]
+    return out
+
+
+class StaticTransformPublisher:
+    """Publishes a node's static transforms on /tf_static, keyed by child frame."""
+
+    def __init__(self, node) -> None:
+        self._node = node
+        self._publisher = node.create_publisher(TFMessage, TF_STATIC_TOPIC, TF_STATIC_QOS)
+        self._by_child: dict[str, TransformStamped] = {}
+
+    def send(self, *transforms: TransformStamped) -> None:
+        """Add or replace these transforms (by child frame) and publish the node's whole set."""
+        for transform in transforms:
+            if not transform.header.stamp.sec and not transform.header.stamp.nanosec:
+                transform.header.stamp = self._node.get_clock().now().to_msg()
+            self._by_child[transform.child_frame_id] = transform
+        self._publisher.publish(TFMessage(transforms=list(self._by_child.values())))
+
+    def transforms(self) -> list[TransformStamped]:
+        """The transforms sent so far (one per child frame)."""
+        return list(self._by_child.values())

@@ -1,0 +1,302 @@
+"""Which way is up in a scan: the axis from the dominant planes, the sign from evidence, with a confidence.
+
+The axis: floors, ceilings and walls share three orthogonal directions (the densest normal
+direction and the densest one across it). Up is the one of the three along which the scan is thin
+and along which horizontal furniture faces are one-sided (tops, never undersides).
+
+The sign never relies on how complete the ceiling is. Votes, each in [-1, 1] along the axis:
+- furniture tops face up: horizontal faces between floor and ceiling are seen from above by a
+  scanner, so their normals point up (needs normals pointing into free space, as scans have);
+- furniture tops lie low: tables, seats and beds sit in the lower half of the room height;
+- the floor is the more complete of the two extreme planes (weak: furniture hides floor);
+- the cameras' image-down axes point down (RGB-D input; a camera is rarely held upside down).
+A recorded gravity direction wins over all of them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from perch_common.transforms import parse_up_axis
+
+COS_10 = float(np.cos(np.radians(10.0)))
+SIN_3 = float(np.sin(np.radians(3.0)))
+BAND_MARGIN = 0.15        # furniture band: this share of the room height away from floor and ceiling
+EXTREME_SHARE = 0.08      # the floor/ceiling planes: within this share of the height of its ends
+FULL_WEIGHT_AREA = 0.3    # m^2 of furniture-top area that gives a vote its full weight
+CONFIDENT = 0.5           # below: the estimate is weak and says so
+SAMPLES = 20000           # area-weighted face sample standing for the scan
+SEARCH_SAMPLES = 4000     # of those, used for the coarse direction search (1000 directions)
+AXIS_VOTES = ("furniture tops face up", "cameras' image-down axes point down")
+FILE_CONVENTIONS = {".glb": "+y", ".gltf": "+y"}  # glTF 2.0 is +y up by its specification; others +z
+
+
+@dataclass
+class UpVote:
+    """One piece of sign evidence: vote in [-1, 1] along the axis (+1: the axis points up)."""
+
+    name: str
+    vote: float
+    weight: float
+    detail: str
+
+
+@dataclass
+class UpEstimate:
+    """The up direction of a scan, how sure it is and why."""
+
+    up: np.ndarray
+    confidence: float                     # 0..1: axis_confidence x sign_confidence
+    source: str                           # "gravity", "scan" or "none"
+    axis_confidence: float = 1.0          # how clearly this axis (either sign) is the vertical
+    sign_confidence: float = 1.0          # how clearly the evidence picks this sign
+    axes: np.ndarray = field(default_factory=lambda: np.eye(3))  # the room's three plane directions (rows)
+    plane_share: float = 0.0              # area share within 10 degrees of the three room axes
+    votes: list[UpVote] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def confident(self) -> bool:
+        """True when the estimate can be trusted without a fallback."""
+        return self.confidence >= CONFIDENT
+
+    def evidence(self) -> list[str]:
+        """One line per piece of evidence, then the notes."""
+        lines = [f"{v.name}: {v.detail} (vote {v.vote:+.2f}, weight {v.weight:.2f})" for v in self.votes]
+        return lines + self.notes
+
+    def axis_name(self) -> str:
+        """'+z', '-y', ... when within 1 degree of a file axis, else the three components."""
+        return axis_name(self.up)
+
+    def toward(self, direction: np.ndarray) -> np.ndarray:
+        """The estimated axis with the sign nearer `direction` (for when only the sign is in doubt)."""
+        return self.up if self.up @ np.asarray(direction, np.float64) >= 0 else -self.up
+
+
+def axis_name(up: np.ndarray) -> str:
+    """'+z', '-y', ... when `up` is within 1 degree of a coordinate axis, else 'x y z' components."""
+    up = np.asarray(up, np.float64)
+    i = int(np.argmax(np.abs(up)))
+    if abs(up[i]) > np.cos(np.radians(1.0)):
+        return ("+" if up[i] > 0 else "-") + "xyz"[i]
+    return " ".join(f"{c:.3f}" for c in up)
+
+
+def estimate_up(normals: np.ndarray, areas: np.ndarray, centroids: np.ndarray,
+                down_hint: np.ndarray | None = None, gravity: np.ndarray | None = None,
+                seed: int = 0) -> UpEstimate:
+    """The up direction of a room scan from face normals, areas and centroids (see the module doc).
+
+    down_hint: rough gravity, e.g. the mean image-down axis of the cameras; gravity: a recorded
+    gravity direction (wins). Deterministic for a given seed.
+    """
+    if gravity is not None and np.linalg.norm(gravity) > 1e-9:
+        up = -np.asarray(gravity, np.float64) / np.linalg.norm(gravity)
+        return UpEstimate(up, 1.0, "gravity", notes=["recorded gravity direction"])
+    normals = np.asarray(normals, np.float64)
+    areas = np.asarray(areas, np.float64)
+    centroids = np.asarray(centroids, np.float64)
+    ok = (areas > 0) & (np.einsum("ij,ij->i", normals, normals) > 0.25)
+    if not ok.all():
+        normals, areas, centroids = normals[ok], areas[ok], centroids[ok]
+    if len(areas) == 0:
+        return UpEstimate(np.array([0.0, 0.0, 1.0]), 0.0, "none", notes=["no faces with area"])
+    # An area-weighted sample stands for the whole scan (each sampled face for an equal share of the
+    # area): the search costs the same for 30k and for 3M faces.
+    if len(areas) > SAMPLES:
+        pick = np.random.default_rng(seed).choice(len(areas), SAMPLES, p=areas / areas.sum())
+        normals, centroids = normals[pick], centroids[pick]
+        areas = np.full(SAMPLES, areas.sum() / SAMPLES)
+    axes = _room_axes(normals, areas)
+    hint = None
+    if down_hint is not None and np.linalg.norm(down_hint) > 1e-9:
+        hint = -np.asarray(down_hint, np.float64) / np.linalg.norm(down_hint)
+    extents = np.array([np.diff(np.percentile(centroids @ a, [1, 99]))[0] for a in axes])
+    candidates = []
+    for i, axis in enumerate(axes):
+        axis = _refine(axis, normals, areas)
+        votes = _sign_votes(axis, normals, areas, centroids, hint)
+        thin = float(extents.min() / max(extents[i], 1e-9))
+        # Rooms are wider than tall (the main cue); one-sided horizontal faces add to it. Position votes
+        # say nothing about the axis: walls between rooms sit anywhere across the plan.
+        one_sided = sum(abs(v.vote) * min(v.weight, 1.0) for v in votes if v.name in AXIS_VOTES)
+        candidates.append((2.0 * thin + one_sided, axis, votes, thin))
+    order = sorted(range(3), key=lambda k: -candidates[k][0])
+    score, axis, votes, thin = candidates[order[0]]
+    runner_up = candidates[order[1]][0]
+    plane_share = float(areas[np.max(np.abs(normals @ axes.T), axis=1) > COS_10].sum() / areas.sum())
+    total_weight = sum(v.weight for v in votes)
+    agreement = sum(v.vote * v.weight for v in votes) / total_weight if total_weight > 0 else 0.0
+    up = axis if agreement >= 0 else -axis
+    notes = [f"room axes: {plane_share:.0%} of the area lies within 10 deg of three orthogonal directions; "
+             f"extents along them {', '.join(f'{e:.2f}' for e in extents)} m"]
+    axis_margin = min(1.0, (score - runner_up) / 0.5)
+    if axis_margin < 1.0:
+        notes.append(f"weak: another room axis is almost as likely to be up (score {score:.2f} vs {runner_up:.2f})")
+    strong = [v for v in votes if v.weight >= 0.5 and abs(v.vote) >= 0.3]
+    if any(v.vote * agreement < 0 for v in strong):
+        notes.append("conflicting: " + ", ".join(f"{v.name} {v.vote:+.2f}" for v in strong))
+    # The sign is sure when about 1.5 votes' worth of evidence agrees by 60 % or more; the axis
+    # when enough of the area is planar along the room axes and no other axis comes close.
+    sign_confidence = float(min(1.0, abs(agreement) / 0.6) * min(1.0, total_weight / 1.5))
+    axis_confidence = float(min(1.0, plane_share / 0.25) * max(axis_margin, 0.0))
+    confidence = sign_confidence * axis_confidence
+    if confidence < CONFIDENT:
+        notes.append(f"weak evidence (confidence {confidence:.2f} < {CONFIDENT})")
+    if agreement < 0:  # say the evidence along the chosen direction
+        votes = _sign_votes(up, normals, areas, centroids, hint)
+    return UpEstimate(up, confidence, "scan", axis_confidence, sign_confidence, axes, plane_share, votes, notes)
+
+
+def estimate_mesh_up(mesh, down_hint: np.ndarray | None = None, gravity: np.ndarray | None = None) -> UpEstimate:
+    """estimate_up for a perch_common.mesh.Mesh."""
+    return estimate_up(mesh.face_normals(), mesh.face_areas(), mesh.face_centroids(), down_hint, gravity)
+
+
+def _room_axes(normals: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """The densest normal direction, the densest one across it and their cross product (rows)."""
+    normals, weights = normals[:SEARCH_SAMPLES].astype(np.float32), weights[:SEARCH_SAMPLES].astype(np.float32)
+    directions = _fibonacci_hemisphere(2000).astype(np.float32)
+    first = directions[int(np.argmax(weights @ (np.abs(normals @ directions.T) > COS_10)))]
+    across = directions[np.abs(directions @ first) < SIN_3]
+    second = across[int(np.argmax(weights @ (np.abs(normals @ across.T) > COS_10)))]
+    first, second = first.astype(np.float64), second.astype(np.float64)
+    second = second - (second @ first) * first
+    second /= np.linalg.norm(second)
+    return np.stack([first, second, np.cross(first, second)])
+
+
+def _refine(axis: np.ndarray, normals: np.ndarray, areas: np.ndarray) -> np.ndarray:
+    """Area-weighted mean of the normals within 10 degrees of +-axis (folded onto +axis)."""
+    for _ in range(2):
+        cos = normals @ axis
+        near = np.abs(cos) > COS_10
+        if not near.any():
+            return axis
+        mean = (normals[near] * (np.sign(cos[near]) * areas[near])[:, None]).sum(axis=0)
+        axis = mean / np.linalg.norm(mean)
+    return axis
+
+
+def _sign_votes(axis: np.ndarray, normals: np.ndarray, areas: np.ndarray, centroids: np.ndarray,
+                hint: np.ndarray | None) -> list[UpVote]:
+    """Votes for +axis being up (see the module doc)."""
+    cos = normals @ axis
+    height = centroids @ axis
+    low, high = np.percentile(height, [1, 99])
+    span = max(high - low, 1e-9)
+    horizontal = np.abs(cos) > COS_10
+    band = horizontal & (height > low + BAND_MARGIN * span) & (height < high - BAND_MARGIN * span)
+    up_area, down_area = float(areas[band & (cos > 0)].sum()), float(areas[band & (cos < 0)].sum())
+    middle = (low + high) / 2
+    lower, upper = float(areas[band & (height < middle)].sum()), float(areas[band & (height >= middle)].sum())
+    band_weight = min(1.0, (up_area + down_area) / FULL_WEIGHT_AREA)
+    votes = [
+        UpVote("furniture tops face up", _balance(up_area, down_area), band_weight,
+               f"{up_area:.2f} m^2 of horizontal faces between floor and ceiling face up, {down_area:.2f} m^2 down"),
+        # Half weight: counters and wall cupboards sit high in kitchens and partial scans.
+        UpVote("furniture tops lie low", _balance(lower, upper), 0.5 * band_weight,
+               f"{lower:.2f} m^2 of them in the lower half of the {span:.2f} m height, {upper:.2f} m^2 in the upper"),
+    ]
+    at_low = float(areas[horizontal & (height <= low + EXTREME_SHARE * span)].sum())
+    at_high = float(areas[horizontal & (height >= high - EXTREME_SHARE * span)].sum())
+    votes.append(UpVote("floor is the more complete end plane", _balance(at_low, at_high), 0.25,
+                        f"{at_low:.2f} m^2 horizontal at the low end, {at_high:.2f} m^2 at the high end"))
+    if hint is not None:
+        along = float(hint @ axis)
+        votes.append(UpVote("cameras' image-down axes point down", float(np.clip(along * 2, -1, 1)), 1.5,
+                            f"mean image-up axis is {np.degrees(np.arccos(np.clip(abs(along), 0, 1))):.0f} deg "
+                            f"from the axis, on its {'+' if along >= 0 else '-'} side"))
+    return votes
+
+
+def _balance(a: float, b: float) -> float:
+    return (a - b) / (a + b) if a + b > 0 else 0.0
+
+
+def _fibonacci_hemisphere(n: int) -> np.ndarray:
+    i = np.arange(n) + 0.5
+    phi = np.arccos(1 - 2 * i / n)
+    theta = np.pi * (1 + 5 ** 0.5) * i
+    points = np.stack([np.cos(theta) * np.sin(phi), np.sin(theta) * np.sin(phi), np.cos(phi)], axis=1)
+    return points[points[:, 2] >= 0]
+
+
+# --- choosing the up axis of an input ---------------------------------------------------------
+
+class UpAxisError(ValueError):
+    """A user-given up axis that the mesh contradicts; the message names the axis to pass instead."""
+
+
+def file_convention(path: str | Path | None) -> str:
+    """The up axis a file format implies: '+y' for glTF/GLB (by its specification), else '+z'."""
+    return FILE_CONVENTIONS.get(Path(path).suffix.lower(), "+z") if path else "+z"
+
+
+@dataclass
+class UpChoice:
+    """The up axis to use for an input, where it came from, and what the user should know."""
+
+    up: np.ndarray
+    source: str              # "estimate", "given", "file convention", "gravity"
+    estimate: UpEstimate
+    warnings: list[str] = field(default_factory=list)
+
+
+def choose_up(text: str, mesh, path: str | Path | None = None, option: str = "--up",
+              down_hint: np.ndarray | None = None, gravity: np.ndarray | None = None) -> UpChoice:
+    """The up axis for `mesh` given the user's setting `text` ("auto", "+z", "-y", "x y z").
+
+    auto: the estimate when confident, else the file's convention with a warning. A given axis
+    the mesh contradicts raises UpAxisError naming the axis the mesh suggests and `option`.
+    """
+    estimate = estimate_mesh_up(mesh, down_hint, gravity)
+    if text.strip().lower() == "auto":
+        if estimate.confident:
+            return UpChoice(estimate.up, estimate.source if estimate.source == "gravity" else "estimate", estimate)
+        convention = file_convention(path)
+        fallback = parse_up_axis(convention)
+        if estimate.axis_confidence >= CONFIDENT:  # only the sign is in doubt: the convention picks it
+            fallback = estimate.toward(fallback)
+        return UpChoice(fallback, "file convention", estimate, [
+            f"up axis: the estimate ({estimate.axis_name()}) is not confident ({estimate.confidence:.2f}); using "
+            f"{axis_name(fallback)} from the file's convention ({convention} up). Check it, and pass {option} AXIS "
+            "if it is wrong"])
+    given = parse_up_axis(text)
+    problem = contradiction(given, estimate)
+    if problem:
+        raise UpAxisError(f"{option} {text.strip()} contradicts the mesh: {problem}. The mesh suggests up "
+                          f"{estimate.axis_name()} (confidence {estimate.confidence:.2f}): pass {option} "
+                          f"{_option_value(estimate.up)} (or {option} auto)")
+    return UpChoice(given, "given", estimate)
+
+
+def contradiction(up: np.ndarray, estimate: UpEstimate) -> str:
+    """Why the mesh contradicts `up` ('' when it does not)."""
+    up = np.asarray(up, np.float64) / np.linalg.norm(up)
+    if estimate.source == "gravity":
+        angle = np.degrees(np.arccos(np.clip(up @ estimate.up, -1, 1)))
+        return f"the recorded gravity is {angle:.0f} deg from it" if angle > 10 else ""
+    if estimate.source == "none":
+        return ""
+    if np.max(np.abs(estimate.axes @ up)) < COS_10:
+        return "no dominant plane lies within 10 deg of it"
+    if not estimate.confident:
+        return ""
+    along = float(up @ estimate.up)
+    if along < -COS_10:
+        facing = next((v for v in estimate.votes if v.name == "furniture tops face up"), None)
+        reason = "furniture tops face down along it" if facing and facing.weight > 0.3 else "the evidence points the other way"
+        return reason
+    if along < COS_10:
+        return "its dominant planes are walls: the floor and ceiling lie across another axis"
+    return ""
+
+
+def _option_value(up: np.ndarray) -> str:
+    name = axis_name(up)
+    return name if name[0] in "+-" else f"'{name}'"

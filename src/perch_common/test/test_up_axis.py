@@ -1,0 +1,112 @@
+"""The up estimate on rotated worlds: shared real scans and generated rooms in six orientations,
+three file formats; the choice of an up axis from the user's setting (auto, given, contradicted)."""
+
+import numpy as np
+import pytest
+
+from perch_common.mesh import Mesh, load_mesh, save_mesh
+from perch_common.scan_orientations import ORIENTATIONS, REAL_SCANS, oriented
+from perch_common.scene_generator import generate_scene
+from perch_common.up_axis import UpAxisError, choose_up, estimate_mesh_up, file_convention
+
+
+def angle_deg(a, b) -> float:
+    return float(np.degrees(np.arccos(np.clip(np.dot(a, b) / np.linalg.norm(a) / np.linalg.norm(b), -1, 1))))
+
+
+@pytest.fixture(scope="module")
+def real_scans():
+    from perch_common.data import shared_file
+
+    found = {name: shared_file("meshes", name) for name in REAL_SCANS}
+    if not all(found.values()):
+        pytest.skip("../shared/data/meshes is absent (real scans are optional)")
+    return {name: load_mesh(path) for name, path in found.items()}
+
+
+@pytest.mark.parametrize("orientation", list(ORIENTATIONS))
+def test_real_scans_up_within_3_degrees_right_sign(real_scans, orientation):
+    for name, mesh in real_scans.items():
+        rotated, true_up, _ = oriented(mesh, REAL_SCANS[name], orientation)
+        estimate = estimate_mesh_up(rotated)
+        assert angle_deg(estimate.up, true_up) < 3.0, (name, orientation, estimate.evidence())
+        assert estimate.confident, (name, orientation, estimate.confidence, estimate.evidence())
+        facing = next(v for v in estimate.votes if v.name == "furniture tops face up")
+        assert facing.vote > 0.5  # the evidence is stated along the chosen up
+
+
+def test_icl_office_sign_does_not_follow_the_larger_ceiling(real_scans):
+    """The office's ceiling out-areas its floor: the end-plane vote is wrong there and must be outvoted."""
+    estimate = estimate_mesh_up(real_scans["icl_office_kt2.obj"])
+    assert angle_deg(estimate.up, [0, -1, 0]) < 3.0
+    end_plane = next(v for v in estimate.votes if v.name == "floor is the more complete end plane")
+    assert end_plane.vote < 0 and estimate.confidence > 0.8
+
+
+@pytest.fixture(scope="module")
+def generated_rooms():
+    return {kind: generate_scene(3, kind).mesh for kind in ("room", "l_shaped", "apartment")}
+
+
+@pytest.mark.parametrize("suffix", [".ply", ".obj", ".glb"])
+def test_generated_rooms_in_six_orientations_and_three_formats(generated_rooms, tmp_path, suffix):
+    for kind, mesh in generated_rooms.items():
+        for orientation in ORIENTATIONS:
+            rotated, true_up, _ = oriented(mesh, np.array([0.0, 0.0, 1.0]), orientation)
+            path = save_mesh(tmp_path / f"{kind}-{orientation}{suffix}", rotated)
+            loaded = load_mesh(path)
+            assert np.allclose(loaded.bounds(), rotated.bounds(), atol=1e-4), (kind, orientation, suffix)
+            estimate = estimate_mesh_up(loaded)
+            assert angle_deg(estimate.up, true_up) < 3.0, (kind, orientation, suffix, estimate.evidence())
+            assert estimate.confident, (kind, orientation, suffix, estimate.evidence())
+
+
+def box_room(size=(5.0, 4.0, 2.6)) -> Mesh:
+    """An empty closed box, normals inward: a clear vertical but no evidence of which end is up."""
+    import trimesh
+
+    box = trimesh.creation.box(extents=size)
+    return Mesh(box.vertices, box.faces[:, ::-1])
+
+
+def test_empty_box_says_the_sign_is_weak_and_auto_falls_back_to_the_convention():
+    estimate = estimate_mesh_up(box_room())
+    assert abs(estimate.up[2]) > 0.999 and estimate.axis_confidence > 0.9
+    assert not estimate.confident and any("weak evidence" in n for n in estimate.notes)
+    choice = choose_up("auto", box_room(), "room.ply")
+    assert choice.source == "file convention" and choice.up.tolist() == [0, 0, 1]
+    assert "not confident" in choice.warnings[0] and "--up AXIS" in choice.warnings[0]
+    # glTF is +y up: the same box with its vertical along y takes +y from the convention
+    y_vertical = box_room((5.0, 2.6, 4.0))
+    assert choose_up("auto", y_vertical, "room.glb").up.tolist() == [0, 1, 0]
+    assert choose_up("auto", y_vertical, "room.ply").up @ [0, 1, 0] > 0.999  # axis clear, sign from +z: nearest
+
+
+def test_file_conventions():
+    assert file_convention("scan.GLB") == "+y" and file_convention("a.gltf") == "+y"
+    assert file_convention("a.ply") == "+z" and file_convention(None) == "+z"
+
+
+def test_given_axis_the_mesh_contradicts_stops_with_the_suggested_axis(generated_rooms):
+    room, _, _ = oriented(generated_rooms["room"], np.array([0.0, 0.0, 1.0]), "y-down")
+    assert choose_up("-y", room).source == "given"
+    with pytest.raises(UpAxisError) as upside_down:
+        choose_up("+y", room)
+    assert "--up +y contradicts the mesh: furniture tops face down along it" in str(upside_down.value)
+    assert "pass --up -y" in str(upside_down.value)
+    with pytest.raises(UpAxisError, match="no dominant plane lies within 10 deg of it.*pass --up -y"):
+        choose_up("1 1 0", room)
+    axes = estimate_mesh_up(room).axes
+    wall = axes[int(np.argmin(np.abs(axes @ [0, -1, 0])))]
+    with pytest.raises(UpAxisError, match="its dominant planes are walls.*pass --up -y"):
+        choose_up(" ".join(f"{c:.4f}" for c in wall), room)
+    assert choose_up("auto", room).source == "estimate"
+
+
+def test_camera_down_hint_and_recorded_gravity():
+    box = box_room()
+    hinted = estimate_mesh_up(box, down_hint=np.array([0.1, 0.0, 0.9]))  # cameras' image-down points to +z
+    assert hinted.up.tolist() == pytest.approx([0, 0, -1], abs=1e-6)
+    assert hinted.confident
+    gravity = estimate_mesh_up(box, gravity=np.array([0.0, -9.81, 0.0]))
+    assert gravity.source == "gravity" and gravity.up.tolist() == [0, 1, 0]
