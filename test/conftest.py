@@ -38,6 +38,12 @@ def write_config(path: Path, changes: dict[str, dict] | None = None) -> Path:
     return path
 
 
+@pytest.fixture
+def graph_parts():
+    """What a test starting its own graphs needs: the stage nodes, what is missing, the config writer."""
+    return SimpleNamespace(stage_nodes=STAGE_NODES, missing=missing_nodes(), write_config=write_config)
+
+
 @pytest.fixture(scope="module")
 def graph(tmp_path_factory):
     """Every stage node as its own process on an isolated domain, and a client node spun in a thread."""

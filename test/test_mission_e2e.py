@@ -191,7 +191,8 @@ def test_accept_reject_and_failed_in_flight(graph, scene):
         assert new.placement.drone_index == reject.placement.drone_index
         # The replacement keeps out of the exclusion zone around the rejected perch.
         assert np.linalg.norm(_position(new.placement) - _position(reject.placement)) >= 0.3
-        assert mission.proposals[reject.id].status == Proposal.STATUS_REJECTED
+        # The reply can overtake the proposal update on the topic (two channels): wait for it.
+        wait_for(lambda: mission.proposals[reject.id].status == Proposal.STATUS_REJECTED, 10, "the rejection")
         assert mission.proposals[reject.id].reason == "too close to the lamp"
         again = mission.decide(reject.id, Confirm.Request.ACCEPT)
         assert not again.success and "superseded" in again.message

@@ -10,6 +10,9 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
+        # `ros2 launch perch_operator perch.launch.py` and the graph's parameter file in share/
+        (f"share/{PACKAGE}/launch", ["launch/perch.launch.py"]),
+        (f"share/{PACKAGE}/config", ["config/perch.yaml", "config/fastdds.xml"]),
     ],
     install_requires=["setuptools"],
     zip_safe=True,

@@ -58,11 +58,11 @@ def _run(args) -> int:
     request = InspectMesh.Request(mesh=msg, echo=True)
     with ros_context(), node_process("perch_common.mesh_node"):
         node = rclpy.create_node("perch_bench_transport")
-        call_service(node, InspectMesh, "/perch/inspect_mesh", request, timeout=60)  # warm-up, discovery
+        call_service(node, InspectMesh, "perch/inspect_mesh", request, timeout=60)  # warm-up, discovery
         times = []
         for _ in range(args.repeats):
             start = time.perf_counter()
-            reply = call_service(node, InspectMesh, "/perch/inspect_mesh", request, timeout=60, wait=5)
+            reply = call_service(node, InspectMesh, "perch/inspect_mesh", request, timeout=60, wait=5)
             times.append(time.perf_counter() - start)
             if not reply.success or reply.faces != mesh.num_faces or len(reply.mesh.triangles) != 3 * mesh.num_faces:
                 raise RuntimeError(f"round trip reply is wrong: {reply.message}")

@@ -7,10 +7,12 @@ function `register(subparsers)` that adds its parser(s) and sets `func=handler(a
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from importlib.metadata import entry_points
 
 from perch_common.errors import report_errors
+from perch_common.namespace import NAMESPACE_ENV, normalise
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -18,6 +20,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog="perch",
         description="Perch: where should each camera drone perch? Stages: reconstruct, crop, segment, "
                     "filter, optimise, confirm.")
+    parser.add_argument("--namespace", metavar="NS", default=None,
+                        help="ROS namespace of the graph to run or talk to (default: $PERCH_NAMESPACE, else none)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     load_plugins("perch.commands", sub)
     return parser
@@ -35,6 +39,11 @@ def load_plugins(group: str, subparsers) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    if args.namespace is not None:
+        try:
+            os.environ[NAMESPACE_ENV] = normalise(args.namespace)
+        except ValueError as exc:
+            parser.error(str(exc))
     if not getattr(args, "func", None):
         parser.print_help()
         return 0 if args.command is None else 2

@@ -2,7 +2,9 @@
 
 A node runs when it is listed in the parameter file AND its package registers it in the
 entry-point group `perch.nodes` (name = node name = package name). Each node is its own
-process: `python -m <module> --ros-args --params-file FILE [-p name:=value ...]`.
+process: `python -m <module> --ros-args --params-file FILE [-r __ns:=/N] [-p name:=value ...]`.
+With a namespace every node (and its relative `perch/...` names) lives under /N, so two graphs
+run side by side on one domain.
 """
 
 from __future__ import annotations
@@ -12,9 +14,11 @@ import signal
 import subprocess
 import sys
 import time
+from dataclasses import dataclass
 from importlib.metadata import entry_points
 from pathlib import Path
 
+from perch_common import namespace as ros_namespace
 from perch_common.config import ConfigError, default_config_path, node_names
 from perch_common.data import repo_root
 from perch_common.processes import stop_process
@@ -41,6 +45,26 @@ def available_nodes() -> dict[str, str]:
     return {ep.name: ep.value.split(":")[0] for ep in entry_points(group="perch.nodes")}
 
 
+@dataclass(frozen=True)
+class GraphNode:
+    """One node of the graph as `ros2 launch` starts it: package, executable and node name."""
+
+    package: str
+    executable: str
+    name: str
+
+
+def graph_nodes(config: Path | str | None = None) -> list[GraphNode]:
+    """The nodes `perch launch` starts for a parameter file (listed there and installed), in file order.
+
+    Used by launch/perch.launch.py; a node's executable is the console script `<node>_node` of
+    the package that registers it.
+    """
+    registered = available_nodes()
+    return [GraphNode(registered[name].split(".")[0], f"{name}_node", name)
+            for name in node_names(Path(config) if config else default_config_path()) if name in registered]
+
+
 def parse_overrides(overrides: list[str] | tuple[str, ...]) -> dict[str, list[str]]:
     """`node:param:=value` (or `param:=value` for every node) into per-node `-p` arguments."""
     per_node: dict[str, list[str]] = {}
@@ -58,7 +82,7 @@ class GraphProcesses:
 
     def __init__(self, config: Path | None = None, nodes: list[str] | None = None,
                  overrides: list[str] | tuple[str, ...] = (), log_dir: Path | None = None,
-                 env: dict[str, str] | None = None):
+                 env: dict[str, str] | None = None, namespace: str | None = None):
         self.config = Path(config) if config else default_config_path()
         registered = available_nodes()
         listed = [n for n in node_names(self.config) if n in registered]
@@ -75,10 +99,14 @@ class GraphProcesses:
         self.env.setdefault("OMP_NUM_THREADS", "2")
         self.env.setdefault("OPENBLAS_NUM_THREADS", "1")
         use_fast_liveliness(self.env)
+        self.namespace = ros_namespace.current(self.env) if namespace is None else ros_namespace.normalise(namespace)
+        if self.namespace:
+            self.env[ros_namespace.NAMESPACE_ENV] = self.namespace
         self.processes: dict[str, subprocess.Popen] = {}
 
     def command(self, name: str) -> list[str]:
-        cmd = [sys.executable, "-m", self.modules[name], "--ros-args", "--params-file", str(self.config)]
+        cmd = [sys.executable, "-m", self.modules[name], "--ros-args", "--params-file", str(self.config),
+               *ros_namespace.ros_arguments(self.namespace)]
         # `-p param:=v` applies to every node and loses to the node's own section of the
         # parameter file; `-p node:param:=v` is node-specific and wins.
         for param in self.overrides.get("*", []) + self.overrides.get(name, []):
@@ -153,19 +181,24 @@ def register(sub) -> None:
     p.add_argument("-p", "--param", action="append", default=[], metavar="NODE:PARAM:=VALUE",
                    help="override a parameter (repeatable); omit NODE: for all nodes")
     p.add_argument("--log-dir", type=Path, help="write each node's output to LOG_DIR/NODE.log")
+    p.add_argument("--namespace", dest="launch_namespace", metavar="NS",
+                   help="run the graph in ROS namespace NS (its names become /NS/perch/...); clients then "
+                        "need `perch --namespace NS ...`")
     p.add_argument("--list", action="store_true", help="list the nodes that would start and exit")
     p.set_defaults(func=_run)
 
 
 def _run(args) -> int:
-    graph = GraphProcesses(args.config, args.nodes.split(",") if args.nodes else None, args.param, args.log_dir)
+    graph = GraphProcesses(args.config, args.nodes.split(",") if args.nodes else None, args.param, args.log_dir,
+                           namespace=args.launch_namespace)
     if args.list or not graph.nodes:
         for name in graph.nodes:
             print(f"{name}: {' '.join(graph.command(name))}")
         if not graph.nodes:
             print(f"no installed node is listed in {graph.config}")
         return 0
-    print(f"perch launch: starting {', '.join(graph.nodes)} (Ctrl-C to stop)")
+    where = f" in namespace {graph.namespace}" if graph.namespace else ""
+    print(f"perch launch: starting {', '.join(graph.nodes)}{where} (Ctrl-C to stop)")
     stopping = False
 
     def on_signal(signum, frame):

@@ -18,7 +18,7 @@ from perch_interfaces.srv import InspectMesh
 
 @dataclass
 class MeshToolsConfig:
-    service_name: str = field(default="/perch/inspect_mesh", metadata={"description": "service to offer"})
+    service_name: str = field(default="perch/inspect_mesh", metadata={"description": "service to offer"})
 
 
 class MeshToolsNode(Node):

@@ -57,7 +57,7 @@ class FilterNode(Node):
         config.filter_config().validate()  # fail at start-up on a broken configuration
         parse_up_axis(config.up_axis)
         self._warm_up()
-        self.service = create_stage_service(self, srv.Filter, "/perch/filter", self._filter, config.introspection)
+        self.service = create_stage_service(self, srv.Filter, "perch/filter", self._filter, config.introspection)
         self.get_logger().info("ready: /perch/filter")
 
     @staticmethod

@@ -113,12 +113,12 @@ def _time_rejection(node, result) -> float:
     from perch_operator.runner import spin_for
 
     latest: dict[int, Proposal] = {}
-    sub = node.create_subscription(Proposal, "/perch/proposals", lambda m: latest.__setitem__(m.id, m), LATCHED)
+    sub = node.create_subscription(Proposal, "perch/proposals", lambda m: latest.__setitem__(m.id, m), LATCHED)
     spin_for(node, 1.0)
     node.destroy_subscription(sub)
     accepted = sorted(pid for pid, m in latest.items() if m.status == Proposal.STATUS_ACCEPTED)
     t0 = time.monotonic()
-    reply = call_service(node, Confirm, "/perch/confirm",
+    reply = call_service(node, Confirm, "perch/confirm",
                          Confirm.Request(proposal_id=accepted[-1], decision=Confirm.Request.FAILED_IN_FLIGHT), timeout=60)
     seconds = time.monotonic() - t0
     if not reply.success:

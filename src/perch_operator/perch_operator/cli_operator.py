@@ -48,7 +48,7 @@ def _decide(args) -> int:
 
     code = {"accept": Confirm.Request.ACCEPT, "reject": Confirm.Request.REJECT,
             "failed": Confirm.Request.FAILED_IN_FLIGHT}[args.decision]
-    reply = _call_and_report(Confirm, "/perch/confirm",
+    reply = _call_and_report(Confirm, "perch/confirm",
                              Confirm.Request(proposal_id=args.id, decision=code, reason=args.reason), timeout=60)
     if reply.replacement.id:
         print(_proposal_line(reply.replacement))
@@ -62,7 +62,7 @@ def _review(args) -> int:
         rejected = [int(t) for t in args.reject.replace(" ", "").split(",") if t]
     except ValueError:
         raise PerchError(f"--reject '{args.reject}': give surface ids like 3,5") from None
-    _call_and_report(ReviewSurfaces, "/perch/review_surfaces",
+    _call_and_report(ReviewSurfaces, "perch/review_surfaces",
                      ReviewSurfaces.Request(review_id=args.id, rejected_surface_ids=rejected, reason=args.reason),
                      timeout=30)
     return 0
@@ -103,7 +103,7 @@ def _list(args) -> int:
 
     def body(node) -> int:
         latest: dict[int, Proposal] = {}
-        node.create_subscription(Proposal, "/perch/proposals", lambda m: latest.__setitem__(m.id, m), LATCHED)
+        node.create_subscription(Proposal, "perch/proposals", lambda m: latest.__setitem__(m.id, m), LATCHED)
         spin_for(node, args.wait)
         if not latest:
             print("no proposals (is a mission running? `perch plan ...`)")

@@ -11,7 +11,7 @@ from rclpy.action import ActionClient
 from perch_common.errors import PerchError
 from perch_interfaces.action import PlanPerches
 
-ACTION = "/perch/plan_perches"
+ACTION = "perch/plan_perches"
 
 
 def _spin_until(node, future, deadline: float, what: str) -> None:

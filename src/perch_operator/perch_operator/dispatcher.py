@@ -22,7 +22,7 @@ class Dispatcher(Node):
         super().__init__(name)
         self.output = output
         self.received: list[dict] = []
-        self.create_subscription(PerchWaypoint, "/perch/waypoints", self._on_waypoint, LATCHED)
+        self.create_subscription(PerchWaypoint, "perch/waypoints", self._on_waypoint, LATCHED)
 
     def _on_waypoint(self, msg: PerchWaypoint) -> None:
         waypoint = waypoint_dict(msg)

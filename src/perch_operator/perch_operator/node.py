@@ -51,18 +51,18 @@ class OperatorNode(Node):
         group = ReentrantCallbackGroup()
         self.stages = StageCaller(self, group, self.config.service_wait, self.config.stage_timeout,
                                   self.config.gone_grace)
-        self.crop_service = create_stage_service(self, srv.Crop, "/perch/crop", self._crop,
+        self.crop_service = create_stage_service(self, srv.Crop, "perch/crop", self._crop,
                                                  self.config.introspection, callback_group=group)
-        self.confirm_service = self.create_service(srv.Confirm, "/perch/confirm", self._confirm,
+        self.confirm_service = self.create_service(srv.Confirm, "perch/confirm", self._confirm,
                                                    callback_group=group)
-        self.review_service = self.create_service(srv.ReviewSurfaces, "/perch/review_surfaces", self._review_decided,
+        self.review_service = self.create_service(srv.ReviewSurfaces, "perch/review_surfaces", self._review_decided,
                                                   callback_group=group)
-        self.review_pub = self.create_publisher(pm.SurfaceReview, "/perch/surface_review", LATCHED_LAST)
+        self.review_pub = self.create_publisher(pm.SurfaceReview, "perch/surface_review", LATCHED_LAST)
         self.review_desk = ReviewDesk()
-        self.proposals_pub = self.create_publisher(pm.Proposal, "/perch/proposals", LATCHED)
-        self.waypoints_pub = self.create_publisher(pm.PerchWaypoint, "/perch/waypoints", LATCHED)
-        self.poses_pub = self.create_publisher(PoseArray, "/perch/waypoint_poses", LATCHED_LAST)
-        self.action = ActionServer(self, PlanPerches, "/perch/plan_perches", self._execute, callback_group=group,
+        self.proposals_pub = self.create_publisher(pm.Proposal, "perch/proposals", LATCHED)
+        self.waypoints_pub = self.create_publisher(pm.PerchWaypoint, "perch/waypoints", LATCHED)
+        self.poses_pub = self.create_publisher(PoseArray, "perch/waypoint_poses", LATCHED_LAST)
+        self.action = ActionServer(self, PlanPerches, "perch/plan_perches", self._execute, callback_group=group,
                                    goal_callback=self._on_goal, cancel_callback=lambda _: CancelResponse.ACCEPT)
         self.operator: Operator | None = None
         self._busy = threading.Lock()

@@ -17,27 +17,33 @@ from perch_common.ros.msgdefs import full_definition, message_class
 from perch_operator.stages import STAGES
 
 EVENT_SUFFIX = "/_service_event"
-# Every stage service plus the operator's own confirm service.
+GRAPH_METADATA = "perch_graph"  # metadata record: the namespace the recorded names live in
+# Every stage service plus the operator's own confirm service (relative names).
 SERVICES = {s.service: s.srv_type for s in STAGES.values()}
 
 
 def event_topics() -> dict[str, str]:
-    """Service event topic -> its type name, for every stage service and /perch/confirm."""
+    """Service event topic (relative) -> its type name, for every stage service and perch/confirm."""
     from perch_interfaces import srv
 
-    services = dict(SERVICES, **{"/perch/confirm": srv.Confirm})
+    services = dict(SERVICES, **{"perch/confirm": srv.Confirm})
     return {name + EVENT_SUFFIX: f"perch_interfaces/srv/{cls.__name__}_Event" for name, cls in services.items()}
 
 
 class MissionRecorder:
-    """Subscribe (raw) to /perch topics on `node` and write them to `path` until `close()`."""
+    """Subscribe (raw) to the graph's perch/ topics on `node` and write them to `path` until `close()`.
 
-    def __init__(self, node, path: str | Path, prefix: str = "/perch"):
+    Topics are recorded under their full names (/NS/perch/...); the namespace goes in the
+    `perch_graph` metadata record so readers can look names up relative to it.
+    """
+
+    def __init__(self, node, path: str | Path, prefix: str = "perch"):
         from mcap.writer import CompressionType, Writer
 
         self.node = node
         self.path = Path(path)
-        self.prefix = prefix
+        self.prefix = node.resolve_topic_name(prefix)
+        self.namespace = node.get_namespace().rstrip("/")
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._file = open(self.path, "wb")
         self._writer = Writer(self._file, compression=CompressionType.ZSTD)
@@ -50,9 +56,9 @@ class MissionRecorder:
 
     def refresh(self) -> None:
         """Subscribe to every /perch topic now in the graph and every known service event topic."""
-        topics = dict(event_topics())
+        topics = {self.node.resolve_topic_name(name): type_name for name, type_name in event_topics().items()}
         for name, types in self.node.get_topic_names_and_types():
-            if name.startswith(self.prefix) and types:
+            if name.startswith(self.prefix + "/") and types:
                 topics.setdefault(name, types[0])
         for name, type_name in topics.items():
             if name not in self._subs:
@@ -106,8 +112,10 @@ class MissionRecorder:
         self._writer.add_metadata(name, {k: v if isinstance(v, str) else json.dumps(v) for k, v in values.items()})
 
     def close(self) -> Path:
+        """Stop recording and finish the file (idempotent); returns its path."""
         if not self._closed:
             self._closed = True
+            self._writer.add_metadata(GRAPH_METADATA, {"namespace": self.namespace})
             for sub in self._subs.values():
                 self.node.destroy_subscription(sub)
             self._writer.finish()

@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import Any, Iterator
 
 from perch_common.ros.msgdefs import message_class
-from perch_operator.recorder import EVENT_SUFFIX
+from perch_operator.recorder import EVENT_SUFFIX, GRAPH_METADATA
 from perch_operator.stages import STAGES
 
 SERVICE_TO_STAGE = {s.service: name for name, s in STAGES.items()}
@@ -37,22 +37,34 @@ def _open(path: str | Path):
     return handle, make_reader(handle)
 
 
+def recorded_namespace(path: str | Path) -> str:
+    """The namespace the recording's topics live in ('' for the root namespace or an older file)."""
+    return str(metadata(path).get(GRAPH_METADATA, {}).get("namespace", ""))
+
+
 def iter_messages(path: str | Path, topics: list[str] | None = None) -> Iterator[tuple[str, Any, int]]:
-    """(topic, deserialized message, log time ns) in log-time order."""
+    """(topic, deserialized message, log time ns) in log-time order.
+
+    Topic names, given and yielded, are relative to the recorded graph's namespace (`/perch/...`
+    whatever namespace the graph ran in).
+    """
     from rclpy.serialization import deserialize_message
 
+    namespace = recorded_namespace(path)
+    wanted = None if topics is None else [namespace + t for t in topics]
     handle, reader = _open(path)
     with handle:
-        for schema, channel, message in reader.iter_messages(topics=topics, log_time_order=True):
-            yield channel.topic, deserialize_message(message.data, message_class(schema.name)), message.log_time
+        for schema, channel, message in reader.iter_messages(topics=wanted, log_time_order=True):
+            topic = channel.topic[len(namespace):] if channel.topic.startswith(namespace + "/") else channel.topic
+            yield topic, deserialize_message(message.data, message_class(schema.name)), message.log_time
 
 
 def stage_calls(path: str | Path) -> list[StageCall]:
     """Every stage service call found in the recording (client- or server-side events)."""
-    topics = [service + EVENT_SUFFIX for service in SERVICE_TO_STAGE]
+    topics = ["/" + service + EVENT_SUFFIX for service in SERVICE_TO_STAGE]
     calls: dict[tuple, StageCall] = {}
     for topic, event, stamp in iter_messages(path, topics):
-        service = topic[: -len(EVENT_SUFFIX)]
+        service = topic[1: -len(EVENT_SUFFIX)]
         info = event.info
         key = (service, bytes(bytearray(info.client_gid)), int(info.sequence_number))
         call = calls.setdefault(key, StageCall(SERVICE_TO_STAGE[service], service, stamp_ns=stamp, key=key))

@@ -17,11 +17,11 @@ from perch_interfaces.action import PlanPerches
 from perch_operator.recorder import EVENT_SUFFIX, MissionRecorder
 from perch_operator.stages import STAGES
 
-# Which node serves which service (to launch only what is missing).
-NODE_SERVICES = {"perch_operator": ["/perch/crop", "/perch/confirm"],
-                 "perch_reconstruction": ["/perch/clean_mesh", "/perch/reconstruct"],
-                 "perch_segmentation": ["/perch/segment"], "perch_filtering": ["/perch/filter"],
-                 "perch_placement": ["/perch/optimise"]}
+# Which node serves which service (relative names; to launch only what is missing).
+NODE_SERVICES = {"perch_operator": ["perch/crop", "perch/confirm"],
+                 "perch_reconstruction": ["perch/clean_mesh", "perch/reconstruct"],
+                 "perch_segmentation": ["perch/segment"], "perch_filtering": ["perch/filter"],
+                 "perch_placement": ["perch/optimise"]}
 
 
 @dataclass
@@ -42,7 +42,11 @@ def client_context():
     import rclpy
     from rclpy.signals import SignalHandlerOptions
 
-    rclpy.init(args=[], signal_handler_options=SignalHandlerOptions.NO)
+    from perch_common import namespace
+
+    # Every node of this client process resolves Perch's relative names in the graph's namespace.
+    rclpy.init(args=["--ros-args", *namespace.ros_arguments(namespace.current())],
+               signal_handler_options=SignalHandlerOptions.NO)
     try:
         yield
     finally:
@@ -58,20 +62,21 @@ def ensure_graph(node, config: Path | None = None, overrides=(), log_dir: Path |
     """Start the nodes whose services are not in the graph; returns the GraphProcesses (or None)."""
     from perch_common.launch import GraphProcesses, available_nodes
 
+    resolved = {n: [node.resolve_service_name(s) for s in services] for n, services in NODE_SERVICES.items()}
     deadline = time.monotonic() + settle   # discovery of an already running graph takes a moment
     missing = list(NODE_SERVICES)
     while missing and time.monotonic() < deadline:
         offered = offered_services(node)
-        missing = [n for n, services in NODE_SERVICES.items() if not set(services) & offered]
+        missing = [n for n, services in resolved.items() if not set(services) & offered]
         time.sleep(0.2)
     registered = available_nodes()
     to_start = [n for n in missing if n in registered]
     if not to_start:
         return None
-    graph = GraphProcesses(config, to_start, overrides, log_dir)
+    graph = GraphProcesses(config, to_start, overrides, log_dir, namespace=node.get_namespace())
     out.write(f"perch: starting {', '.join(to_start)}" + (f" (logs in {log_dir})" if log_dir else "") + "\n")
     graph.start()
-    wanted = [s for n in to_start for s in NODE_SERVICES[n][:1]]
+    wanted = [s for n in to_start for s in resolved[n][:1]]
     try:
         still = graph.wait_for_services(node, wanted, timeout)
     except RuntimeError as exc:
@@ -100,7 +105,8 @@ def run_recorded_mission(node, goal: PlanPerches.Goal, out_dir: Path, progress: 
     out_dir.mkdir(parents=True, exist_ok=True)
     recorder = MissionRecorder(node, out_dir / "run.mcap")
     offered = offered_services(node)
-    expected = [s.service + EVENT_SUFFIX for s in STAGES.values() if s.service in offered]
+    services = [node.resolve_service_name(s.service) for s in STAGES.values()]
+    expected = [service + EVENT_SUFFIX for service in services if service in offered]
     silent = recorder.wait_matched(expected, lambda t: spin_for(node, t), timeout=10.0)
     for topic in silent:
         out.write(f"perch: warning: {topic[:-len(EVENT_SUFFIX)]} publishes no introspection events; its calls "

@@ -17,24 +17,28 @@ from perch_interfaces import srv
 
 @dataclass(frozen=True)
 class Stage:
+    """One pipeline stage: its name, its service (relative to the graph's namespace) and type."""
+
     name: str
     service: str
     srv_type: type
 
 
 STAGES = {s.name: s for s in (
-    Stage("reconstruct", "/perch/reconstruct", srv.Reconstruct),
-    Stage("clean", "/perch/clean_mesh", srv.CleanMesh),
-    Stage("crop", "/perch/crop", srv.Crop),
-    Stage("segment", "/perch/segment", srv.Segment),
-    Stage("filter", "/perch/filter", srv.Filter),
-    Stage("optimise", "/perch/optimise", srv.Optimise),
+    Stage("reconstruct", "perch/reconstruct", srv.Reconstruct),
+    Stage("clean", "perch/clean_mesh", srv.CleanMesh),
+    Stage("crop", "perch/crop", srv.Crop),
+    Stage("segment", "perch/segment", srv.Segment),
+    Stage("filter", "perch/filter", srv.Filter),
+    Stage("optimise", "perch/optimise", srv.Optimise),
 )}
 
 
 class StageError(PerchError):
-    def __init__(self, stage: str, message: str):
-        super().__init__(f"stage {stage} ({STAGES[stage].service}): {message}")
+    """A stage call that failed; the message names the stage and its (resolved) service."""
+
+    def __init__(self, stage: str, message: str, service: str | None = None):
+        super().__init__(f"stage {stage} ({service or '/' + STAGES[stage].service}): {message}")
         self.stage = stage
 
 
@@ -52,13 +56,14 @@ class StageCaller:
         self.gone_grace = gone_grace
         self.clients = {name: node.create_client(s.srv_type, s.service, callback_group=callback_group)
                         for name, s in STAGES.items()}
+        self.services = {name: node.resolve_service_name(s.service) for name, s in STAGES.items()}
 
     def call(self, stage: str, request, cancelled: Callable[[], bool] = lambda: False):
         """The stage's successful reply; raises StageError (or MissionCancelled)."""
         client = self.clients[stage]
         if not client.wait_for_service(timeout_sec=self.service_wait):
             raise StageError(stage, f"service not available within {self.service_wait:.0f} s; is its node "
-                                    "running? (`perch launch` starts the graph)")
+                                    "running? (`perch launch` starts the graph)", self.services[stage])
         done = threading.Event()
         future = client.call_async(request)
         future.add_done_callback(lambda _: done.set())
@@ -74,15 +79,15 @@ class StageCaller:
                 if now - gone_since > self.gone_grace:
                     client.remove_pending_request(future)
                     raise StageError(stage, "the service disappeared during the call (its node stopped or "
-                                            "crashed); restart it and run the mission again")
+                                            "crashed); restart it and run the mission again", self.services[stage])
             else:
                 gone_since = None
             if now > deadline:
                 client.remove_pending_request(future)
-                raise StageError(stage, f"no reply within {self.timeout:.0f} s (parameter stage_timeout)")
+                raise StageError(stage, f"no reply within {self.timeout:.0f} s (parameter stage_timeout)", self.services[stage])
         response = future.result()
         if response is None:
-            raise StageError(stage, "the call ended without a reply")
+            raise StageError(stage, "the call ended without a reply", self.services[stage])
         if not response.success:
-            raise StageError(stage, f"failed: {response.message}")
+            raise StageError(stage, f"failed: {response.message}", self.services[stage])
         return response

@@ -44,7 +44,7 @@ class PlacementNode(Node):
         config = declare_config(self, PlacementConfig)
         config.resolved()  # fail at start-up on a broken configuration
         self.cache = PlacementCache()  # re-optimising after a rejection reuses the scene and candidates
-        self.service = create_stage_service(self, srv.Optimise, "/perch/optimise", self.optimise,
+        self.service = create_stage_service(self, srv.Optimise, "perch/optimise", self.optimise,
                                             config.introspection)
         self.get_logger().info("ready: /perch/optimise")
 

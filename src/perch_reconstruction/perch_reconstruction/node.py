@@ -70,14 +70,14 @@ class ReconstructionNode(Node):
                 from geometry_msgs.msg import PoseStamped as PoseType
             self.create_subscription(PoseType, c.pose_topic, self._on_pose, input_qos(c.lossless_replay, 100),
                                      callback_group=meta)
-        self.progress = self.create_publisher(String, "/perch/reconstruct/progress", 10)
+        self.progress = self.create_publisher(String, "perch/reconstruct/progress", 10)
         self.create_timer(c.progress_period, self._publish_status, callback_group=meta)
         self._offline_status: dict | None = None
         self._frame_ids: dict[str, str] = {}
         self._frame_warned = False
-        for srv_type, name, callback in ((srv.Reconstruct, "/perch/reconstruct", self._reconstruct),
-                                         (Trigger, "/perch/reconstruct/reset", self._reset),
-                                         (srv.CleanMesh, "/perch/clean_mesh", self._clean)):
+        for srv_type, name, callback in ((srv.Reconstruct, "perch/reconstruct", self._reconstruct),
+                                         (Trigger, "perch/reconstruct/reset", self._reset),
+                                         (srv.CleanMesh, "perch/clean_mesh", self._clean)):
             create_stage_service(self, srv_type, name, callback, c.introspection, callback_group=services)
         self.get_logger().info(f"ready: /perch/reconstruct, /perch/clean_mesh; listening on {c.color_topic}, "
                                f"{c.depth_topic}, {c.camera_info_topic}" + (f", {c.pose_topic}" if c.pose_topic else ""))

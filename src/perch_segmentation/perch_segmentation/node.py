@@ -18,7 +18,7 @@ from perch_interfaces import srv
 from perch_segmentation.core import SegmentationConfig, segment_mesh
 
 NO_SURFACE = np.uint32(0xFFFFFFFF)  # Segment.srv: face_labels entry of a face on no surface
-SERVICE = "/perch/segment"
+SERVICE = "perch/segment"
 
 
 @dataclass
