@@ -15,13 +15,15 @@ def register(sub) -> None:
     info = verbs.add_parser("info", help="faces, bounds, up axis and problems found")
     info.add_argument("file")
     info.add_argument("--json", action="store_true", help="print JSON")
+    info.add_argument("--scale", type=float, default=1.0,
+                      help="multiply the coordinates by this first (0.001 for a mesh in millimetres)")
     info.set_defaults(func=_info)
     p.set_defaults(func=lambda args: p.print_help() or 2)
 
 
-def mesh_summary(path: str) -> dict:
-    """Size, bounds, up estimate (with evidence and confidence) and problems of a mesh file."""
-    mesh = load_mesh(path, validate=False)
+def mesh_summary(path: str, scale: float = 1.0) -> dict:
+    """Size, bounds, up estimate (with evidence and confidence) and problems (incl. implausible units) of a mesh file."""
+    mesh = load_mesh(path, validate=False, scale=scale)
     problems = inspect_mesh(mesh)
     summary = {"file": str(path), "vertices": mesh.num_vertices, "faces": mesh.num_faces,
                "vertex_colors": mesh.vertex_colors is not None, "problems": problems.fatal + problems.warnings}
@@ -38,7 +40,7 @@ def mesh_summary(path: str) -> dict:
 
 
 def _info(args) -> int:
-    s = mesh_summary(args.file)
+    s = mesh_summary(args.file, args.scale)
     if args.json:
         print(json.dumps(s, indent=2))
         return 1 if any(p for p in s["problems"] if "empty" in p or "NaN" in p or "outside" in p) else 0

@@ -136,12 +136,30 @@ def inspect_mesh(mesh: Mesh, area_epsilon: float = 1e-12, warnings: bool = True)
         return MeshProblems(fatal, warnings, degenerate)
     if degenerate:
         warnings.append(f"{degenerate} degenerate (zero-area) faces")
+    lo, hi = mesh.bounds()
+    units = scale_problem(float(np.max(hi - lo)))
+    if units:
+        warnings.append(units)
     # Rows as opaque bytes: unique on a 1-D view is much faster than unique(axis=0).
     rows = np.ascontiguousarray(np.sort(mesh.faces, axis=1)).view(np.dtype((np.void, 24))).ravel()
     duplicates = mesh.num_faces - len(np.unique(rows))
     if duplicates:
         warnings.append(f"{duplicates} duplicate faces")
     return MeshProblems(fatal, warnings, degenerate, duplicates)
+
+
+# An indoor space larger than this along any axis was almost surely modelled in cm or mm.
+MAX_PLAUSIBLE_EXTENT = 200.0   # m
+MILLIMETRE_EXTENT = 2000.0     # beyond this, millimetres are likelier than centimetres
+
+
+def scale_problem(extent: float, what: str = "mesh") -> str | None:
+    """A message when a space `extent` metres across suggests cm or mm units, else None."""
+    if not np.isfinite(extent) or extent <= MAX_PLAUSIBLE_EXTENT:
+        return None
+    unit, scale = ("millimetres", "0.001") if extent > MILLIMETRE_EXTENT else ("centimetres", "0.01")
+    return (f"{what} is {extent:,.0f} m across, which suggests it is in {unit}, not metres; "
+            f"rescale it (--scale {scale}, or multiply its coordinates by {scale})")
 
 
 def validate_mesh(mesh: Mesh, what: str = "mesh") -> Mesh:
@@ -155,29 +173,51 @@ def validate_mesh(mesh: Mesh, what: str = "mesh") -> Mesh:
 SUPPORTED_SUFFIXES = (".ply", ".obj", ".glb", ".gltf", ".stl", ".off")
 
 
-def load_mesh(path: str | Path, validate: bool = True) -> Mesh:
-    """Load a triangle mesh (a scene file is flattened into one mesh)."""
+def load_mesh(path: str | Path, validate: bool = True, scale: float = 1.0) -> Mesh:
+    """Load a triangle mesh (a scene file is flattened into one mesh); `scale` multiplies coordinates
+    (0.001 for a file in millimetres)."""
     import trimesh
 
     path = Path(path)
+    if path.is_dir():
+        raise MeshError(f"{path}: is a folder, not a mesh file")
     if not path.is_file():
         raise MeshError(f"{path}: no such file")
     if path.suffix.lower() not in SUPPORTED_SUFFIXES:
         raise MeshError(f"{path}: unsupported format '{path.suffix}' (use one of {', '.join(SUPPORTED_SUFFIXES)})")
+    if not (np.isfinite(scale) and scale > 0):
+        raise MeshError(f"{path}: scale must be a finite number > 0, got {scale}")
     try:
         loaded = trimesh.load(path, process=False, force="mesh")
     except Exception as exc:  # trimesh raises many types for corrupt files
-        raise MeshError(f"{path}: cannot be read as a mesh ({exc})") from exc
+        raise MeshError(f"{path}: cannot be read as a mesh: the file is truncated or corrupt "
+                        f"({type(exc).__name__}: {exc})") from exc
     if not isinstance(loaded, trimesh.Trimesh):
         raise MeshError(f"{path}: holds no triangle mesh")
+    if len(loaded.faces) == 0:
+        points = len(loaded.vertices) or _point_count(path)
+        if points:
+            raise MeshError(f"{path}: holds {points} points but no faces (a point cloud, not a mesh); mesh it "
+                            "first, e.g. reconstruct it from the RGB-D frames with `perch reconstruct`")
     colors = None
     visual = getattr(loaded, "visual", None)
     if visual is not None and getattr(visual, "kind", None) == "vertex":
         colors = np.asarray(visual.vertex_colors)[:, :3]
     elif visual is not None and getattr(visual, "kind", None) == "texture":
         colors = np.asarray(visual.to_color().vertex_colors)[:, :3]
-    mesh = Mesh(np.asarray(loaded.vertices), np.asarray(loaded.faces), colors)
+    mesh = Mesh(np.asarray(loaded.vertices) * scale, np.asarray(loaded.faces), colors)
     return validate_mesh(mesh, str(path)) if validate else mesh
+
+
+def _point_count(path: Path) -> int:
+    """Points in a file trimesh reads as a point cloud (0 when it is not one)."""
+    import trimesh
+
+    try:
+        loaded = trimesh.load(path, process=False)
+    except Exception:  # already known to hold no faces; any failure just means "not a point cloud"
+        return 0
+    return len(loaded.vertices) if isinstance(loaded, trimesh.PointCloud) else 0
 
 
 def save_mesh(path: str | Path, mesh: Mesh, face_colors: np.ndarray | None = None) -> Path:

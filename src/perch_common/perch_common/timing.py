@@ -4,9 +4,14 @@ from __future__ import annotations
 
 import time
 
+from perch_common.cancellation import checkpoint
+
 
 class Laps:
-    """Call lap(name) after each step; laps maps step name to its seconds."""
+    """Call lap(name) after each step; laps maps step name to its seconds.
+
+    Each lap is also a cancellation checkpoint: work cancelled by its client stops there.
+    """
 
     def __init__(self) -> None:
         self.laps: dict[str, float] = {}
@@ -16,6 +21,7 @@ class Laps:
         now = time.perf_counter()
         self.laps[name] = self.laps.get(name, 0.0) + now - self._last
         self._last = now
+        checkpoint(f"the step after {name}")
         return self.laps[name]
 
     @property

@@ -75,10 +75,15 @@ def segment_surfaces(mesh: Mesh) -> list:
 
 
 def run(args) -> int:
+    from perch_common.outputs import refuse_overwriting_inputs
     from perch_filtering.core import filter_surfaces
     from perch_filtering.files import write_result
     from perch_segmentation.io import read_surfaces
 
+    out = Path(args.output)
+    refuse_overwriting_inputs([out] + [out / n for n in ("regions.json", "surfaces.json", "regions.ply")],
+                              [args.mesh, args.surfaces if args.surfaces != "segment" else None, args.target_mesh,
+                               args.config])
     config, up_axis = load_config(args.config, args.param)
     mesh = load_mesh(args.mesh)
     surfaces = segment_surfaces(mesh) if args.surfaces == "segment" else read_surfaces(args.surfaces)

@@ -26,10 +26,13 @@ def register_plan(sub) -> None:
                    help="floor (the cropped floor area, default for --mesh/--bag) | "
                         "box:CX,CY,CZ,SX,SY,SZ[,YAW_DEG] | FOOTPRINT_MESH[:HEIGHT] (extruded, default 1.2 m); "
                         "--scene defaults to the scene's own target")
-    p.add_argument("--cameras", type=int, default=0, help="number of cameras (0: the placement node's default)")
+    p.add_argument("--cameras", type=non_negative_int, default=0,
+                   help="number of cameras (0: the placement node's default)")
+    p.add_argument("--scale", type=positive_float, default=1.0,
+                   help="multiply --mesh coordinates by this (0.001 for a mesh in millimetres)")
     p.add_argument("--seed", type=int, default=-1, help="optimiser seed (negative: the node's default)")
     p.add_argument("--auto-accept", action="store_true", help="accept every proposal (else: perch operator ...)")
-    p.add_argument("--review-surfaces", type=int, default=0, metavar="N",
+    p.add_argument("--review-surfaces", type=non_negative_int, default=0, metavar="N",
                    help="before filtering, wait for `perch operator review ID [--reject ...]` on the N largest surfaces")
     _common(p)
     p.set_defaults(func=_plan)
@@ -38,9 +41,36 @@ def register_plan(sub) -> None:
 def register_demo(sub) -> None:
     p = sub.add_parser("demo", help="the demo: a seeded apartment, auto-accepted, outputs in out/demo/")
     p.add_argument("--seed", type=int, default=DEMO_SEED, help="scene seed")
-    p.add_argument("--cameras", type=int, default=0, help="number of cameras (0: the placement node's default)")
+    p.add_argument("--cameras", type=non_negative_int, default=0,
+                   help="number of cameras (0: the placement node's default)")
     p.set_defaults(func=_demo, out=Path("out/demo"), config=None, param=[], timeout=600.0, no_launch=False,
-                   quiet=False)
+                   quiet=False, overwrite=True)
+
+
+def non_negative_int(text: str) -> int:
+    """argparse type: an integer >= 0 (a negative count is an error, never silently changed)."""
+    import argparse
+
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{value} is negative; give 0 (the node's default) or more")
+    return value
+
+
+def positive_float(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    import argparse
+
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not math.isfinite(value) or value <= 0:
+        raise argparse.ArgumentTypeError(f"{text} must be a finite number > 0")
+    return value
 
 
 def _common(p) -> None:
@@ -49,6 +79,8 @@ def _common(p) -> None:
     p.add_argument("-p", "--param", action="append", default=[], metavar="NODE:PARAM:=VALUE",
                    help="parameter override for the nodes it launches (repeatable)")
     p.add_argument("--no-launch", action="store_true", help="use the running graph only")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the outputs of an earlier mission in the output folder (else refused)")
     p.add_argument("--timeout", type=float, default=900.0, help="mission time limit (s)")
     p.add_argument("--quiet", action="store_true", help="no progress display")
 
@@ -83,14 +115,15 @@ def _plan(args) -> int:
     from perch_common.ros.conversions import mesh_to_msg, target_to_msg
     from perch_interfaces.action import PlanPerches
 
-    goal = PlanPerches.Goal(num_cameras=max(0, args.cameras), seed=args.seed, auto_accept=args.auto_accept,
-                            review_surfaces=max(0, args.review_surfaces))
+    check_output_folder(args.out, args.overwrite, [args.mesh, args.bag, args.target and args.target.split(":")[0]])
+    goal = PlanPerches.Goal(num_cameras=args.cameras, seed=args.seed, auto_accept=args.auto_accept,
+                            review_surfaces=args.review_surfaces)
     goal.target = parse_target(args.target)
     describe = {"cameras_asked": args.cameras, "seed": args.seed}
     if args.mesh:
         from perch_common.mesh import load_mesh
 
-        goal.mesh = mesh_to_msg(load_mesh(args.mesh))
+        goal.mesh = mesh_to_msg(load_mesh(args.mesh, scale=args.scale))
         describe["source"] = f"mesh {args.mesh}"
     elif args.bag:
         if not args.bag.exists():
@@ -106,6 +139,21 @@ def _plan(args) -> int:
             goal.target = target_to_msg(scene.target)
         describe["source"] = f"generated {args.kind} scene, seed {args.scene}"
     return run_plan(goal, args, describe)
+
+
+def check_output_folder(out: Path, overwrite: bool, inputs) -> None:
+    """Refuse an output folder that is (or holds) an input, or holds an earlier mission without --overwrite."""
+    from perch_common.outputs import refuse_overwriting_inputs
+    from perch_operator.runner import OUTPUT_NAMES
+
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise PerchError(f"-o {out}: is a file; give a folder for the mission outputs")
+    refuse_overwriting_inputs([out] + [out / n for n in OUTPUT_NAMES], inputs)
+    earlier = [n for n in OUTPUT_NAMES if (out / n).exists()]
+    if earlier and not overwrite:
+        raise PerchError(f"-o {out}: holds the outputs of an earlier mission ({', '.join(earlier)}); "
+                         "add --overwrite to replace them, or choose another folder")
 
 
 def run_plan(goal, args, describe: dict) -> int:
@@ -133,9 +181,9 @@ def _mission_and_outputs(node, goal, args, describe: dict, started: float) -> in
     outputs = run_recorded_mission(node, goal, args.out, progress=not args.quiet, timeout=args.timeout,
                                    describe=describe)
     result = outputs.result
-    if not result.success:
-        raise PerchError(f"mission failed: {result.message} (recording: {outputs.mcap})")
     write_outputs(outputs)
+    if not result.success:
+        raise PerchError(f"mission failed: {result.message} (reason in {args.out}/FAILED, recording {outputs.mcap})")
     print(f"\n{describe.get('source', 'mission')}: {result.message}")
     print(summary_table(result))
     print(f"outputs in {args.out}/: waypoints.yaml, run.mcap, run.rrd, report.html  "

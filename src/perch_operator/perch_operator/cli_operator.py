@@ -1,4 +1,4 @@
-"""`perch operator accept|reject|failed|list`, `perch replay RUN.mcap [--check]`, `perch view RUN.rrd`,
+"""`perch operator accept|reject|failed|cancel|list`, `perch replay RUN.mcap [--check]`, `perch view RUN.rrd`,
 `perch record OUT.mcap`, `perch dispatch`."""
 
 from __future__ import annotations
@@ -28,6 +28,9 @@ def register(sub) -> None:
     review.add_argument("--reject", default="", help="comma-separated surface ids to reject; none: approve all")
     review.add_argument("--reason", default="")
     review.set_defaults(func=_review)
+    cancel = actions.add_parser("cancel", help="cancel the running mission (e.g. one whose client is stuck)")
+    cancel.add_argument("--timeout", type=float, default=10.0, help="seconds to wait for the coordinator")
+    cancel.set_defaults(func=_cancel)
     lst = actions.add_parser("list", help="show the proposals of the current mission")
     lst.add_argument("--wait", type=float, default=2.0, help="seconds to collect proposals")
     lst.set_defaults(func=_list)
@@ -66,6 +69,31 @@ def _review(args) -> int:
                      ReviewSurfaces.Request(review_id=args.id, rejected_surface_ids=rejected, reason=args.reason),
                      timeout=30)
     return 0
+
+
+def _cancel(args) -> int:
+    """Cancel every running mission through the action's standard cancel service (zero goal id: all)."""
+    from action_msgs.srv import CancelGoal
+
+    from perch_common.ros.testing import call_service
+    from perch_operator.client import ACTION
+
+    def body(node) -> int:
+        try:
+            reply = call_service(node, CancelGoal, f"{ACTION}/_action/cancel_goal", CancelGoal.Request(),
+                                 timeout=args.timeout, wait=args.timeout)
+        except TimeoutError as exc:
+            raise PerchError(f"{exc}; is the graph running (`perch launch`)?") from None
+        if reply.return_code == CancelGoal.Response.ERROR_NONE and reply.goals_canceling:
+            print(f"cancelling {len(reply.goals_canceling)} mission(s); the coordinator stops the stage "
+                  "work in progress and is free for the next goal")
+            return 0
+        if reply.return_code in (CancelGoal.Response.ERROR_NONE, CancelGoal.Response.ERROR_UNKNOWN_GOAL_ID):
+            print("no mission is running")
+            return 0
+        raise PerchError(f"the coordinator refused to cancel (return code {reply.return_code})")
+
+    return _with_node("perch_operator_cancel", body)
 
 
 def _call_and_report(srv_type, name: str, request, timeout: float):

@@ -14,6 +14,10 @@ from perch_interfaces.action import PlanPerches
 ACTION = "perch/plan_perches"
 
 
+class GoalRejected(PerchError):
+    """The coordinator refused the goal (another mission is running); nothing was started."""
+
+
 def _spin_until(node, future, deadline: float, what: str) -> None:
     while not future.done():
         if time.monotonic() > deadline:
@@ -35,7 +39,8 @@ def run_mission(node, goal: PlanPerches.Goal, timeout: float = 600.0, server_wai
         _spin_until(node, sent, deadline, "sending the goal")
         handle = sent.result()
         if not handle.accepted:
-            raise PerchError("the coordinator rejected the goal (another mission is running)")
+            raise GoalRejected("the coordinator rejected the goal: another mission is running (wait for it, "
+                               "or cancel it with `perch operator cancel`); nothing was written")
         result = handle.get_result_async()
         try:
             _spin_until(node, result, deadline, f"the mission ({timeout:.0f} s limit)")

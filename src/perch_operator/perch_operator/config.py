@@ -30,6 +30,8 @@ class OperatorConfig:
     gone_grace: float = field(default=2.0, metadata={
         "description": "a stage whose service vanished for this long during a call fails the mission",
         "unit": "s"})
-    confirm_timeout: float = field(default=0.0, metadata={
+    confirm_timeout: float = field(default=600.0, metadata={
         "description": "how long a mission waits for operator decisions (0: until cancelled)", "unit": "s"})
+    client_grace: float = field(default=5.0, metadata={
+        "description": "a mission whose client left the graph this long ago is aborted (0: never)", "unit": "s"})
     crop: CropConfig = field(default_factory=CropConfig)

@@ -1,6 +1,8 @@
 """What a recorded mission contains, in pure-Python form: read once from run.mcap for the views.
 
-The recording is the single source: the report and the rerun file can be rebuilt from it.
+A recording alone rebuilds the report and the rerun file (`load_mission`); after a live mission the
+accepted placements, waypoints and scores come from the PlanPerches result instead
+(`mission_data_from_result`), so they never depend on what a recorder happened to catch.
 """
 
 from __future__ import annotations
@@ -81,6 +83,25 @@ def load_mission(path: str | Path) -> MissionData:
     data.summary = metadata(path).get(MISSION_METADATA, {})
     if data.mesh is None:
         data.mesh = data.cropped
+    return data
+
+
+def mission_data_from_result(path: str | Path, result, goal=None) -> MissionData:
+    """The views' data for a finished mission: placements, waypoints and scores from the PlanPerches
+    result; mesh, surfaces, regions and target from the recorded stage replies, else from the goal."""
+    from perch_common.ros.conversions import mesh_from_msg, placement_from_msg, target_from_msg
+
+    data = load_mission(path)
+    data.placements = sorted((placement_from_msg(p) for p in result.placements), key=lambda p: p.drone_index)
+    data.waypoints = [waypoint_dict(w) for w in result.waypoints]
+    if goal is not None and data.mesh is None and len(goal.mesh.triangles):
+        data.mesh = mesh_from_msg(goal.mesh, "goal mesh")
+    if goal is not None and data.target is None:
+        data.target = target_from_msg(goal.target)  # None for KIND_DEFAULT
+    data.summary = {**data.summary, "success": bool(result.success), "message": result.message,
+                    "stage_names": list(result.stage_names), "stage_seconds": list(result.stage_seconds),
+                    "fitness": result.fitness, "coverage": result.coverage,
+                    "mean_uncertainty": result.mean_uncertainty, "cameras": len(result.placements)}
     return data
 
 

@@ -29,6 +29,7 @@ from perch_interfaces import srv
 from perch_interfaces.action import PlanPerches
 from perch_operator.config import OperatorConfig
 from perch_operator.crop import crop_mesh
+from perch_operator.goal_watch import GoalWatch
 from perch_operator.messages import box_from_ros, pose_array_msg, proposal_msg, waypoint_msg
 from perch_operator.mission import Mission, MissionOptions, Operator, replan_slot
 from perch_operator.proposals import Decision, Proposal, ProposalError, Status
@@ -121,7 +122,10 @@ class OperatorNode(Node):
 
         self.stages.service_wait, self.stages.timeout = config.service_wait, config.stage_timeout
         self.stages.gone_grace = config.gone_grace
-        cancelled = lambda: goal_handle.is_cancel_requested  # noqa: E731
+        watch = GoalWatch(self, config.client_grace)
+
+        def cancelled() -> bool:
+            return goal_handle.is_cancel_requested or watch.gone()
 
         def review(surfaces: list) -> set[int]:
             review_id = self.review_desk.open([s.id for s in surfaces])
@@ -139,7 +143,12 @@ class OperatorNode(Node):
                                                                                  result.stage_seconds)))
             return result
         except MissionCancelled as exc:
+            if watch.gone() and not goal_handle.is_cancel_requested:
+                goal_handle.abort()
+                self.get_logger().error(f"mission aborted: {watch.describe()}")
+                return self._failed(mission, f"{watch.describe()} ({exc})")
             goal_handle.canceled()
+            self.get_logger().warning(f"mission cancelled: {exc}")
             return self._failed(mission, str(exc))
         except (StageError, PerchError, MeshError, ValueError, TimeoutError, OSError) as exc:
             goal_handle.abort()

@@ -2,7 +2,9 @@
 
 Messages are written as received (serialized CDR, no re-encoding) with ros2msg schemas, so
 standard MCAP tools list and decode them. The recorder lives in the client's process and
-subscribes before the goal is sent; it records what is published from then on.
+subscribes before the goal is sent and waits until the coordinator's topics and the stage event
+topics are matched (`wait_matched`); it records what is published from then on. Outputs do not
+depend on it: they come from the mission result.
 """
 
 from __future__ import annotations
@@ -20,6 +22,11 @@ EVENT_SUFFIX = "/_service_event"
 GRAPH_METADATA = "perch_graph"  # metadata record: the namespace the recorded names live in
 # Every stage service plus the operator's own confirm service (relative names).
 SERVICES = {s.service: s.srv_type for s in STAGES.values()}
+# The coordinator's topics, subscribed by name (not only once discovered), so none is missed.
+MISSION_TOPICS = {"perch/proposals": "perch_interfaces/msg/Proposal",
+                  "perch/waypoints": "perch_interfaces/msg/PerchWaypoint",
+                  "perch/waypoint_poses": "geometry_msgs/msg/PoseArray",
+                  "perch/surface_review": "perch_interfaces/msg/SurfaceReview"}
 
 
 def event_topics() -> dict[str, str]:
@@ -56,7 +63,8 @@ class MissionRecorder:
 
     def refresh(self) -> None:
         """Subscribe to every /perch topic now in the graph and every known service event topic."""
-        topics = {self.node.resolve_topic_name(name): type_name for name, type_name in event_topics().items()}
+        topics = {self.node.resolve_topic_name(name): type_name
+                  for name, type_name in dict(event_topics(), **MISSION_TOPICS).items()}
         for name, types in self.node.get_topic_names_and_types():
             if name.startswith(self.prefix + "/") and types:
                 topics.setdefault(name, types[0])

@@ -1,20 +1,23 @@
 """Run one recorded mission from the command line and write its outputs.
 
 Used by `perch plan` and `perch demo`: start whatever part of the graph is missing, record the
-mission to run.mcap, then derive waypoints.yaml, run.rrd and report.html from the recording.
+mission to run.mcap in a staging folder, then write waypoints.yaml, run.rrd and report.html from the
+mission result (the recording adds the stage replies) and move them into the output folder together.
 """
 
 from __future__ import annotations
 
 import contextlib
+import shutil
 import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 from perch_common.errors import PerchError
+from perch_common.outputs import replace_outputs, staging_folder
 from perch_interfaces.action import PlanPerches
-from perch_operator.recorder import EVENT_SUFFIX, MissionRecorder
+from perch_operator.recorder import EVENT_SUFFIX, MISSION_TOPICS, MissionRecorder
 from perch_operator.stages import STAGES
 
 # Which node serves which service (relative names; to launch only what is missing).
@@ -33,6 +36,8 @@ class PlanOutputs:
     report: Path | None = None
     waypoints: Path | None = None
     mission_seconds: float = 0.0
+    staged: Path | None = None          # staging folder until the outputs are moved into out_dir
+    goal: PlanPerches.Goal | None = None
 
 
 @contextlib.contextmanager
@@ -97,40 +102,64 @@ def spin_for(node, seconds: float) -> None:
         rclpy.spin_once(node, timeout_sec=min(0.05, max(0.0, deadline - time.monotonic())))
 
 
+FAILED_NAME = "FAILED"
+# Everything a mission writes into its output folder (logs/ of launched nodes is not a mission output).
+OUTPUT_NAMES = ("waypoints.yaml", "run.mcap", "run.rrd", "report.html", "report_files", FAILED_NAME)
+
+
 def run_recorded_mission(node, goal: PlanPerches.Goal, out_dir: Path, progress: bool = True,
                          timeout: float = 900.0, describe: dict | None = None, out=sys.stderr) -> PlanOutputs:
-    """Record the mission to out_dir/run.mcap; returns the result (outputs are written separately)."""
-    from perch_operator.client import ProgressPrinter, run_mission
+    """Record the mission into a fresh staging folder beside out_dir; `write_outputs` moves it into place.
 
-    out_dir.mkdir(parents=True, exist_ok=True)
-    recorder = MissionRecorder(node, out_dir / "run.mcap")
+    A goal the coordinator rejects leaves nothing behind (GoalRejected); an interrupted or timed-out
+    mission leaves out_dir with a FAILED marker and its recording (PerchError).
+    """
+    from perch_operator.client import GoalRejected, ProgressPrinter, run_mission
+
+    staged = staging_folder(out_dir)
+    recorder = MissionRecorder(node, staged / "run.mcap")
     offered = offered_services(node)
     services = [node.resolve_service_name(s.service) for s in STAGES.values()]
     expected = [service + EVENT_SUFFIX for service in services if service in offered]
-    silent = recorder.wait_matched(expected, lambda t: spin_for(node, t), timeout=10.0)
+    mission_topics = [node.resolve_topic_name(name) for name in MISSION_TOPICS]
+    silent = recorder.wait_matched(expected + mission_topics, lambda t: spin_for(node, t), timeout=10.0)
     for topic in silent:
+        if topic in mission_topics:
+            continue  # transient local on the coordinator's side; the result carries what outputs need
         out.write(f"perch: warning: {topic[:-len(EVENT_SUFFIX)]} publishes no introspection events; its calls "
                   "will not be in the recording (its node's parameter `introspection`)\n")
     printer = ProgressPrinter(out) if progress else None
     started = time.monotonic()
+    outputs = PlanOutputs(PlanPerches.Result(), out_dir, staged / "run.mcap", staged=staged, goal=goal)
     try:
-        result = run_mission(node, goal, timeout=timeout, on_feedback=printer)
+        outputs.result = run_mission(node, goal, timeout=timeout, on_feedback=printer)
+    except GoalRejected:
+        recorder.close()
+        shutil.rmtree(staged, ignore_errors=True)
+        raise
     except (KeyboardInterrupt, TimeoutError) as exc:
         recorder.close()
-        raise PerchError(f"mission {'interrupted' if isinstance(exc, KeyboardInterrupt) else str(exc)}; "
-                         f"cancelled; the recording so far is in {recorder.path}") from None
+        reason = f"mission {'interrupted' if isinstance(exc, KeyboardInterrupt) else str(exc)}; cancelled"
+        outputs.result = PlanPerches.Result(success=False, message=reason)
+        fail_outputs(outputs, reason)
+        raise PerchError(f"{reason}; the recording so far is in {outputs.mcap}") from None
+    except BaseException:
+        recorder.close()
+        shutil.rmtree(staged, ignore_errors=True)
+        raise
     finally:
         if printer:
             printer.close()
+    result = outputs.result
     _drain(node, recorder)
-    seconds = time.monotonic() - started
+    outputs.mission_seconds = time.monotonic() - started
     recorder.add_metadata("perch_mission", {
         "success": result.success, "message": result.message, "stage_names": list(result.stage_names),
         "stage_seconds": list(result.stage_seconds), "fitness": result.fitness, "coverage": result.coverage,
         "mean_uncertainty": result.mean_uncertainty, "cameras": len(result.placements),
-        "mission_seconds": seconds, **(describe or {})})
+        "mission_seconds": outputs.mission_seconds, **(describe or {})})
     recorder.close()
-    return PlanOutputs(result, out_dir, out_dir / "run.mcap", mission_seconds=seconds)
+    return outputs
 
 
 def _drain(node, recorder: MissionRecorder, quiet: float = 0.3, limit: float = 5.0) -> None:
@@ -146,21 +175,60 @@ def _drain(node, recorder: MissionRecorder, quiet: float = 0.3, limit: float = 5
 
 
 def write_outputs(outputs: PlanOutputs, out=sys.stderr) -> PlanOutputs:
-    """waypoints.yaml, run.rrd and report.html from the recording."""
-    from perch_operator.mission_data import load_mission, write_waypoints_yaml
+    """Move a finished mission's outputs into out_dir: waypoints.yaml, run.rrd and report.html on success
+    (built from the mission result, the recording only adding detail), a FAILED marker otherwise.
+
+    Outputs of an earlier run that this one did not produce are removed, so whatever is in the folder
+    belongs to this mission.
+    """
+    if outputs.staged is None:
+        return outputs
+    if not outputs.result.success:
+        fail_outputs(outputs, outputs.result.message)
+        return outputs
+    try:
+        _write_success(outputs, out)
+    except BaseException as exc:
+        fail_outputs(outputs, f"writing the outputs failed: {type(exc).__name__}: {exc}")
+        raise
+    return outputs
+
+
+def _write_success(outputs: PlanOutputs, out) -> None:
+    from perch_operator.mission_data import mission_data_from_result, write_waypoints_yaml
     from perch_operator.render import camera_views
     from perch_operator.report import write_report
     from perch_operator.rerun_log import write_rrd
 
-    data = load_mission(outputs.mcap)
-    outputs.waypoints = write_waypoints_yaml(outputs.out_dir / "waypoints.yaml", data.waypoints)
+    staged = outputs.staged
+    data = mission_data_from_result(outputs.mcap, outputs.result, outputs.goal)
+    write_waypoints_yaml(staged / "waypoints.yaml", data.waypoints)
     if data.mesh is None:
-        out.write("perch: the recording holds no mesh (no stage events recorded); no report or rerun file\n")
-        return outputs
-    views = camera_views(data)
-    outputs.rrd = write_rrd(data, outputs.out_dir / "run.rrd", views)
-    outputs.report = write_report(data, outputs.out_dir, views=views)
-    return outputs
+        out.write("perch: neither the goal nor the recording holds the mesh (a bag mission without stage "
+                  "events); no report or rerun file\n")
+    else:
+        views = camera_views(data)
+        write_rrd(data, staged / "run.rrd", views)
+        write_report(data, staged, views=views)
+    moved = {p.name: p for p in replace_outputs(staged, outputs.out_dir, OUTPUT_NAMES, OUTPUT_NAMES)}
+    outputs.staged = None
+    outputs.mcap = moved.get("run.mcap", outputs.out_dir / "run.mcap")
+    outputs.waypoints, outputs.rrd = moved.get("waypoints.yaml"), moved.get("run.rrd")
+    outputs.report = moved.get("report.html")
+
+
+def fail_outputs(outputs: PlanOutputs, reason: str) -> Path:
+    """out_dir gets FAILED (the reason) and this mission's recording; earlier outputs are removed."""
+    staged = outputs.staged
+    if staged is None:
+        staged = staging_folder(outputs.out_dir)
+    (staged / FAILED_NAME).write_text(
+        f"{reason}\n\nfailed at {time.strftime('%Y-%m-%d %H:%M:%S %Z')}; run.mcap (when present) records "
+        "this failed mission; no waypoints, report or rerun file were written.\n")
+    replace_outputs(staged, outputs.out_dir, (FAILED_NAME, "run.mcap"), OUTPUT_NAMES)
+    outputs.staged = None
+    outputs.mcap = outputs.out_dir / "run.mcap"
+    return outputs.out_dir / FAILED_NAME
 
 
 def summary_table(result: PlanPerches.Result) -> str:

@@ -57,6 +57,17 @@ class StageCaller:
         self.clients = {name: node.create_client(s.srv_type, s.service, callback_group=callback_group)
                         for name, s in STAGES.items()}
         self.services = {name: node.resolve_service_name(s.service) for name, s in STAGES.items()}
+        from std_msgs.msg import String
+
+        from perch_common.ros.service import CANCEL_TOPIC
+
+        self._cancel_msg = String
+        self.cancel_pub = node.create_publisher(String, CANCEL_TOPIC, 10)
+
+    def _abandon(self, stage: str, client, future) -> None:
+        """Stop waiting for a call and tell the stage to stop its work (it checks between steps)."""
+        client.remove_pending_request(future)
+        self.cancel_pub.publish(self._cancel_msg(data=STAGES[stage].service))
 
     def call(self, stage: str, request, cancelled: Callable[[], bool] = lambda: False):
         """The stage's successful reply; raises StageError (or MissionCancelled)."""
@@ -72,7 +83,7 @@ class StageCaller:
         while not done.wait(0.05):
             now = time.monotonic()
             if cancelled():
-                client.remove_pending_request(future)
+                self._abandon(stage, client, future)
                 raise MissionCancelled(f"mission cancelled during stage {stage}")
             if not client.service_is_ready():
                 gone_since = gone_since or now
@@ -83,7 +94,7 @@ class StageCaller:
             else:
                 gone_since = None
             if now > deadline:
-                client.remove_pending_request(future)
+                self._abandon(stage, client, future)
                 raise StageError(stage, f"no reply within {self.timeout:.0f} s (parameter stage_timeout)", self.services[stage])
         response = future.result()
         if response is None:

@@ -51,7 +51,7 @@ def test_crop_bad_input_is_a_clear_error_and_node_survives(ros, room_msg):
     bad.keep_boxes = [pm.OrientedBox(size=vector_msg([1.0, -1.0, 1.0]))]
     bad.keep_boxes[0].pose.orientation.w = 1.0
     reply = testing.call_service(ros, Crop, "/perch/crop", bad, timeout=20)
-    assert not reply.success and "keep box 0" in reply.message and "positive" in reply.message
+    assert not reply.success and "keep_boxes[0].size.y = -1" in reply.message and "> 0" in reply.message
     empty = testing.call_service(ros, Crop, "/perch/crop", Crop.Request(), timeout=20)
     assert not empty.success and "crop mesh" in empty.message and "0 faces" in empty.message
     again = testing.call_service(ros, Crop, "/perch/crop", Crop.Request(mesh=room_msg), timeout=20)

@@ -9,6 +9,7 @@ from typing import Iterable
 import numpy as np
 
 from perch_common.errors import PerchError
+from perch_common.outputs import atomic_path
 from perch_reconstruction import images, msgdefs
 from perch_reconstruction.frames import Intrinsics, RGBDFrame
 
@@ -34,15 +35,21 @@ def write_bag(path: str | Path, frames: Iterable[RGBDFrame], intrinsics: Intrins
 
     compressed: colour as JPEG and depth as 16-bit PNG in sensor_msgs/CompressedImage.
     pose_type: "pose" (geometry_msgs/PoseStamped) or "odometry" (nav_msgs/Odometry).
+    The bag is written under a temporary name and renamed onto `path` only when complete.
     """
+    if pose_type not in ("pose", "odometry"):
+        raise ValueError(f"pose type '{pose_type}': use 'pose' or 'odometry'")
+    with atomic_path(path) as partial:  # a failed conversion never replaces an existing bag
+        return _write_bag(partial, Path(path), frames, intrinsics, gravity, topics, compressed, pose_type,
+                          world_frame)
+
+
+def _write_bag(path: Path, final: Path, frames, intrinsics, gravity, topics, compressed, pose_type,
+               world_frame) -> dict:
     from mcap.well_known import MessageEncoding, SchemaEncoding
     from mcap.writer import CompressionType, Writer
     from mcap_ros2._dynamic import serialize_dynamic
 
-    if pose_type not in ("pose", "odometry"):
-        raise ValueError(f"pose type '{pose_type}': use 'pose' or 'odometry'")
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     image_type = msgdefs.COMPRESSED_IMAGE if compressed else msgdefs.IMAGE
     pose_msg_type = msgdefs.POSE_STAMPED if pose_type == "pose" else msgdefs.ODOMETRY
     channels = {topics.color: image_type, topics.depth: image_type,
@@ -83,8 +90,6 @@ def write_bag(path: str | Path, frames: Iterable[RGBDFrame], intrinsics: Intrins
                           else images.odometry_fields(frame.pose, stamp, world_frame, CAMERA_FRAME))
                 put(topics.pose, fields, stamp)
         if first_ns is None:
-            stream.close()
-            path.unlink(missing_ok=True)
             raise PerchError("no frames to write; the bag was not created")
         if gravity is not None:
             writer.add_metadata(PERCH_METADATA, {"gravity": " ".join(f"{v:.9g}" for v in np.ravel(gravity)),
@@ -92,7 +97,7 @@ def write_bag(path: str | Path, frames: Iterable[RGBDFrame], intrinsics: Intrins
         writer.add_metadata("rosbag2", {"serialized_metadata": _rosbag2_metadata({t: channels[t] for t in ids}, counts, first_ns,
                                                                                  last_ns)})
         writer.finish()
-    return {"path": str(path), "messages": {t: n for t, n in counts.items() if n}, "duration_s": (last_ns - first_ns) / 1e9}
+    return {"path": str(final), "messages": {t: n for t, n in counts.items() if n}, "duration_s": (last_ns - first_ns) / 1e9}
 
 
 def _rosbag2_metadata(channels: dict, counts: dict, first_ns: int, last_ns: int) -> str:

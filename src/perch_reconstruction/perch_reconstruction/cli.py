@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from perch_common.errors import PerchError
+from perch_common.outputs import atomic_path, refuse_overwriting_inputs
 from perch_reconstruction.bag_write import BagTopics
 from perch_reconstruction.config import ReconstructionConfig
 
@@ -83,6 +84,7 @@ def _from_frames(args) -> int:
 
     if args.fps <= 0:
         raise ValueError(f"--fps must be > 0, got {args.fps}")
+    refuse_overwriting_inputs([args.output], [args.frames])
     folder = open_frame_folder(args.frames, limit=args.limit or None, step=args.step)
 
     def frames():
@@ -132,6 +134,8 @@ def register_clean(sub) -> None:
     parser.add_argument("--target-faces", type=int, help="decimation target (0: none)")
     parser.add_argument("--min-piece", type=float, help="remove pieces smaller than this diameter (m)")
     parser.add_argument("--no-align", action="store_true", help="keep the orientation")
+    parser.add_argument("--scale", type=float, default=1.0,
+                        help="multiply the mesh coordinates by this (0.001 for a mesh in millimetres)")
     parser.add_argument("--config", help="parameter file (default config/perch.yaml)")
     parser.set_defaults(func=_clean)
 
@@ -140,11 +144,13 @@ def _clean(args) -> int:
     from perch_common.mesh import load_mesh, save_mesh
     from perch_reconstruction.cleaning import clean_mesh_with_report
 
+    refuse_overwriting_inputs([args.output], [args.mesh, args.config])
     config = _config_with(args.config, target_faces=args.target_faces, min_piece_diameter=args.min_piece,
                           gravity_align=False if args.no_align else None)
-    mesh, report = clean_mesh_with_report(load_mesh(args.mesh), np.array(args.gravity) if args.gravity else None,
-                                          config)
-    save_mesh(args.output, mesh)
+    mesh, report = clean_mesh_with_report(load_mesh(args.mesh, scale=args.scale),
+                                          np.array(args.gravity) if args.gravity else None, config)
+    with atomic_path(args.output) as partial:
+        save_mesh(partial, mesh)
     print(json.dumps({"output": args.output, "faces_in": report.faces_in, "faces_out": report.faces_out,
                       "small_piece_faces_removed": report.pieces_removed_faces, "up_source": report.up_source,
                       "up_confidence": round(report.up_confidence, 3), "seconds": round(report.seconds, 3),
@@ -177,6 +183,7 @@ def _reconstruct(args) -> int:
     from perch_common.mesh import save_mesh
     from perch_reconstruction.core import reconstruct_bag, reconstruct_frames
 
+    refuse_overwriting_inputs([args.output, args.raw], [args.bag, args.frames, args.config])
     config = _config_with(args.config, voxel_size=args.voxel_size, target_faces=args.target_faces)
     progress = lambda s: print(f"  {s.frames_integrated}/{s.frames_received} frames integrated", flush=True)
     if args.bag:
@@ -190,7 +197,9 @@ def _reconstruct(args) -> int:
         mesh, stats = reconstruct_frames(iter_folder_frames(folder), folder.intrinsics, config, args.use_poses,
                                          folder.gravity, progress=progress)
     if args.raw:
-        save_mesh(args.raw, stats.raw_mesh)
-    save_mesh(args.output, mesh)
+        with atomic_path(args.raw) as partial:
+            save_mesh(partial, stats.raw_mesh)
+    with atomic_path(args.output) as partial:
+        save_mesh(partial, mesh)
     print(json.dumps({"output": str(Path(args.output)), **stats.summary(), "faces": mesh.num_faces}, indent=2))
     return 0

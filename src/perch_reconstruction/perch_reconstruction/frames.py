@@ -100,12 +100,23 @@ class FrameFolder:
                              f"{depth.shape[1]}x{depth.shape[0]} differ in size; register them first")
         pose = None
         if self.has_poses:
-            pose = np.loadtxt(stem.with_name(stem.name + ".pose.txt")).reshape(4, 4)
+            pose = read_matrix(stem.with_name(stem.name + ".pose.txt"), (4, 4), "4x4 camera-to-world pose")
             if not np.isfinite(pose).all():
                 pose = None  # the 7-Scenes/TUM convention for a lost-tracking frame
         # 65535 marks invalid Kinect depth; both it and 0 become 0 (invalid).
         depth_m = np.where(depth == 65535, 0, depth).astype(np.float32) / 1000.0
         return RGBDFrame(np.ascontiguousarray(color[:, :, ::-1]), depth_m, stamp_ns, pose)
+
+
+def read_matrix(path: Path, shape: tuple[int, ...], what: str) -> np.ndarray:
+    """A whitespace-separated numeric text file of `shape`; PerchError naming the file otherwise."""
+    try:
+        values = np.loadtxt(path, ndmin=1)
+    except (ValueError, OSError) as exc:
+        raise PerchError(f"{path}: cannot be read as a {what} ({exc})") from None
+    if values.size != int(np.prod(shape)):
+        raise PerchError(f"{path}: holds {values.size} numbers; a {what} needs {int(np.prod(shape))}")
+    return values.reshape(shape)
 
 
 def open_frame_folder(path: str | Path, limit: int | None = None, step: int = 1) -> FrameFolder:
@@ -130,11 +141,14 @@ def open_frame_folder(path: str | Path, limit: int | None = None, step: int = 1)
     first = cv2.imread(str(root / f"{stems[0]}.depth.png"), cv2.IMREAD_UNCHANGED)
     if first is None:
         raise PerchError(f"{root / stems[0]}.depth.png: missing or unreadable")
-    intrinsics = Intrinsics.from_matrix(np.loadtxt(k_path), first.shape[1], first.shape[0])
+    k = read_matrix(k_path, (3, 3), "3x3 intrinsic matrix K")
+    if not (np.isfinite(k).all() and k[0, 0] > 0 and k[1, 1] > 0):
+        raise PerchError(f"{k_path}: focal lengths fx={k[0, 0]:g}, fy={k[1, 1]:g} must be finite and > 0")
+    intrinsics = Intrinsics.from_matrix(k, first.shape[1], first.shape[0])
     gravity = None
     g_path = root / "gravity-direction.txt"
     if g_path.is_file():
-        gravity = np.loadtxt(g_path).reshape(3)
+        gravity = read_matrix(g_path, (3,), "gravity direction (3 numbers)")
     has_poses = all((root / f"{s}.pose.txt").is_file() for s in stems)
     return FrameFolder(root, stems, intrinsics, gravity, has_poses)
 

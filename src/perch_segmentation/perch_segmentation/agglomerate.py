@@ -17,6 +17,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from perch_common.cancellation import checkpoint
 from perch_segmentation import stats as st
 from perch_segmentation.adjacency import unique_edges
 
@@ -116,6 +117,7 @@ def grow_clusters(face_stats: np.ndarray, adjacency: np.ndarray, rules: MergeRul
     labels = np.arange(count, dtype=np.int64)
     table, edges = face_stats, adjacency
     for _ in range(max_rounds):
+        checkpoint("the next merge round")
         if count <= target or len(edges) == 0:
             break
         u, v = edges[:, 0], edges[:, 1]

@@ -23,6 +23,8 @@ def register(sub) -> None:
     parser.add_argument("-p", "--param", action="append", default=[], metavar="NAME:=VALUE",
                         help="override a parameter, e.g. -p use_color:=false (repeatable)")
     parser.add_argument("--png", type=Path, default=None, help="also render the coloured result to this PNG")
+    parser.add_argument("--scale", type=float, default=1.0,
+                        help="multiply the mesh coordinates by this (0.001 for a mesh in millimetres)")
     parser.set_defaults(func=run)
 
 
@@ -57,15 +59,20 @@ def _parse_value(text: str):
 
 
 def run(args: argparse.Namespace) -> int:
+    from perch_common.errors import PerchError
+    from perch_common.outputs import refuse_overwriting_inputs
     from perch_segmentation.core import segment_mesh
     from perch_segmentation.io import output_paths, write_colored_mesh, write_surfaces
 
+    surfaces_path, mesh_path = output_paths(args.output)
+    refuse_overwriting_inputs([args.output, surfaces_path, mesh_path, args.png], [args.mesh, args.config])
+    if surfaces_path.parent == args.output and args.output.exists() and not args.output.is_dir():
+        raise PerchError(f"-o {args.output}: is an existing file; give a .yaml/.json file or a folder")
     config = load_config(args.config, args.param)
-    mesh = load_mesh(args.mesh)
+    mesh = load_mesh(args.mesh, scale=args.scale)
     started = time.perf_counter()
     result = segment_mesh(mesh, config)
     seconds = time.perf_counter() - started
-    surfaces_path, mesh_path = output_paths(args.output)
     write_surfaces(surfaces_path, result.surfaces, source=str(args.mesh), frame_id=mesh.frame_id)
     write_colored_mesh(mesh_path, mesh, result.face_labels)
     area = sum(s.area for s in result.surfaces)

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from perch_common.cancellation import checkpoint
 from perch_segmentation import stats as st
 from perch_segmentation.adjacency import unique_edges
 from perch_segmentation.agglomerate import best_edges, components, flag_union
@@ -115,6 +116,7 @@ def merge_coplanar(table: np.ndarray, edges: np.ndarray, rules: PlaneRules,
     count = len(table)
     mapping = np.arange(count, dtype=np.int64)
     for _ in range(max_rounds):
+        checkpoint("the next merge round")
         if len(edges) == 0:
             break
         u, v = edges[:, 0], edges[:, 1]

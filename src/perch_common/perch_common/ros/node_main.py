@@ -10,6 +10,8 @@ import rclpy
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 
+from perch_common.memory import limit_heap_growth
+
 
 @contextlib.contextmanager
 def ros_context(args: list[str] | None = None) -> Iterator[None]:
@@ -23,6 +25,7 @@ def ros_context(args: list[str] | None = None) -> Iterator[None]:
 
 def run_node(factory: Callable[[], Node], args: list[str] | None = None, threads: int = 2) -> int:
     """Create the node inside an rclpy context and spin it; returns the process exit code."""
+    limit_heap_growth()  # big request buffers go back to the system once freed
     with ros_context(args if args is not None else sys.argv):
         node = factory()
         executor = MultiThreadedExecutor(num_threads=threads)

@@ -1,14 +1,26 @@
 """Service callbacks that always answer: expected errors become success=false with their message,
-unexpected ones are logged with a traceback and answered as internal errors; the node keeps serving."""
+unexpected ones are logged with a traceback and answered as internal errors; the node keeps serving.
+
+Every request is validated first (perch_common.request_validation); a stage service's work can be
+cancelled by the coordinator (a std_msgs/String naming the service on CANCEL_TOPIC stops it at its
+next `checkpoint()`), and after each call the node gives freed memory back to the system.
+"""
 
 from __future__ import annotations
 
 import functools
+import threading
 import time
 import traceback
 from typing import Callable
 
+from perch_common.cancellation import CancelToken, cancellable
 from perch_common.errors import EXPECTED
+from perch_common.memory import release_memory
+from perch_common.request_validation import validate_request
+
+CANCEL_TOPIC = "perch/stage_cancel"    # std_msgs/String: the (relative) service whose work in progress to stop
+RELEASE_DELAY = 0.2                    # s after a reply before freeing memory (the reply is sent by then)
 
 
 def answering(callback: Callable) -> Callable:
@@ -22,6 +34,10 @@ def answering(callback: Callable) -> Callable:
     def wrapper(self, request, response):
         started = time.perf_counter()
         try:
+            try:
+                validate_request(request)
+            except ValueError as exc:
+                raise type(exc)(f"invalid request: {exc}") from None
             response = callback(self, request, response)
         except EXPECTED as exc:
             response.success, response.message = False, str(exc)
@@ -40,14 +56,75 @@ def answering(callback: Callable) -> Callable:
     return wrapper
 
 
+class StageWork:
+    """The calls a node is serving, per service, with their cancel tokens; one per node."""
+
+    def __init__(self, node) -> None:
+        from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+        from std_msgs.msg import String
+
+        self.node = node
+        self._lock = threading.Lock()
+        self._running: dict[str, set[CancelToken]] = {}
+        self._release_timer = None
+        # Its own group: a cancel must get through while a service callback is busy.
+        self.group = MutuallyExclusiveCallbackGroup()
+        node.create_subscription(String, CANCEL_TOPIC, self._on_cancel, 10, callback_group=self.group)
+
+    @classmethod
+    def of(cls, node) -> "StageWork":
+        """The node's StageWork (created on first use)."""
+        work = getattr(node, "_perch_stage_work", None)
+        if work is None:
+            work = cls(node)
+            node._perch_stage_work = work
+        return work
+
+    def _on_cancel(self, msg) -> None:
+        with self._lock:
+            tokens = list(self._running.get(msg.data, ()))
+        for token in tokens:
+            token.cancel(f"{msg.data}: cancelled by the mission coordinator")
+        if tokens:
+            self.node.get_logger().warning(f"{msg.data}: cancelling the call in progress")
+
+    def serve(self, name: str, callback: Callable) -> Callable:
+        """Wrap a service callback: run it under a cancel token, then schedule a memory release."""
+
+        def run(request, response):
+            token = CancelToken()
+            with self._lock:
+                self._running.setdefault(name, set()).add(token)
+            try:
+                with cancellable(token):
+                    return callback(request, response)
+            finally:
+                with self._lock:
+                    self._running[name].discard(token)
+                del request
+                self._schedule_release()
+
+        return run
+
+    def _schedule_release(self) -> None:
+        if self._release_timer is None:
+            self._release_timer = self.node.create_timer(RELEASE_DELAY, self._release, callback_group=self.group)
+        else:
+            self._release_timer.reset()
+
+    def _release(self) -> None:
+        self._release_timer.cancel()
+        release_memory()
+
+
 def create_stage_service(node, srv_type, name: str, callback: Callable, introspection: bool = True,
                          **kwargs):
-    """A service whose requests and replies are published as introspection events when enabled,
-    so a recorder (perch_operator) can capture and replay them."""
+    """A cancellable stage service whose requests and replies are published as introspection events
+    when enabled, so a recorder (perch_operator) can capture and replay them."""
     from rclpy.qos import qos_profile_services_default
     from rclpy.service_introspection import ServiceIntrospectionState
 
-    service = node.create_service(srv_type, name, callback, **kwargs)
+    service = node.create_service(srv_type, name, StageWork.of(node).serve(name, callback), **kwargs)
     if introspection:
         service.configure_introspection(node.get_clock(), qos_profile_services_default,
                                         ServiceIntrospectionState.CONTENTS)
