@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from perch_common.types import SurfaceClass
 from perch_filtering.raster import SurfaceRaster
 from perch_filtering.sampling import MeshSamples, SampleIndex, project
 
@@ -108,13 +109,15 @@ def clearance_blocked(raster: SurfaceRaster, near: NearbyGeometry, radius: float
 
 
 def recovery_blocked(raster: SurfaceRaster, near: NearbyGeometry, up: np.ndarray, floor_height: float,
-                     fall: float, corridor_half_width: float, spacing: float) -> np.ndarray:
+                     fall: float, corridor_half_width: float, spacing: float,
+                     surface_class: SurfaceClass = SurfaceClass.WALL) -> np.ndarray:
     """Cells from which a drone cannot fall `fall` metres without meeting geometry.
 
-    Walls (normal within 60 deg of horizontal): the fall corridor is the box in front of the wall,
-    2 x half-width deep and wide, from the cell's height down by `fall`; any sample in it blocks.
-    Ceilings (facing down): the column below the cell, half-width wide, `fall` deep.
-    Upward-facing surfaces (landing) need no fall. All cells must also be `fall` above the floor.
+    Walls (the surface's class, by the configured class angle): the fall corridor is the box in front
+    of the wall, 2 x half-width deep and wide, from the cell's height down by `fall`; any sample in it
+    blocks. Ceilings (and intermediate surfaces facing down): the column below the cell, half-width
+    wide, `fall` deep. Floors (and intermediate surfaces facing up: landing) need no fall. All cells
+    must also be `fall` above the floor.
     """
     import cv2
 
@@ -124,11 +127,15 @@ def recovery_blocked(raster: SurfaceRaster, near: NearbyGeometry, up: np.ndarray
     heights = (raster.frame.origin @ up) + (raster.v0 + np.arange(rows) * cell) * float(f.axis_v @ up)
     blocked = np.repeat((heights < floor_height + fall)[:, None], cols, axis=1)
     facing = float(f.normal @ up)
-    if facing > 0.5 or len(near.depth) == 0:
-        return blocked if facing <= 0.5 else np.zeros(raster.shape, bool)
+    if surface_class == SurfaceClass.WALL:
+        upward = downward = False
+    else:
+        upward, downward = facing > 0, facing < 0
+    if upward or len(near.depth) == 0:
+        return np.zeros(raster.shape, bool) if upward else blocked
     half = int(np.ceil((corridor_half_width + spacing * GAP) / cell + SNAP))
     pix = np.round(raster.to_pixels(near.uv)).astype(np.int64)
-    if facing < -0.5:  # ceiling-like: the column below the cell
+    if downward:  # ceiling-like: the column below the cell
         seeds = np.zeros((rows + 2 * half, cols + 2 * half), np.uint8)
         pix = pix + half
         usable = _in_image(pix, seeds.shape) & (near.depth <= fall + spacing * GAP)

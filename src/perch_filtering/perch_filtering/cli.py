@@ -76,9 +76,9 @@ def segment_surfaces(mesh: Mesh) -> list:
 
 def run(args) -> int:
     from perch_common.outputs import refuse_overwriting_inputs
+    from perch_common.surfaces_file import read_surfaces
     from perch_filtering.core import filter_surfaces
     from perch_filtering.files import write_result
-    from perch_segmentation.io import read_surfaces
 
     out = Path(args.output)
     refuse_overwriting_inputs([out] + [out / n for n in ("regions.json", "surfaces.json", "regions.ply")],

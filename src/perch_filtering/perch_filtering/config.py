@@ -36,10 +36,6 @@ class FilterConfig:
     seed: int = param(0, "seed of the random samples used to orient surfaces")
 
     @property
-    def class_angle(self) -> float:
-        return math.radians(self.class_angle_deg)
-
-    @property
     def cell(self) -> float:
         return 1.0 / self.raster_density
 

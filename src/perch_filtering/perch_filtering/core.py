@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from perch_common.conventions import FILTER_NAMES, is_wall
 from perch_common.mesh import Mesh, validate_mesh
 from perch_common.polygons import faces_outline, from_shapely
 from perch_common.raycast import RayScene
@@ -29,10 +30,6 @@ from perch_filtering.validation import validate_inputs
 from perch_filtering.voxels import FlightGrid, build_flight_grid, grid_rotation
 
 __all__ = ["FilterConfig", "FilterResult", "filter_surfaces", "FILTER_NAMES"]
-
-FILTER_NAMES = ("orientation", "recovery_height", "obstacle_clearance", "line_of_sight", "perch_window",
-                "reachability")
-
 
 @dataclass
 class FilterResult:
@@ -74,7 +71,7 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
     up = validate_inputs(mesh, surfaces, target, up)
     clock = Laps()
     samples = sample_mesh(mesh, config.voxel_size)
-    walls = [s for s in surfaces if abs(s.frame.normal @ up) < np.sin(config.class_angle)]
+    walls = [s for s, wall in zip(surfaces, is_wall([s.frame.normal for s in surfaces], up, config.class_angle_deg)) if wall]
     rotation = grid_rotation(up, np.array([s.frame.normal for s in walls]) if walls else None,
                              np.array([s.area for s in walls]))
     grid = build_flight_grid(samples.points, rotation, target, config.voxel_size, config.drone_radius,
@@ -86,7 +83,7 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
     clock.lap("ray_scene")
     orientations = orient(winding_votes(mesh, surfaces),
                           visibility_scores(mesh, surfaces, grid, scene, centre, config.seed))
-    oriented = [oriented_copy(s, o.sign, up, config.class_angle) for s, o in zip(surfaces, orientations)]
+    oriented = [oriented_copy(s, o.sign, up, config.class_angle_deg) for s, o in zip(surfaces, orientations)]
     floor_height, floor_ids = find_floor(oriented, mesh, up, config)
     clock.lap("orientation")
 
@@ -156,7 +153,7 @@ def _raster_filters(surface: Surface, mesh: Mesh, samples, index: SampleIndex, u
     margin = max(config.clearance_radius, config.drone_radius) + spacing + 2 * config.cell
     near = geometry_in_front(samples, index, raster, surface.face_indices, up, depth_tol, reach, margin)
     fall = recovery_blocked(raster, near, up, floor_height, config.min_recovery_height, config.drone_radius,
-                            spacing)
+                            spacing, surface.surface_class)
     alive = inside & ~fall
     removal.recovery_height = float((inside & fall).sum() * raster.cell_area)
     clear = clearance_blocked(raster, near, config.clearance_radius, spacing)

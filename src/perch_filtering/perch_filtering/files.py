@@ -1,6 +1,6 @@
 """Perch regions and removals as JSON files (and the regions as a coloured mesh) for the CLI.
 
-Surfaces files have one format, perch_segmentation.io's: read and written through it."""
+Surfaces files have one format, perch_common.surfaces_file's: read and written through it."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 
 from perch_common.mesh import Mesh, save_mesh
+from perch_common.surfaces_file import write_surfaces
 from perch_common.types import FilterRemoval, PerchRegion, PlaneFrame, SurfaceClass
-from perch_segmentation.io import write_surfaces
 
 CLASS_COLORS = {SurfaceClass.WALL: (60, 140, 230), SurfaceClass.CEILING: (240, 170, 40),
                 SurfaceClass.FLOOR: (90, 190, 90), SurfaceClass.INTERMEDIATE: (200, 80, 200)}

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from rclpy.node import Node
 
+from perch_common.conventions import STAGE_SERVICES
 from perch_common.ros.conversions import (
     mesh_from_msg,
     region_to_msg,
@@ -57,8 +58,8 @@ class FilterNode(Node):
         config.filter_config().validate()  # fail at start-up on a broken configuration
         parse_up_axis(config.up_axis)
         self._warm_up()
-        self.service = create_stage_service(self, srv.Filter, "perch/filter", self._filter, config.introspection)
-        self.get_logger().info("ready: /perch/filter")
+        self.service = create_stage_service(self, srv.Filter, STAGE_SERVICES["filter"], self._filter, config.introspection)
+        self.get_logger().info(f"ready: {STAGE_SERVICES['filter']}")
 
     @staticmethod
     def _warm_up() -> None:

@@ -11,6 +11,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from perch_common.conventions import surface_class
 from perch_common.mesh import Mesh
 from perch_common.raycast import RayScene
 from perch_common.types import PlaneFrame, Surface, SurfaceClass
@@ -94,18 +95,7 @@ def orient(votes: np.ndarray, visibility: np.ndarray) -> list[Orientation]:
     return out
 
 
-def classify(normal: np.ndarray, up: np.ndarray, angle: float) -> SurfaceClass:
-    cos_up = float(normal @ up)
-    if cos_up >= np.cos(angle):
-        return SurfaceClass.FLOOR
-    if cos_up <= -np.cos(angle):
-        return SurfaceClass.CEILING
-    if abs(cos_up) <= np.sin(angle):
-        return SurfaceClass.WALL
-    return SurfaceClass.INTERMEDIATE
-
-
-def oriented_copy(surface: Surface, sign: float, up: np.ndarray, angle: float) -> Surface:
+def oriented_copy(surface: Surface, sign: float, up: np.ndarray, class_angle_deg: float) -> Surface:
     """A copy with the normal flipped by `sign`, a frame whose v axis follows up (walls), the boundary
     re-expressed in that frame, and the class from the oriented normal. The input is not touched."""
     old = surface.frame
@@ -114,7 +104,7 @@ def oriented_copy(surface: Surface, sign: float, up: np.ndarray, angle: float) -
                 for poly in surface.boundary]
     return replace(surface, frame=frame, boundary=boundary, face_indices=surface.face_indices.copy(),
                    mean_color=np.array(surface.mean_color, np.float64),
-                   surface_class=classify(frame.normal, up, angle))
+                   surface_class=surface_class(frame.normal, up, class_angle_deg))
 
 
 def class_enabled(cls: SurfaceClass, config: FilterConfig) -> bool:

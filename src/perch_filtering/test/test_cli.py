@@ -7,7 +7,7 @@ from filtering_scenes import Builder, structure
 
 from perch_common.cli import main
 from perch_common.mesh import load_mesh, save_mesh
-from perch_segmentation.io import read_surfaces, write_surfaces
+from perch_common.surfaces_file import read_surfaces, write_surfaces
 
 
 def test_perch_filter_writes_regions_and_removals(tmp_path, capsys):

@@ -63,7 +63,7 @@ def _run(args) -> int:
     with client_context(), GraphProcesses(args.config, None, args.param) as graph:
         node = rclpy.create_node("perch_bench_mission")
         started = time.monotonic()
-        from perch_operator.runner import NODE_SERVICES
+        from perch_common.conventions import NODE_SERVICES
 
         missing = graph.wait_for_services(node, [NODE_SERVICES[n][0] for n in graph.nodes if n in NODE_SERVICES], 120)
         if missing:
@@ -106,6 +106,7 @@ def _growth(values: list[float]) -> float:
 
 def _time_rejection(node, result) -> float:
     """Reject the first proposal of the last mission; seconds until the replacement arrives."""
+    from perch_common.conventions import CONFIRM_SERVICE
     from perch_common.ros.testing import call_service
     from perch_interfaces.msg import Proposal
     from perch_interfaces.srv import Confirm
@@ -118,7 +119,7 @@ def _time_rejection(node, result) -> float:
     node.destroy_subscription(sub)
     accepted = sorted(pid for pid, m in latest.items() if m.status == Proposal.STATUS_ACCEPTED)
     t0 = time.monotonic()
-    reply = call_service(node, Confirm, "perch/confirm",
+    reply = call_service(node, Confirm, CONFIRM_SERVICE,
                          Confirm.Request(proposal_id=accepted[-1], decision=Confirm.Request.FAILED_IN_FLIGHT), timeout=60)
     seconds = time.monotonic() - t0
     if not reply.success:

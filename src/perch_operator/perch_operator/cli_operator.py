@@ -11,6 +11,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from perch_common.conventions import CONFIRM_SERVICE
 from perch_common.errors import PerchError
 
 
@@ -51,7 +52,7 @@ def _decide(args) -> int:
 
     code = {"accept": Confirm.Request.ACCEPT, "reject": Confirm.Request.REJECT,
             "failed": Confirm.Request.FAILED_IN_FLIGHT}[args.decision]
-    reply = _call_and_report(Confirm, "perch/confirm",
+    reply = _call_and_report(Confirm, CONFIRM_SERVICE,
                              Confirm.Request(proposal_id=args.id, decision=code, reason=args.reason), timeout=60)
     if reply.replacement.id:
         print(_proposal_line(reply.replacement))

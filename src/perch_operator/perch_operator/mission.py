@@ -13,6 +13,7 @@ from typing import Callable
 
 import numpy as np
 
+from perch_common.conventions import FILTER_NAMES
 from perch_common.mesh import load_mesh
 from perch_common.ros.conversions import exclusion_to_msg, mesh_to_msg, placement_from_msg, placement_to_msg, vector_msg
 from perch_interfaces import srv
@@ -199,9 +200,7 @@ class Mission:
 
 def removal_summary(removals) -> str:
     """'orientation 12.3 m^2, recovery_height 4.0 m^2, ...' over all surfaces (non-zero filters only)."""
-    names = ("orientation", "recovery_height", "obstacle_clearance", "line_of_sight", "perch_window",
-             "reachability")
-    totals = {n: sum(float(getattr(r, n)) for r in removals) for n in names}
+    totals = {n: sum(float(getattr(r, n)) for r in removals) for n in FILTER_NAMES}
     text = ", ".join(f"{n} {a:.1f} m^2" for n, a in totals.items() if a > 0)
     return text or "none (no surfaces reached the filter)"
 

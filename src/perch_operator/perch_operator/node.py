@@ -17,6 +17,7 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from perch_common.conventions import CONFIRM_SERVICE, STAGE_SERVICES
 from perch_common.errors import PerchError
 from perch_common.mesh import MeshError, validate_mesh
 from perch_common.ros.conversions import mesh_from_msg, mesh_to_msg, target_from_msg, target_to_msg, to_array
@@ -52,9 +53,9 @@ class OperatorNode(Node):
         group = ReentrantCallbackGroup()
         self.stages = StageCaller(self, group, self.config.service_wait, self.config.stage_timeout,
                                   self.config.gone_grace)
-        self.crop_service = create_stage_service(self, srv.Crop, "perch/crop", self._crop,
+        self.crop_service = create_stage_service(self, srv.Crop, STAGE_SERVICES["crop"], self._crop,
                                                  self.config.introspection, callback_group=group)
-        self.confirm_service = self.create_service(srv.Confirm, "perch/confirm", self._confirm,
+        self.confirm_service = self.create_service(srv.Confirm, CONFIRM_SERVICE, self._confirm,
                                                    callback_group=group)
         self.review_service = self.create_service(srv.ReviewSurfaces, "perch/review_surfaces", self._review_decided,
                                                   callback_group=group)

@@ -15,6 +15,7 @@ from pathlib import Path
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from perch_common.conventions import CONFIRM_SERVICE
 from perch_common.ros.msgdefs import full_definition, message_class
 from perch_operator.stages import STAGES
 
@@ -33,7 +34,7 @@ def event_topics() -> dict[str, str]:
     """Service event topic (relative) -> its type name, for every stage service and perch/confirm."""
     from perch_interfaces import srv
 
-    services = dict(SERVICES, **{"perch/confirm": srv.Confirm})
+    services = dict(SERVICES, **{CONFIRM_SERVICE: srv.Confirm})
     return {name + EVENT_SUFFIX: f"perch_interfaces/srv/{cls.__name__}_Event" for name, cls in services.items()}
 
 

@@ -8,12 +8,12 @@ from pathlib import Path
 
 import numpy as np
 
+from perch_common.conventions import FILTER_NAMES as FILTERS
 from perch_common.mesh import Mesh
 from perch_operator.mission_data import MissionData, latest_waypoints, target_point_scores
 
 CLASS_COLOURS = {0: ("unknown", (150, 150, 150)), 1: ("floor", (200, 170, 90)), 2: ("wall", (90, 140, 220)),
                  3: ("ceiling", (200, 200, 240)), 4: ("intermediate", (220, 120, 60))}
-FILTERS = ("orientation", "recovery_height", "obstacle_clearance", "line_of_sight", "perch_window", "reachability")
 
 
 def _mesh3d(rr, mesh: Mesh, colour=None):

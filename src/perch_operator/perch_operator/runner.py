@@ -14,17 +14,12 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from perch_common.conventions import NODE_SERVICES
 from perch_common.errors import PerchError
 from perch_common.outputs import replace_outputs, staging_folder
 from perch_interfaces.action import PlanPerches
 from perch_operator.recorder import EVENT_SUFFIX, MISSION_TOPICS, MissionRecorder
 from perch_operator.stages import STAGES
-
-# Which node serves which service (relative names; to launch only what is missing).
-NODE_SERVICES = {"perch_operator": ["perch/crop", "perch/confirm"],
-                 "perch_reconstruction": ["perch/clean_mesh", "perch/reconstruct"],
-                 "perch_segmentation": ["perch/segment"], "perch_filtering": ["perch/filter"],
-                 "perch_placement": ["perch/optimise"]}
 
 
 @dataclass

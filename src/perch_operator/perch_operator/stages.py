@@ -11,6 +11,7 @@ import time
 from dataclasses import dataclass
 from typing import Callable
 
+from perch_common.conventions import STAGE_SERVICES
 from perch_common.errors import PerchError
 from perch_interfaces import srv
 
@@ -25,12 +26,12 @@ class Stage:
 
 
 STAGES = {s.name: s for s in (
-    Stage("reconstruct", "perch/reconstruct", srv.Reconstruct),
-    Stage("clean", "perch/clean_mesh", srv.CleanMesh),
-    Stage("crop", "perch/crop", srv.Crop),
-    Stage("segment", "perch/segment", srv.Segment),
-    Stage("filter", "perch/filter", srv.Filter),
-    Stage("optimise", "perch/optimise", srv.Optimise),
+    Stage("reconstruct", STAGE_SERVICES["reconstruct"], srv.Reconstruct),
+    Stage("clean", STAGE_SERVICES["clean"], srv.CleanMesh),
+    Stage("crop", STAGE_SERVICES["crop"], srv.Crop),
+    Stage("segment", STAGE_SERVICES["segment"], srv.Segment),
+    Stage("filter", STAGE_SERVICES["filter"], srv.Filter),
+    Stage("optimise", STAGE_SERVICES["optimise"], srv.Optimise),
 )}
 
 

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from perch_common.config import load_node_config
+from perch_common.conventions import DEFAULT_CLASS_ANGLE_DEG, surface_class
 from perch_common.mesh import Mesh, load_mesh
 from perch_common.polygons import faces_outline
 from perch_common.target import TargetVolume
@@ -88,8 +89,9 @@ def up_of(config: PlacementConfig) -> np.ndarray:
 
 
 def unfiltered_regions(mesh: Mesh, surfaces: list[Surface], up=(0.0, 0.0, 1.0), min_area: float = 0.5,
-                       towards: np.ndarray | None = None) -> list[PerchRegion]:
-    """Every wall and ceiling surface as a perch region (no filtering).
+                       towards: np.ndarray | None = None,
+                       class_angle_deg: float = DEFAULT_CLASS_ANGLE_DEG) -> list[PerchRegion]:
+    """Every surface that does not face up as a perch region (no filtering), classed by the class angle.
 
     A stand-in for the filtering stage (benchmarks, tests). Generated scenes' surfaces already face
     free space; segmented ones are unoriented, so give `towards` (the target centre) to turn each
@@ -101,10 +103,10 @@ def unfiltered_regions(mesh: Mesh, surfaces: list[Surface], up=(0.0, 0.0, 1.0), 
         if towards is not None and (np.asarray(towards) - frame.origin) @ frame.normal < 0:
             # The flipped frame swaps u and v, so the outline's coordinates swap too.
             frame, polygons = frame.flipped(), [[ring[:, ::-1] for ring in poly] for poly in polygons]
-        tilt = float(frame.normal @ up)
-        if s.area < min_area or tilt > 0.7:  # floors and upward-facing tops are not perches here
+        cls = surface_class(frame.normal, up, class_angle_deg)
+        upward = cls == SurfaceClass.FLOOR or (cls == SurfaceClass.INTERMEDIATE and frame.normal @ up > 0)
+        if s.area < min_area or upward:  # floors and upward-facing tops are not perches here
             continue
-        cls = SurfaceClass.CEILING if tilt < -0.7 else SurfaceClass.WALL
         polygons = polygons or faces_outline(frame, mesh.triangles()[s.face_indices])
         regions.append(PerchRegion(len(regions), s.id, cls, frame, polygons,
                                    mesh.submesh(s.face_indices), float(s.area)))

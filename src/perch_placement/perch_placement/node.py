@@ -7,6 +7,7 @@ import sys
 
 from rclpy.node import Node
 
+from perch_common.conventions import STAGE_SERVICES
 from perch_common.ros.conversions import (
     exclusion_from_msg,
     mesh_from_msg,
@@ -44,9 +45,9 @@ class PlacementNode(Node):
         config = declare_config(self, PlacementConfig)
         config.resolved()  # fail at start-up on a broken configuration
         self.cache = PlacementCache()  # re-optimising after a rejection reuses the scene and candidates
-        self.service = create_stage_service(self, srv.Optimise, "perch/optimise", self.optimise,
+        self.service = create_stage_service(self, srv.Optimise, STAGE_SERVICES["optimise"], self.optimise,
                                             config.introspection)
-        self.get_logger().info("ready: /perch/optimise")
+        self.get_logger().info(f"ready: {STAGE_SERVICES['optimise']}")
 
     def _request_config(self, request) -> PlacementConfig:
         config = read_config(self, PlacementConfig).resolved()

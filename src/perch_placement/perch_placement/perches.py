@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from perch_common.polygons import to_shapely
-from perch_common.types import ExclusionZone, PerchRegion
+from perch_common.types import ExclusionZone, PerchRegion, SurfaceClass
 from perch_placement.config import DroneSpec
 
 # Columns: the optical frame's x, y, z in the drone frame (x_opt = -y_drone, y_opt = x_drone, z_opt = z_drone).
@@ -69,7 +69,8 @@ class Perches:
         self.cdf = np.cumsum(areas) / areas.sum()
         self.normals = np.array([r.frame.normal for r in self.regions], np.float64)
         self.axis_u = np.array([r.frame.axis_u for r in self.regions], np.float64)
-        self.is_wall = np.abs(self.normals @ self.up) < np.cos(np.radians(45))
+        # Drones on walls hang head-down; elsewhere they face the target (the class the filter gave).
+        self.is_wall = np.array([r.surface_class == SurfaceClass.WALL for r in self.regions], bool)
         if encoding == "mesh":
             self._prepare_faces()
 

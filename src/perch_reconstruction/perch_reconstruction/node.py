@@ -18,6 +18,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
+from perch_common.conventions import STAGE_SERVICES
 from perch_common.errors import EXPECTED
 from perch_common.ros.conversions import mesh_from_msg, mesh_to_msg, xyz
 from perch_common.ros.node_main import run_node
@@ -75,9 +76,9 @@ class ReconstructionNode(Node):
         self._offline_status: dict | None = None
         self._frame_ids: dict[str, str] = {}
         self._frame_warned = False
-        for srv_type, name, callback in ((srv.Reconstruct, "perch/reconstruct", self._reconstruct),
+        for srv_type, name, callback in ((srv.Reconstruct, STAGE_SERVICES["reconstruct"], self._reconstruct),
                                          (Trigger, "perch/reconstruct/reset", self._reset),
-                                         (srv.CleanMesh, "perch/clean_mesh", self._clean)):
+                                         (srv.CleanMesh, STAGE_SERVICES["clean"], self._clean)):
             create_stage_service(self, srv_type, name, callback, c.introspection, callback_group=services)
         self.get_logger().info(f"ready: /perch/reconstruct, /perch/clean_mesh; listening on {c.color_topic}, "
                                f"{c.depth_topic}, {c.camera_info_topic}" + (f", {c.pose_topic}" if c.pose_topic else ""))

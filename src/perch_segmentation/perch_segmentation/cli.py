@@ -61,8 +61,9 @@ def _parse_value(text: str):
 def run(args: argparse.Namespace) -> int:
     from perch_common.errors import PerchError
     from perch_common.outputs import refuse_overwriting_inputs
+    from perch_common.surfaces_file import write_surfaces
     from perch_segmentation.core import segment_mesh
-    from perch_segmentation.io import output_paths, write_colored_mesh, write_surfaces
+    from perch_segmentation.io import output_paths, write_colored_mesh
 
     surfaces_path, mesh_path = output_paths(args.output)
     refuse_overwriting_inputs([args.output, surfaces_path, mesh_path, args.png], [args.mesh, args.config])

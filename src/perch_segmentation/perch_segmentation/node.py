@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from rclpy.node import Node
 
+from perch_common.conventions import STAGE_SERVICES
 from perch_common.errors import PerchError
 from perch_common.ros.conversions import mesh_from_msg, surface_to_msg, to_array
 from perch_common.ros.node_main import run_node
@@ -18,7 +19,7 @@ from perch_interfaces import srv
 from perch_segmentation.core import SegmentationConfig, segment_mesh
 
 NO_SURFACE = np.uint32(0xFFFFFFFF)  # Segment.srv: face_labels entry of a face on no surface
-SERVICE = "perch/segment"
+SERVICE = STAGE_SERVICES["segment"]
 
 
 @dataclass

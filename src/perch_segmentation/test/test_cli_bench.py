@@ -70,9 +70,9 @@ def test_bench_scene_prints_accuracy_and_baseline(tmp_path, capsys, baseline):
 
 @pytest.mark.parametrize("suffix", [".yaml", ".json"])
 def test_surfaces_file_round_trips(tmp_path, suffix):
+    from perch_common.surfaces_file import read_surfaces, write_surfaces
     from perch_common.types import SurfaceClass
     from perch_segmentation.core import SegmentationConfig, segment_mesh
-    from perch_segmentation.io import read_surfaces, write_surfaces
 
     surfaces = segment_mesh(box_room(door=True)[0], SegmentationConfig()).surfaces
     surfaces[0].surface_class = SurfaceClass.WALL
@@ -86,7 +86,7 @@ def test_surfaces_file_round_trips(tmp_path, suffix):
 
 
 def test_read_surfaces_names_the_bad_file(tmp_path):
-    from perch_segmentation.io import read_surfaces
+    from perch_common.surfaces_file import read_surfaces
 
     (tmp_path / "bad.yaml").write_text("surfaces: [{id: 0}]")
     with pytest.raises(ValueError, match="bad.yaml: malformed surface"):

@@ -1,0 +1,60 @@
+"""Conventions every stage shares: surface classes by the configured angle, the filter names and the
+stage service names (and which node offers each)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import fields
+
+import numpy as np
+
+from perch_common.types import FilterRemoval, SurfaceClass
+
+# Tolerance of the floor / wall / ceiling classes (FilterConfig.class_angle_deg's default).
+DEFAULT_CLASS_ANGLE_DEG = 15.0
+
+
+def surface_classes(normals: np.ndarray, up: np.ndarray, angle_deg: float = DEFAULT_CLASS_ANGLE_DEG) -> np.ndarray:
+    """SurfaceClass codes (K,) of oriented unit normals (K,3): FLOOR within `angle_deg` of up, CEILING
+    within it of down, WALL within it of horizontal, INTERMEDIATE between."""
+    cos_up = np.asarray(normals, np.float64).reshape(-1, 3) @ np.asarray(up, np.float64)
+    angle = math.radians(angle_deg)
+    out = np.full(len(cos_up), int(SurfaceClass.INTERMEDIATE))
+    out[np.abs(cos_up) <= np.sin(angle)] = SurfaceClass.WALL
+    out[cos_up <= -np.cos(angle)] = SurfaceClass.CEILING
+    out[cos_up >= np.cos(angle)] = SurfaceClass.FLOOR
+    return out
+
+
+def surface_class(normal: np.ndarray, up: np.ndarray, angle_deg: float = DEFAULT_CLASS_ANGLE_DEG) -> SurfaceClass:
+    """The SurfaceClass of one oriented unit normal (see surface_classes)."""
+    return SurfaceClass(int(surface_classes(normal, up, angle_deg)[0]))
+
+
+def is_wall(normals: np.ndarray, up: np.ndarray, angle_deg: float = DEFAULT_CLASS_ANGLE_DEG) -> np.ndarray:
+    """Whether each unit normal (K,3), either way round, is within `angle_deg` of horizontal."""
+    return surface_classes(normals, up, angle_deg) == SurfaceClass.WALL
+
+
+# The safety filters in pipeline order: FilterRemoval's per-filter area fields (add a filter there).
+FILTER_NAMES: tuple[str, ...] = tuple(f.name for f in fields(FilterRemoval)
+                                      if f.name not in ("surface_id", "area_total", "area_kept"))
+
+# Each pipeline stage's service (relative: resolved in the node's namespace).
+STAGE_SERVICES: dict[str, str] = {
+    "reconstruct": "perch/reconstruct",
+    "clean": "perch/clean_mesh",
+    "crop": "perch/crop",
+    "segment": "perch/segment",
+    "filter": "perch/filter",
+    "optimise": "perch/optimise",
+}
+CONFIRM_SERVICE = "perch/confirm"  # the operator's accept/reject service (not a pipeline stage)
+# Which node offers which services; the first one tells that the node is up.
+NODE_SERVICES: dict[str, list[str]] = {
+    "perch_operator": [STAGE_SERVICES["crop"], CONFIRM_SERVICE],
+    "perch_reconstruction": [STAGE_SERVICES["clean"], STAGE_SERVICES["reconstruct"]],
+    "perch_segmentation": [STAGE_SERVICES["segment"]],
+    "perch_filtering": [STAGE_SERVICES["filter"]],
+    "perch_placement": [STAGE_SERVICES["optimise"]],
+}
