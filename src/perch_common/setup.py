@@ -27,7 +27,7 @@ setup(
             "launch = perch_common.launch:register",
             "bench = perch_common.bench:register",
         ],
-        "perch.benchmarks": ["transport = perch_common.bench_transport:register"],
+        "perch.benchmarks": ["transport = perch_common.bench_transport:register", "up = perch_common.bench_up:register"],
         "perch.nodes": ["perch_mesh_tools = perch_common.mesh_node:main"],
     },
 )
