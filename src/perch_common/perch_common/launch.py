@@ -185,11 +185,21 @@ def register(sub) -> None:
                    help="run the graph in ROS namespace NS (its names become /NS/perch/...); clients then "
                         "need `perch --namespace NS ...`")
     p.add_argument("--list", action="store_true", help="list the nodes that would start and exit")
+    p.add_argument("--up", default=None, metavar="AXIS",
+                   help="up axis of meshes given to missions that name none: auto, +z, -y, 'X Y Z' "
+                        "(perch_operator input_up_axis; default from the config: auto)")
     p.set_defaults(func=_run)
 
 
 def _run(args) -> int:
-    graph = GraphProcesses(args.config, args.nodes.split(",") if args.nodes else None, args.param, args.log_dir,
+    overrides = list(args.param)
+    if args.up is not None:
+        from perch_common.transforms import parse_up_axis
+
+        if args.up.strip().lower() != "auto":
+            parse_up_axis(args.up)  # a malformed axis fails before anything starts
+        overrides.append(f"perch_operator:input_up_axis:={args.up}")
+    graph = GraphProcesses(args.config, args.nodes.split(",") if args.nodes else None, overrides, args.log_dir,
                            namespace=args.launch_namespace)
     if args.list or not graph.nodes:
         for name in graph.nodes:

@@ -263,18 +263,18 @@ class UpChoice:
     warnings: list[str] = field(default_factory=list)
 
 
-def choose_up(text: str, mesh, path: str | Path | None = None, option: str = "--up",
+def choose_up(text: str, mesh, convention: str = "+z", option: str = "--up",
               down_hint: np.ndarray | None = None, gravity: np.ndarray | None = None) -> UpChoice:
     """The up axis for `mesh` given the user's setting `text` ("auto", "+z", "-y", "x y z").
 
-    auto: the estimate when confident, else the file's convention with a warning. A given axis
-    the mesh contradicts raises UpAxisError naming the axis the mesh suggests and `option`.
+    auto: the estimate when confident, else `convention` (the file format's, see file_convention)
+    with a warning. A given axis the mesh contradicts raises UpAxisError naming the axis the mesh
+    suggests and `option`.
     """
     estimate = estimate_mesh_up(mesh, down_hint, gravity)
     if text.strip().lower() == "auto":
         if estimate.confident:
             return UpChoice(estimate.up, estimate.source if estimate.source == "gravity" else "estimate", estimate)
-        convention = file_convention(path)
         fallback = parse_up_axis(convention)
         if estimate.axis_confidence >= CONFIDENT:  # only the sign is in doubt: the convention picks it
             fallback = estimate.toward(fallback)

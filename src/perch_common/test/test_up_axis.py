@@ -73,13 +73,13 @@ def test_empty_box_says_the_sign_is_weak_and_auto_falls_back_to_the_convention()
     estimate = estimate_mesh_up(box_room())
     assert abs(estimate.up[2]) > 0.999 and estimate.axis_confidence > 0.9
     assert not estimate.confident and any("weak evidence" in n for n in estimate.notes)
-    choice = choose_up("auto", box_room(), "room.ply")
+    choice = choose_up("auto", box_room(), file_convention("room.ply"))
     assert choice.source == "file convention" and choice.up.tolist() == [0, 0, 1]
     assert "not confident" in choice.warnings[0] and "--up AXIS" in choice.warnings[0]
     # glTF is +y up: the same box with its vertical along y takes +y from the convention
     y_vertical = box_room((5.0, 2.6, 4.0))
-    assert choose_up("auto", y_vertical, "room.glb").up.tolist() == [0, 1, 0]
-    assert choose_up("auto", y_vertical, "room.ply").up @ [0, 1, 0] > 0.999  # axis clear, sign from +z: nearest
+    assert choose_up("auto", y_vertical, file_convention("room.glb")).up.tolist() == [0, 1, 0]
+    assert choose_up("auto", y_vertical, file_convention("room.ply")).up @ [0, 1, 0] > 0.999  # axis clear, sign from +z: nearest
 
 
 def test_file_conventions():

@@ -18,7 +18,7 @@ DEMO_SEED = 7
 def register_plan(sub) -> None:
     p = sub.add_parser("plan", help="run one mission: where should the drones perch? (launches what it needs)")
     source = p.add_mutually_exclusive_group(required=True)
-    source.add_argument("--mesh", type=Path, help="environment mesh (PLY/OBJ/GLB/STL, z-up)")
+    source.add_argument("--mesh", type=Path, help="environment mesh (PLY/OBJ/GLB/glTF/STL), in any orientation (--up)")
     source.add_argument("--bag", type=Path, help="RGB-D bag to reconstruct first")
     source.add_argument("--scene", type=int, metavar="SEED", help="a generated scene with this seed")
     p.add_argument("--kind", default="apartment", help="generated scene kind (room, l_shaped, two_rooms, apartment)")
@@ -32,6 +32,9 @@ def register_plan(sub) -> None:
                    help="multiply --mesh coordinates by this (0.001 for a mesh in millimetres)")
     p.add_argument("--seed", type=int, default=-1, help="optimiser seed (negative: the node's default)")
     p.add_argument("--auto-accept", action="store_true", help="accept every proposal (else: perch operator ...)")
+    p.add_argument("--up", default="auto", metavar="AXIS",
+                   help="up axis of the mesh: auto (estimated; the file's convention when unsure: glTF/GLB +y, "
+                        "others +z), +x, -x, +y, -y, +z, -z or 'X Y Z'. Outputs stay in the mesh's own frame")
     p.add_argument("--review-surfaces", type=non_negative_int, default=0, metavar="N",
                    help="before filtering, wait for `perch operator review ID [--reject ...]` on the N largest surfaces")
     _common(p)
@@ -88,7 +91,7 @@ def _common(p) -> None:
 def parse_target(spec: str | None):
     """The TargetVolume message for --target (None: the scene's / crop's default)."""
     from perch_common.mesh import load_mesh
-    from perch_common.ros.conversions import target_to_msg
+    from perch_common.ros.conversions import mesh_to_msg, target_to_msg
     from perch_common.target import TargetVolume
     from perch_interfaces import msg as pm
 
@@ -108,16 +111,24 @@ def parse_target(spec: str | None):
     head, sep, tail = spec.rpartition(":")
     if sep and tail.replace(".", "", 1).isdigit():
         path, height = head, float(tail)
-    return target_to_msg(TargetVolume.from_footprint_mesh(load_mesh(Path(path)), height))
+    # Sent as the mesh itself: the mission projects it along the true up (the mesh may not be z-up).
+    footprint = load_mesh(Path(path))
+    return pm.TargetVolume(kind=pm.TargetVolume.KIND_EXTRUDED_FOOTPRINT, footprint=mesh_to_msg(footprint),
+                           height=float(height))
 
 
 def _plan(args) -> int:
     from perch_common.ros.conversions import mesh_to_msg, target_to_msg
+    from perch_common.transforms import parse_up_axis
+    from perch_common.up_axis import file_convention
     from perch_interfaces.action import PlanPerches
 
     check_output_folder(args.out, args.overwrite, [args.mesh, args.bag, args.target and args.target.split(":")[0]])
+    if args.up.strip().lower() != "auto":
+        parse_up_axis(args.up)  # a malformed axis fails here, before anything is launched
     goal = PlanPerches.Goal(num_cameras=args.cameras, seed=args.seed, auto_accept=args.auto_accept,
-                            review_surfaces=args.review_surfaces)
+                            review_surfaces=args.review_surfaces, up_axis=args.up,
+                            up_convention=file_convention(args.mesh))
     goal.target = parse_target(args.target)
     describe = {"cameras_asked": args.cameras, "seed": args.seed}
     if args.mesh:
@@ -125,6 +136,7 @@ def _plan(args) -> int:
 
         goal.mesh = mesh_to_msg(load_mesh(args.mesh, scale=args.scale))
         describe["source"] = f"mesh {args.mesh}"
+        describe["up"] = args.up
     elif args.bag:
         if not args.bag.exists():
             raise FileNotFoundError(f"{args.bag}: no such bag")

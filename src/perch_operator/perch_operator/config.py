@@ -19,6 +19,10 @@ class OperatorConfig:
     approach_distance: float = field(default=0.5, metadata={
         "description": "waypoint approach point: this far in front of the perch along its normal",
         "unit": "m"})
+    input_up_axis: str = field(default="auto", metadata={
+        "description": "up of a given mesh when the goal names none: auto (estimated; the file format's "
+                       "convention when unsure, glTF +y) or +x, -x, +y, -y, +z, -z, 'x y z'. Outputs stay "
+                       "in the mesh's frame"})
     clean_given_mesh: bool = field(default=True, metadata={
         "description": "run /perch/clean_mesh on a mesh given by file or message before cropping"})
     optimise_on_full_mesh: bool = field(default=True, metadata={

@@ -1,11 +1,17 @@
-"""perch_interfaces messages built by the operator (proposals, waypoints, boxes)."""
+"""perch_interfaces messages built by the operator (proposals, waypoints, boxes).
+
+The frame contract's boundary: what goes out (proposals, placements, waypoints, pose arrays) is
+turned from the gravity-aligned frame the stages work in into the input's own frame here, and what
+comes in with a goal (boxes, target) the other way.
+"""
 
 from __future__ import annotations
 
-import numpy as np
 from geometry_msgs.msg import PoseArray, PoseStamped
 
-from perch_common.ros.conversions import box_from_msg, placement_to_msg, point_msg, pose_msg
+from perch_common.frames import Alignment
+from perch_common.ros.conversions import box_from_msg, mesh_from_msg, mesh_to_msg, placement_to_msg, point_msg, pose_msg
+from perch_common.transforms import pose_to_matrix
 from perch_interfaces import msg as pm
 from perch_operator.crop import Box
 from perch_operator.proposals import Proposal, approach_point
@@ -19,29 +25,61 @@ def box_from_ros(msg: pm.OrientedBox, what: str) -> Box:
         raise ValueError(f"{what}: {exc}") from None
 
 
-def proposal_msg(proposal: Proposal) -> pm.Proposal:
+def proposal_msg(proposal: Proposal, alignment: Alignment) -> pm.Proposal:
+    """A proposal as published, its placement in the input frame."""
     return pm.Proposal(id=proposal.id, status=int(proposal.status), reason=proposal.reason,
-                       placement=placement_msg(proposal))
+                       placement=placement_msg(proposal, alignment))
 
 
-def placement_msg(proposal: Proposal) -> pm.CameraPlacement:
-    msg = placement_to_msg(proposal.placement)
+def placement_msg(proposal: Proposal, alignment: Alignment) -> pm.CameraPlacement:
+    """The proposal's placement in the input frame, numbered by its drone slot."""
+    msg = placement_to_msg(alignment.placement_to_input(proposal.placement))
     msg.drone_index = proposal.slot
     return msg
 
 
-def waypoint_msg(proposal: Proposal, approach_distance: float, frame_id: str, stamp) -> pm.PerchWaypoint:
+def waypoint_msg(proposal: Proposal, approach_distance: float, alignment: Alignment, stamp) -> pm.PerchWaypoint:
+    """The waypoint of an accepted proposal, in the input frame (frame_id: alignment.input_frame)."""
     p = proposal.placement
-    msg = pm.PerchWaypoint(approach=point_msg(approach_point(p, approach_distance)), drone_index=proposal.slot,
+    approach = alignment.point_to_input(approach_point(p, approach_distance))
+    msg = pm.PerchWaypoint(approach=point_msg(approach), drone_index=proposal.slot,
                            proposal_id=proposal.id, pan=float(p.pan), tilt=float(p.tilt), zoom=float(p.zoom))
-    msg.pose = PoseStamped(pose=pose_msg(np.asarray(p.drone_pose)))
-    msg.pose.header.frame_id = frame_id
+    msg.pose = PoseStamped(pose=pose_msg(alignment.pose_to_input(p.drone_pose)))
+    msg.pose.header.frame_id = alignment.input_frame
     msg.pose.header.stamp = stamp
     return msg
 
 
-def pose_array_msg(proposals: list[Proposal], frame_id: str, stamp) -> PoseArray:
-    msg = PoseArray(poses=[pose_msg(np.asarray(p.placement.drone_pose)) for p in proposals])
-    msg.header.frame_id = frame_id
+def pose_array_msg(proposals: list[Proposal], alignment: Alignment, stamp) -> PoseArray:
+    """The drone poses of `proposals` in the input frame."""
+    msg = PoseArray(poses=[pose_msg(alignment.pose_to_input(p.placement.drone_pose)) for p in proposals])
+    msg.header.frame_id = alignment.input_frame
     msg.header.stamp = stamp
     return msg
+
+
+def boxes_to_aligned(boxes, alignment: Alignment) -> list[pm.OrientedBox]:
+    """Goal boxes (input frame) in the gravity-aligned frame."""
+    to_aligned = alignment.to_aligned()
+    out = []
+    for box in boxes:
+        pose = to_aligned @ pose_to_matrix(box.pose)
+        out.append(pm.OrientedBox(pose=pose_msg(pose), size=box.size))
+    return out
+
+
+def target_to_aligned(target: pm.TargetVolume, alignment: Alignment) -> pm.TargetVolume:
+    """A goal's target (input frame) in the gravity-aligned frame; a footprint is then projected along
+    the true up."""
+    if alignment.is_identity() or target.kind == pm.TargetVolume.KIND_DEFAULT:
+        return target
+    out = pm.TargetVolume(kind=target.kind, height=target.height)
+    if target.kind == pm.TargetVolume.KIND_BOX:
+        out.box = boxes_to_aligned([target.box], alignment)[0]
+    elif target.kind == pm.TargetVolume.KIND_EXTRUDED_FOOTPRINT:
+        footprint = mesh_from_msg(target.footprint, "target footprint").transformed(alignment.to_aligned())
+        footprint.frame_id = alignment.aligned_frame
+        out.footprint = mesh_to_msg(footprint)
+    else:
+        out = target  # an unknown kind: crop answers it with a clear error
+    return out

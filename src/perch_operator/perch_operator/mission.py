@@ -14,10 +14,21 @@ from typing import Callable
 import numpy as np
 
 from perch_common.conventions import FILTER_NAMES
+from perch_common.frames import Alignment
 from perch_common.mesh import load_mesh
-from perch_common.ros.conversions import exclusion_to_msg, mesh_to_msg, placement_from_msg, placement_to_msg, vector_msg
+from perch_common.ros.conversions import (
+    exclusion_to_msg,
+    mesh_from_msg,
+    mesh_to_msg,
+    placement_from_msg,
+    placement_to_msg,
+    vector_msg,
+)
+from perch_common.ros.static_transforms import alignment_from_msg, alignment_to_msg
+from perch_common.up_axis import choose_up, file_convention
 from perch_interfaces import srv
 from perch_interfaces.action import PlanPerches
+from perch_operator.messages import boxes_to_aligned, placement_msg, target_to_aligned
 from perch_operator.proposals import Decision, Proposal, ProposalBook
 from perch_operator.stages import MissionCancelled, StageCaller, StageError
 
@@ -35,8 +46,9 @@ class MissionOptions:
     clean_given_mesh: bool
     optimise_on_full_mesh: bool
     confirm_timeout: float
-    up: np.ndarray
-    frame_id: str
+    up: np.ndarray               # up in the frame the stages work in (the gravity-aligned one: +z)
+    frame_id: str                # input frame of a mesh whose header names none
+    input_up: str = "auto"       # up of a given mesh when the goal leaves up_axis empty
 
 
 @dataclass
@@ -46,6 +58,7 @@ class Operator:
     book: ProposalBook
     optimise_request: srv.Optimise.Request
     auto_accept: bool
+    alignment: Alignment        # the book's placements are gravity-aligned; messages go out in the input frame
     scores: tuple[float, float, float] = (0.0, 0.0, 0.0)   # fitness, coverage, mean uncertainty
     replan_seconds: list[float] = field(default_factory=list)
 
@@ -56,7 +69,8 @@ class Mission:
     def __init__(self, caller: StageCaller, options: MissionOptions, first_proposal_id: int,
                  feedback: Callable[[str, float, str], None], cancelled: Callable[[], bool],
                  on_proposal: Callable[[Proposal], None], on_operator: Callable[[Operator], None],
-                 review: Callable[[list], set[int]] | None = None):
+                 review: Callable[[list], set[int]] | None = None,
+                 on_alignment: Callable[[Alignment], None] | None = None):
         self.caller = caller
         self.options = options
         self.first_proposal_id = first_proposal_id
@@ -65,6 +79,9 @@ class Mission:
         self.on_proposal = on_proposal
         self.on_operator = on_operator
         self.review = review  # publishes surfaces for review, returns the rejected ids once decided
+        self.on_alignment = on_alignment  # told the input frame -> gravity-aligned frame once known
+        self.alignment = Alignment(options.frame_id, np.eye(3), "none", 0.0)
+        self.notes: list[str] = []  # warnings for the result message (e.g. an up axis from the file's convention)
         self.stage_names: list[str] = []
         self.stage_seconds: list[float] = []
         self._planned = [s for s in STAGE_WEIGHTS]
@@ -88,8 +105,13 @@ class Mission:
     def run(self, goal: PlanPerches.Goal) -> PlanPerches.Result:
         started = time.monotonic()
         mesh_msg = self._acquire_mesh(goal)
-        crop = self._call("crop", srv.Crop.Request(mesh=mesh_msg, keep_boxes=goal.keep_boxes,
-                                                   remove_boxes=goal.remove_boxes, target=goal.target))
+        if self.on_alignment is not None:
+            self.on_alignment(self.alignment)
+        # The stages work in the gravity-aligned frame; boxes and target come in the input's frame.
+        crop = self._call("crop", srv.Crop.Request(
+            mesh=mesh_msg, keep_boxes=boxes_to_aligned(goal.keep_boxes, self.alignment),
+            remove_boxes=boxes_to_aligned(goal.remove_boxes, self.alignment),
+            target=target_to_aligned(goal.target, self.alignment)))
         segment = self._call("segment", srv.Segment.Request(mesh=crop.mesh))
         surfaces = self._reviewed(list(segment.surfaces), goal.review_surfaces)
         filtered = self._call("filter", srv.Filter.Request(mesh=crop.mesh, surfaces=surfaces,
@@ -104,7 +126,7 @@ class Mission:
         if not optimised.placements:
             raise ValueError(f"optimise placed no camera: {optimised.message}")
         operator = Operator(ProposalBook(self.options.exclusion_radius, self.first_proposal_id), request,
-                            self.options.auto_accept or goal.auto_accept,
+                            self.options.auto_accept or goal.auto_accept, self.alignment,
                             (optimised.fitness, optimised.coverage, optimised.mean_uncertainty))
         self.on_operator(operator)
         confirmed = self._confirm(operator, optimised.placements)
@@ -122,23 +144,44 @@ class Mission:
         if goal.bag_path:
             self._planned.remove("clean")
             try:
-                return self._call("reconstruct", srv.Reconstruct.Request(bag_path=goal.bag_path, use_poses=True)).mesh
+                reply = self._call("reconstruct", srv.Reconstruct.Request(bag_path=goal.bag_path, use_poses=True))
             except StageError as exc:
                 if "use_poses=false" not in str(exc):
                     raise
                 # The bag records no poses: track the camera instead (RGB-D odometry).
                 self.feedback("reconstruct", self._fraction(), "no poses in the bag: reconstructing with odometry")
-                return self._call("reconstruct", srv.Reconstruct.Request(bag_path=goal.bag_path, use_poses=False)).mesh
+                reply = self._call("reconstruct", srv.Reconstruct.Request(bag_path=goal.bag_path, use_poses=False))
+            # The reconstruction is gravity-aligned; outputs go back to the frame of the bag's poses.
+            self.alignment = alignment_from_msg(reply.alignment, reply.up_source, reply.up_confidence)
+            return reply.mesh
         self._planned.remove("reconstruct")
         mesh_msg = goal.mesh if len(goal.mesh.triangles) else mesh_to_msg(load_mesh(goal.mesh_path))
         if not mesh_msg.header.frame_id:
             mesh_msg.header.frame_id = self.options.frame_id
+        self.alignment = self._given_mesh_alignment(goal, mesh_msg)
         if not self.options.clean_given_mesh:
             self._planned.remove("clean")
-            return mesh_msg
-        # The mesh is already gravity-aligned (up_axis): gravity points along -up, so cleaning keeps its frame.
-        gravity = vector_msg(-np.asarray(self.options.up, np.float64))
-        return self._call("clean", srv.CleanMesh.Request(mesh=mesh_msg, gravity=gravity)).mesh
+            aligned = mesh_from_msg(mesh_msg, "mission mesh").transformed(self.alignment.to_aligned())
+            aligned.frame_id = self.alignment.aligned_frame
+            return mesh_to_msg(aligned, stamp=mesh_msg.header.stamp)
+        # Gravity points along -up: cleaning turns the mesh into the same gravity-aligned frame.
+        gravity = vector_msg(-self.alignment.up)
+        reply = self._call("clean", srv.CleanMesh.Request(mesh=mesh_msg, gravity=gravity))
+        self.alignment = alignment_from_msg(reply.alignment, self.alignment.up_source, self.alignment.up_confidence)
+        return reply.mesh
+
+    def _given_mesh_alignment(self, goal: PlanPerches.Goal, mesh_msg) -> Alignment:
+        """Up from the goal's up_axis (or the node's input_up): estimated, given, or the file's convention.
+
+        A given axis the mesh contradicts fails the mission (UpAxisError) with the axis to pass instead.
+        """
+        text = goal.up_axis or self.options.input_up
+        convention = goal.up_convention or file_convention(goal.mesh_path or None)
+        choice = choose_up(text, mesh_from_msg(mesh_msg, "mission mesh"), convention)
+        for warning in choice.warnings:
+            self.notes.append(warning)
+            self.feedback("clean", self._fraction(), warning)
+        return Alignment.from_up(mesh_msg.header.frame_id, choice.up, choice.source, choice.estimate.confidence)
 
     def _reviewed(self, surfaces: list, count: int) -> list:
         """With count > 0, the operator reviews the `count` largest surfaces; rejected ones are dropped."""
@@ -187,14 +230,13 @@ class Mission:
         return [p.id for p in operator.book.current() if p.slot in operator.book.open_slots()]
 
     def _result(self, operator: Operator) -> PlanPerches.Result:
-        from perch_operator.messages import placement_msg
-
         accepted = operator.book.accepted()
         result = PlanPerches.Result(success=True, stage_names=list(self.stage_names),
                                     stage_seconds=list(self.stage_seconds))
-        result.placements = [placement_msg(p) for p in accepted]
+        result.placements = [placement_msg(p, operator.alignment) for p in accepted]
+        result.alignment = alignment_to_msg(operator.alignment)
         result.fitness, result.coverage, result.mean_uncertainty = operator.scores
-        result.message = f"{len(accepted)} perch(es) accepted"
+        result.message = f"{len(accepted)} perch(es) accepted" + "".join(f"; {n}" for n in self.notes)
         return result
 
 

@@ -3,6 +3,8 @@
 A recording alone rebuilds the report and the rerun file (`load_mission`); after a live mission the
 accepted placements, waypoints and scores come from the PlanPerches result instead
 (`mission_data_from_result`), so they never depend on what a recorder happened to catch.
+The geometry (mesh, surfaces, regions, target, placements) is kept in the gravity-aligned frame the
+stages worked in; `alignment` takes it to the input's own frame, in which the waypoints are.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from perch_common.frames import ALIGNED_SUFFIX, Alignment
 from perch_common.mesh import Mesh
 from perch_common.target import TargetVolume
 from perch_common.types import CameraPlacement, FilterRemoval, PerchRegion, Surface
@@ -30,8 +33,9 @@ class MissionData:
     target: TargetVolume | None = None
     placements: list[CameraPlacement] = field(default_factory=list)   # accepted, by drone index
     rejected: list[tuple[CameraPlacement, str]] = field(default_factory=list)
-    waypoints: list[dict] = field(default_factory=list)
+    waypoints: list[dict] = field(default_factory=list)              # in the input frame
     summary: dict = field(default_factory=dict)   # stage times, scores (metadata record)
+    alignment: Alignment = field(default_factory=lambda: Alignment("map", np.eye(3), "none", 0.0))
 
 
 def load_mission(path: str | Path) -> MissionData:
@@ -44,6 +48,7 @@ def load_mission(path: str | Path) -> MissionData:
         surface_from_msg,
         target_from_msg,
     )
+    from perch_common.ros.static_transforms import TF_STATIC_TOPIC, alignment_from_msg
     from perch_operator.runfile import iter_messages, metadata, stage_calls
 
     data = MissionData()
@@ -67,14 +72,19 @@ def load_mission(path: str | Path) -> MissionData:
         elif call.stage == "optimise" and data.mesh is None and call.request is not None:
             data.mesh = mesh_from_msg(call.request.mesh)
     latest: dict[int, object] = {}
-    for topic, msg, _ in iter_messages(path, ["/perch/proposals", "/perch/waypoints"]):
+    for topic, msg, _ in iter_messages(path, ["/perch/proposals", "/perch/waypoints", TF_STATIC_TOPIC]):
         if topic == "/perch/proposals":
             latest[msg.id] = msg
+        elif topic == TF_STATIC_TOPIC:
+            for transform in msg.transforms:
+                if transform.child_frame_id.endswith(ALIGNED_SUFFIX):
+                    data.alignment = alignment_from_msg(transform)
         else:
             data.waypoints.append(waypoint_dict(msg))
     by_slot: dict[int, CameraPlacement] = {}
     for proposal in latest.values():
-        placement = placement_from_msg(proposal.placement)
+        # Proposals went out in the input frame; the rest of the mission data is gravity-aligned.
+        placement = data.alignment.placement_to_aligned(placement_from_msg(proposal.placement))
         if proposal.status == Status.ACCEPTED:
             by_slot[placement.drone_index] = placement
         elif proposal.status in (Status.REJECTED, Status.FAILED):
@@ -91,13 +101,20 @@ def mission_data_from_result(path: str | Path, result, goal=None) -> MissionData
     result; mesh, surfaces, regions and target from the recorded stage replies, else from the goal."""
     from perch_common.ros.conversions import mesh_from_msg, placement_from_msg, target_from_msg
 
+    from perch_common.ros.static_transforms import alignment_from_msg
+    from perch_operator.messages import target_to_aligned
+
     data = load_mission(path)
-    data.placements = sorted((placement_from_msg(p) for p in result.placements), key=lambda p: p.drone_index)
+    if result.alignment.header.frame_id:
+        data.alignment = alignment_from_msg(result.alignment)
+    # The result is in the input frame; the views' geometry is gravity-aligned (see the module doc).
+    data.placements = sorted((data.alignment.placement_to_aligned(placement_from_msg(p)) for p in result.placements),
+                             key=lambda p: p.drone_index)
     data.waypoints = [waypoint_dict(w) for w in result.waypoints]
     if goal is not None and data.mesh is None and len(goal.mesh.triangles):
-        data.mesh = mesh_from_msg(goal.mesh, "goal mesh")
+        data.mesh = mesh_from_msg(goal.mesh, "goal mesh").transformed(data.alignment.to_aligned())
     if goal is not None and data.target is None:
-        data.target = target_from_msg(goal.target)  # None for KIND_DEFAULT
+        data.target = target_from_msg(target_to_aligned(goal.target, data.alignment))  # None for KIND_DEFAULT
     data.summary = {**data.summary, "success": bool(result.success), "message": result.message,
                     "stage_names": list(result.stage_names), "stage_seconds": list(result.stage_seconds),
                     "fitness": result.fitness, "coverage": result.coverage,

@@ -24,6 +24,7 @@ from perch_common.ros.conversions import mesh_from_msg, mesh_to_msg, target_from
 from perch_common.ros.node_main import run_node
 from perch_common.ros.params import declare_config, read_config
 from perch_common.ros.service import answering, create_stage_service
+from perch_common.ros.static_transforms import StaticTransformPublisher, alignment_to_msg
 from perch_common.transforms import parse_up_axis
 from perch_interfaces import msg as pm
 from perch_interfaces import srv
@@ -50,6 +51,7 @@ class OperatorNode(Node):
         self.config = declare_config(self, OperatorConfig)
         self.declare_parameter("up_axis", "+z")
         self.declare_parameter("frame_id", "map")
+        self.static_transforms = StaticTransformPublisher(self)
         group = ReentrantCallbackGroup()
         self.stages = StageCaller(self, group, self.config.service_wait, self.config.stage_timeout,
                                   self.config.gone_grace)
@@ -113,7 +115,7 @@ class OperatorNode(Node):
             auto_accept=config.auto_accept, exclusion_radius=config.exclusion_radius,
             clean_given_mesh=config.clean_given_mesh, optimise_on_full_mesh=config.optimise_on_full_mesh,
             confirm_timeout=config.confirm_timeout, frame_id=self._frame_id(),
-            up=parse_up_axis(self.get_parameter("up_axis").value))
+            up=parse_up_axis(self.get_parameter("up_axis").value), input_up=config.input_up_axis)
 
         def feedback(stage: str, fraction: float, message: str) -> None:
             goal_handle.publish_feedback(PlanPerches.Feedback(stage=stage, fraction=fraction, message=message))
@@ -133,8 +135,11 @@ class OperatorNode(Node):
             self.review_pub.publish(pm.SurfaceReview(review_id=review_id, surfaces=surfaces))
             return self.review_desk.wait(review_id, config.confirm_timeout, cancelled)
 
+        def aligned(alignment) -> None:  # the input frame -> gravity-aligned frame, for tf users
+            self.static_transforms.send(alignment_to_msg(alignment))
+
         mission = Mission(self.stages, options, self._next_proposal_id, feedback, cancelled,
-                          self._publish_proposal, adopt, review)
+                          self._publish_proposal, adopt, review, aligned)
         try:
             result = mission.run(goal_handle.request)
             result.waypoints = [self._waypoint(p) for p in self.operator.book.accepted()]
@@ -184,7 +189,7 @@ class OperatorNode(Node):
                     if operator.auto_accept:
                         replacement = operator.book.decide(replacement.id, Decision.ACCEPT, "auto_accept policy")
                         self._publish_proposal(replacement)
-                    response.replacement = proposal_msg(replacement)
+                    response.replacement = proposal_msg(replacement, operator.alignment)
                     response.message += (f"; replacement proposal {replacement.id} for drone {replacement.slot} "
                                          f"in {operator.replan_seconds[-1]:.2f} s")
         except (ProposalError, ValueError) as exc:
@@ -207,16 +212,18 @@ class OperatorNode(Node):
         return response
 
     def _publish_proposal(self, proposal: Proposal) -> None:
-        self.proposals_pub.publish(proposal_msg(proposal))
+        # Proposals exist only once optimise has run, so the mission's operator (and its alignment) is set.
+        alignment = self.operator.alignment
+        self.proposals_pub.publish(proposal_msg(proposal, alignment))
         if proposal.status == Status.ACCEPTED:
             self.waypoints_pub.publish(self._waypoint(proposal))
-            if self.operator is not None:
-                stamp = self.get_clock().now().to_msg()
-                self.poses_pub.publish(pose_array_msg(self.operator.book.accepted(), self._frame_id(), stamp))
+            stamp = self.get_clock().now().to_msg()
+            self.poses_pub.publish(pose_array_msg(self.operator.book.accepted(), alignment, stamp))
 
     def _waypoint(self, proposal: Proposal) -> pm.PerchWaypoint:
         config = read_config(self, OperatorConfig)
-        return waypoint_msg(proposal, config.approach_distance, self._frame_id(), self.get_clock().now().to_msg())
+        return waypoint_msg(proposal, config.approach_distance, self.operator.alignment,
+                            self.get_clock().now().to_msg())
 
     def _frame_id(self) -> str:
         return str(self.get_parameter("frame_id").value)

@@ -1,4 +1,4 @@
-"""Record a mission to one MCAP file: every /perch topic and the stage services' introspection events.
+"""Record a mission to one MCAP file: every /perch topic, /tf_static and the stage services' introspection events.
 
 Messages are written as received (serialized CDR, no re-encoding) with ros2msg schemas, so
 standard MCAP tools list and decode them. The recorder lives in the client's process and
@@ -67,7 +67,8 @@ class MissionRecorder:
         topics = {self.node.resolve_topic_name(name): type_name
                   for name, type_name in dict(event_topics(), **MISSION_TOPICS).items()}
         for name, types in self.node.get_topic_names_and_types():
-            if name.startswith(self.prefix + "/") and types:
+            # /tf_static: the mission's input frame -> gravity-aligned frame transform.
+            if (name.startswith(self.prefix + "/") or name == "/tf_static") and types:
                 topics.setdefault(name, types[0])
         for name, type_name in topics.items():
             if name not in self._subs:

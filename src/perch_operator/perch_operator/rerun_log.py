@@ -33,7 +33,10 @@ def write_rrd(data: MissionData, path: str | Path, views: list | None = None) ->
     path = Path(path)
     rec = rr.RecordingStream("perch")
     rec.save(str(path))
+    # The recording's root is the input's own frame; "world" is the gravity-aligned frame the
+    # stages worked in, placed in it by the mission's alignment (waypoints are logged at the root).
     rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    rec.log("world", rr.Transform3D(mat3x3=data.alignment.to_input()[:3, :3]), static=True)
     if data.mesh is not None:
         rec.log("world/mesh", _mesh3d(rr, data.mesh), static=True)
     _log_surfaces(rr, rec, data)
@@ -106,10 +109,10 @@ def _log_cameras(rr, rec, data: MissionData, views: list | None) -> None:
         latest = latest_waypoints(data.waypoints)
         positions = np.array([w["position"] for w in latest])
         approach = np.array([w["approach"] for w in latest])
-        rec.log("world/waypoints", rr.Points3D(positions, colors=[(30, 90, 230)], radii=0.06,
-                                               labels=[f"drone {w['drone_index']}" for w in latest]), static=True)
-        rec.log("world/waypoints/approach", rr.Arrows3D(origins=approach, vectors=positions - approach,
-                                                        colors=[(30, 90, 230)]), static=True)
+        rec.log("waypoints", rr.Points3D(positions, colors=[(30, 90, 230)], radii=0.06,
+                                         labels=[f"drone {w['drone_index']}" for w in latest]), static=True)
+        rec.log("waypoints/approach", rr.Arrows3D(origins=approach, vectors=positions - approach,
+                                                  colors=[(30, 90, 230)]), static=True)
 
 
 def _summary_markdown(data: MissionData) -> str:

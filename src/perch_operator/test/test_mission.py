@@ -3,7 +3,9 @@
 import numpy as np
 import pytest
 
-from perch_common.ros.conversions import mesh_to_msg
+from perch_common.frames import Alignment
+from perch_common.ros.conversions import mesh_to_msg, xyz
+from perch_common.ros.static_transforms import alignment_to_msg
 from perch_interfaces import msg as pm
 from perch_interfaces import srv
 from perch_interfaces.action import PlanPerches
@@ -30,8 +32,14 @@ class ScriptedStages:
         self.requests.append((stage, request))
         if stage == self.fail:
             raise StageError(stage, "failed: boom")
-        if stage == "clean":
-            return srv.CleanMesh.Response(success=True, mesh=request.mesh, seconds=0.1)
+        if stage == "clean":  # aligned like the real node: gravity onto -z, the frame renamed
+            alignment = Alignment.from_up(request.mesh.header.frame_id, -xyz(request.gravity))
+            from perch_common.ros.conversions import mesh_from_msg
+
+            mesh = mesh_from_msg(request.mesh).transformed(alignment.to_aligned())
+            mesh.frame_id = alignment.aligned_frame
+            return srv.CleanMesh.Response(success=True, mesh=mesh_to_msg(mesh), seconds=0.1,
+                                          alignment=alignment_to_msg(alignment))
         if stage == "crop":
             return srv.Crop.Response(success=True, mesh=request.mesh, seconds=0.01,
                                      target=pm.TargetVolume(kind=pm.TargetVolume.KIND_BOX))
@@ -80,7 +88,7 @@ def test_stages_run_in_order_with_rising_feedback_and_times(meshes, goal):
     assert proposals == [(5, Status.PENDING), (5, Status.ACCEPTED),
                                                      (6, Status.PENDING), (6, Status.ACCEPTED)]
     optimise = stages.requests[-1][1]
-    assert optimise.seed == 4 and optimise.num_cameras == 2 and optimise.mesh is goal.mesh
+    assert optimise.seed == 4 and optimise.num_cameras == 2 and optimise.mesh.header.frame_id == "map_gravity_aligned"
     assert (result.fitness, result.coverage) == (0.5, 0.8)
 
 
@@ -109,7 +117,8 @@ def test_bag_goal_reconstructs_instead_of_cleaning(goal):
         def call(self, stage, request, cancelled=lambda: False):
             if stage == "reconstruct":
                 self.requests.append((stage, request))
-                return srv.Reconstruct.Response(success=True, mesh=self.mesh_msg, seconds=2.0)
+                return srv.Reconstruct.Response(success=True, mesh=self.mesh_msg, seconds=2.0,
+                                                alignment=alignment_to_msg(Alignment("world", np.eye(3))))
             return super().call(stage, request, cancelled)
 
     stages = Reconstructing(goal.mesh)
@@ -167,3 +176,55 @@ def test_mesh_path_is_loaded_by_the_coordinator_and_cleaned_along_minus_up(meshe
     assert stage == "clean" and len(clean.mesh.triangles) == 3 * meshes.room().num_faces
     assert (clean.gravity.x, clean.gravity.y, clean.gravity.z) == (0.0, 0.0, -1.0)
     assert clean.mesh.header.frame_id == "map" and result.success
+
+
+def rotated_room_goal(meshes, orientation: str = "y-down", **fields):
+    from perch_common.scan_orientations import oriented
+
+    room, up, transform = oriented(meshes.room(), np.array([0.0, 0.0, 1.0]), orientation)
+    room.frame_id = "scan"
+    return PlanPerches.Goal(mesh=mesh_to_msg(room), num_cameras=2, auto_accept=True, **fields), up, transform
+
+
+def test_a_rotated_mesh_is_planned_gravity_aligned_and_answered_in_its_own_frame(meshes):
+    from perch_common.ros.conversions import pose_matrix
+    from perch_common.ros.static_transforms import alignment_from_msg
+    from perch_common.target import TargetVolume
+    from perch_operator.cli import parse_target
+
+    goal, up, _ = rotated_room_goal(meshes)
+    goal.target = parse_target("box:1,-1,0.5,1,1,1")  # in the mesh's (input) frame
+    stages = ScriptedStages(goal.mesh)
+    aligned = []
+    mission = Mission(stages, options(), 1, lambda *f: None, lambda: False, lambda p: None, lambda o: None,
+                      on_alignment=aligned.append)
+    result = mission.run(goal)
+    clean = stages.requests[0][1]
+    np.testing.assert_allclose(xyz(clean.gravity), -up, atol=1e-9)  # gravity along the true down
+    alignment = alignment_from_msg(result.alignment)
+    assert result.alignment.header.frame_id == "scan" and result.alignment.child_frame_id == "scan_gravity_aligned"
+    assert aligned and aligned[0].input_frame == "scan"
+    np.testing.assert_allclose(alignment.rotation @ up, [0, 0, 1], atol=1e-9)
+    # The crop got the target in the gravity-aligned frame ...
+    crop = dict(stages.requests)["crop"]
+    box = TargetVolume(center=xyz(crop.target.box.pose.position), size=xyz(crop.target.box.size))
+    np.testing.assert_allclose(box.center, alignment.rotation @ [1, -1, 0.5], atol=1e-9)
+    # ... and the placements (the scripted optimiser puts drone i at x = i, aligned) come back in the input frame.
+    for i, placement in enumerate(result.placements):
+        pose = pose_matrix(placement.drone_pose)
+        np.testing.assert_allclose(pose[:3, 3], alignment.rotation.T @ [i, 0, 0], atol=1e-6)
+        np.testing.assert_allclose(pose[:3, :3], alignment.rotation.T, atol=1e-6)
+
+
+def test_a_given_up_axis_the_mesh_contradicts_fails_the_mission_clearly(meshes):
+    from perch_common.up_axis import UpAxisError
+
+    goal, _, _ = rotated_room_goal(meshes, up_axis="+y")
+    stages = ScriptedStages(goal.mesh)
+    with pytest.raises(UpAxisError, match=r"^--up \+y contradicts the mesh: furniture tops face down along it\. "
+                                          r"The mesh suggests up -y .*: pass --up -y \(or --up auto\)$"):
+        Mission(stages, options(), 1, lambda *f: None, lambda: False, lambda p: None, lambda o: None).run(goal)
+    assert stages.requests == []  # nothing ran on a misread mesh
+    goal.up_axis = "-y"
+    assert Mission(ScriptedStages(goal.mesh), options(), 1, lambda *f: None, lambda: False, lambda p: None,
+                   lambda o: None).run(goal).success

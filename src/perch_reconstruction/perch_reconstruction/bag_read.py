@@ -110,6 +110,7 @@ class BagFrames:
     has_poses: bool
     frames: Iterator[RGBDFrame]
     assembler: FrameAssembler
+    pose_frame_id: str = ""   # header.frame_id of the recorded poses (their world frame)
 
 
 def read_bag_frames(path: str | Path, topics: BagTopics = BagTopics(), depth_scale: float = 0.0,
@@ -140,10 +141,12 @@ def read_bag_frames(path: str | Path, topics: BagTopics = BagTopics(), depth_sca
         break
     poses = PoseBuffer(capacity=10**7)
     has_poses = topics.pose in present and present[topics.pose]["type"] in msgdefs.POSE_TYPES
+    pose_frame_id = ""
     if has_poses:
         for raw in iter_raw(path, [topics.pose]):
             msg = decode(raw)
             poses.add(images.stamp_ns(msg), images.pose_from_msg(msg))
+            pose_frame_id = pose_frame_id or msg.header.frame_id
     gravity = None if info["gravity"] is None else np.asarray(info["gravity"], np.float64)
     assembler = FrameAssembler(sync_tolerance_ns)
 
@@ -162,7 +165,7 @@ def read_bag_frames(path: str | Path, topics: BagTopics = BagTopics(), depth_sca
             yield frame
 
     count = min(present[topics.color]["count"], present[topics.depth]["count"])
-    return BagFrames(intrinsics, gravity, count, has_poses, frames(), assembler)
+    return BagFrames(intrinsics, gravity, count, has_poses, frames(), assembler, pose_frame_id)
 
 
 def check_sizes(frame: RGBDFrame, intrinsics: Intrinsics, topics: BagTopics) -> None:

@@ -14,12 +14,15 @@ from typing import Callable, Iterable
 import numpy as np
 
 from perch_common.errors import PerchError
+from perch_common.frames import aligned_frame_name
 from perch_common.mesh import Mesh
 from perch_reconstruction.bag_write import BagTopics
 from perch_reconstruction.cleaning import CleanReport, clean_mesh, clean_mesh_with_report
 from perch_reconstruction.config import ReconstructionConfig
 from perch_reconstruction.frames import Intrinsics, RGBDFrame, check_depth
 from perch_reconstruction.volume import Tracker, TsdfVolume
+
+ODOMETRY_FRAME = "odom"  # the world frame of RGB-D odometry: the first tracked camera's pose (REP 105 name)
 
 __all__ = ["ReconstructionConfig", "ReconstructionStats", "Reconstructor", "clean_mesh", "reconstruct_bag",
            "reconstruct_frames"]
@@ -46,6 +49,7 @@ class ReconstructionStats:
     recorded: list = field(default_factory=list, repr=False)    # (stamp_ns, 4x4) recorded poses, if any
     clean: CleanReport | None = field(default=None, repr=False)
     raw_mesh: Mesh | None = field(default=None, repr=False)       # the TSDF surface before cleaning
+    frame_id: str = "map"           # the volume's (input) frame: the recorded poses' world frame, or odometry's
 
     def summary(self) -> dict:
         keys = ("frames_received", "frames_integrated", "frames_dropped", "frames_without_pose", "frames_lost",
@@ -142,7 +146,12 @@ class Reconstructor:
         return mesh
 
     def finish(self, gravity_world: np.ndarray | None = None, clean: bool = True, frame_id: str = "map") -> Mesh:
-        """Extract the surface and (optionally) clean and gravity-align it."""
+        """Extract the surface and (optionally) clean and gravity-align it.
+
+        frame_id names the volume's frame (the poses' world frame); stats.frame_id keeps it, while a
+        cleaned mesh is in its gravity-aligned frame (stats.clean.rotation from the former).
+        """
+        self.stats.frame_id = frame_id
         mesh = self.extract(frame_id)
         self.stats.raw_mesh = mesh
         if not clean:
@@ -151,6 +160,7 @@ class Reconstructor:
         mesh, report = clean_mesh_with_report(mesh, self.gravity_in_volume(gravity_world), self.config,
                                               self.camera_down())
         self.stats.clean = report
+        mesh.frame_id = aligned_frame_name(frame_id)
         self.stats.seconds_clean = report.seconds
         self.stats.faces = mesh.num_faces
         return mesh
@@ -158,13 +168,15 @@ class Reconstructor:
 
 def reconstruct_frames(frames: Iterable[RGBDFrame], intrinsics: Intrinsics, config: ReconstructionConfig,
                        use_poses: bool, gravity: np.ndarray | None = None, clean: bool = True,
-                       progress: Progress | None = None, progress_every: int = 30) -> tuple[Mesh, ReconstructionStats]:
+                       progress: Progress | None = None, progress_every: int = 30,
+                       frame_id: str = "map") -> tuple[Mesh, ReconstructionStats]:
+    """Integrate `frames` and finish (extract, clean); the input frame is named `frame_id`."""
     recon = Reconstructor(config, use_poses)
     for i, frame in enumerate(frames):
         recon.add_frame(frame, intrinsics)
         if progress and (i + 1) % progress_every == 0:
             progress(recon.stats)
-    mesh = recon.finish(gravity, clean=clean)
+    mesh = recon.finish(gravity, clean=clean, frame_id=frame_id)
     if progress:
         progress(recon.stats)
     return mesh, recon.stats
@@ -182,5 +194,8 @@ def reconstruct_bag(path: str | Path, config: ReconstructionConfig, use_poses: b
     if use_poses and not bag.has_poses:
         raise PerchError(f"{path}: no pose topic {topics.pose} (PoseStamped or Odometry); "
                          "reconstruct with odometry instead (--odometry / use_poses=false)")
-    mesh, stats = reconstruct_frames(bag.frames, bag.intrinsics, config, use_poses, bag.gravity, clean, progress)
+    # The mesh's own frame: the recorded poses' world frame, or with odometry the first camera's.
+    frame_id = (bag.pose_frame_id or "map") if use_poses else ODOMETRY_FRAME
+    mesh, stats = reconstruct_frames(bag.frames, bag.intrinsics, config, use_poses, bag.gravity, clean, progress,
+                                     frame_id=frame_id)
     return mesh, stats

@@ -20,14 +20,16 @@ from std_srvs.srv import Trigger
 
 from perch_common.conventions import STAGE_SERVICES
 from perch_common.errors import EXPECTED
+from perch_common.frames import Alignment, aligned_frame_name
 from perch_common.ros.conversions import mesh_from_msg, mesh_to_msg, xyz
 from perch_common.ros.node_main import run_node
 from perch_common.ros.params import declare_config
 from perch_common.ros.service import answering, create_stage_service
+from perch_common.ros.static_transforms import StaticTransformPublisher, alignment_to_msg
 from perch_interfaces import srv
 from perch_reconstruction import images
 from perch_reconstruction.bag_write import BagTopics
-from perch_reconstruction.cleaning import clean_mesh_with_report
+from perch_reconstruction.cleaning import CleanReport, clean_mesh_with_report
 from perch_reconstruction.config import NodeConfig
 from perch_reconstruction.core import reconstruct_bag
 from perch_reconstruction.live import LiveIngest
@@ -72,6 +74,7 @@ class ReconstructionNode(Node):
             self.create_subscription(PoseType, c.pose_topic, self._on_pose, input_qos(c.lossless_replay, 100),
                                      callback_group=meta)
         self.progress = self.create_publisher(String, "perch/reconstruct/progress", 10)
+        self.static_transforms = StaticTransformPublisher(self)
         self.create_timer(c.progress_period, self._publish_status, callback_group=meta)
         self._offline_status: dict | None = None
         self._frame_ids: dict[str, str] = {}
@@ -139,6 +142,7 @@ class ReconstructionNode(Node):
         finally:
             self._offline_status = None
         response.mesh = mesh_to_msg(mesh, self.get_clock().now().to_msg())
+        self._answer_alignment(response, stats.frame_id, stats.clean)
         response.frames_integrated, response.frames_dropped = stats.frames_integrated, stats.frames_dropped
         response.success = True
         response.message = (f"{mesh.num_faces} faces from {stats.frames_integrated} of {stats.frames_received}"
@@ -174,14 +178,28 @@ class ReconstructionNode(Node):
         if request.target_faces:
             config = dataclasses.replace(config, target_faces=int(request.target_faces))
         gravity = xyz(request.gravity)
-        mesh, report = clean_mesh_with_report(mesh_from_msg(request.mesh, "mesh to clean"),
-                                              gravity if np.any(gravity) else None, config)
+        given = mesh_from_msg(request.mesh, "mesh to clean")
+        given.frame_id = request.mesh.header.frame_id or self.config.frame_id
+        mesh, report = clean_mesh_with_report(given, gravity if np.any(gravity) else None, config)
+        mesh.frame_id = aligned_frame_name(given.frame_id)
         response.mesh = mesh_to_msg(mesh, self.get_clock().now().to_msg())
+        self._answer_alignment(response, given.frame_id, report)
         response.success = True
         response.message = (f"{report.faces_in} -> {report.faces_out} faces ({report.pieces_removed_faces} in "
                             f"small pieces); up from {report.up_source}" +
                             ("; " + "; ".join(report.warnings) if report.warnings else ""))
         return response
+
+    def _answer_alignment(self, response, input_frame: str, report: CleanReport | None) -> None:
+        """Fill the reply's alignment (input frame -> gravity-aligned frame) and send it on /tf_static."""
+        rotation = np.eye(3) if report is None else report.rotation
+        alignment = Alignment(input_frame, rotation, report.up_source if report else "none",
+                              report.up_confidence if report else 0.0)
+        response.alignment = alignment_to_msg(alignment, self.get_clock().now().to_msg())
+        response.up_source, response.up_confidence = alignment.up_source, float(alignment.up_confidence)
+        if report is not None and report.up_estimate is not None:
+            response.up_evidence = report.up_estimate.evidence()
+        self.static_transforms.send(response.alignment)
 
     def destroy_node(self):
         self.ingest.stop()

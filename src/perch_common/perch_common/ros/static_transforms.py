@@ -1,4 +1,5 @@
-"""Static transforms on /tf_static (tf2_msgs/msg/TFMessage), as tf2_ros's static broadcaster sends them.
+"""Static transforms on /tf_static (tf2_msgs/msg/TFMessage), as tf2_ros's static broadcaster sends them,
+and the input-frame -> gravity-aligned-frame Alignment as a TransformStamped.
 
 /tf_static is latched with depth 1, so every message carries all of this node's static transforms:
 a new one replaces the old transform of the same child frame and the whole set is sent again.
@@ -10,6 +11,7 @@ import numpy as np
 from geometry_msgs.msg import Quaternion, TransformStamped, Vector3
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from perch_common.frames import Alignment
 from perch_common.transforms import matrix_from_quaternion, quaternion_from_matrix
 from tf2_msgs.msg import TFMessage
 
@@ -64,3 +66,17 @@ class StaticTransformPublisher:
     def transforms(self) -> list[TransformStamped]:
         """The transforms sent so far (one per child frame)."""
         return list(self._by_child.values())
+
+
+def alignment_to_msg(alignment: Alignment, stamp=None) -> TransformStamped:
+    """The alignment as a transform: the gravity-aligned frame (child) in the input frame (parent)."""
+    if alignment.aligned_frame == alignment.input_frame:
+        raise ValueError(f"input frame '{alignment.input_frame}' is already named as a gravity-aligned frame")
+    return transform_msg(alignment.input_frame, alignment.aligned_frame, alignment.to_input(), stamp)
+
+
+def alignment_from_msg(msg: TransformStamped, up_source: str = "given", up_confidence: float = 1.0) -> Alignment:
+    """The Alignment a transform from alignment_to_msg describes (rotation only, as alignments are)."""
+    if not msg.header.frame_id:
+        raise ValueError("alignment transform has no input frame (header.frame_id is empty)")
+    return Alignment(msg.header.frame_id, matrix_from_transform(msg)[:3, :3].T, up_source, up_confidence)
