@@ -39,6 +39,9 @@ def is_wall(normals: np.ndarray, up: np.ndarray, angle_deg: float = DEFAULT_CLAS
 # The safety filters in pipeline order: FilterRemoval's per-filter area fields (add a filter there).
 FILTER_NAMES: tuple[str, ...] = tuple(f.name for f in fields(FilterRemoval)
                                       if f.name not in ("surface_id", "area_total", "area_kept"))
+# One colour (RGB 0-255) per filter, FILTER_NAMES order, for every picture of removed area.
+FILTER_COLOURS: tuple[tuple[int, int, int], ...] = (
+    (150, 150, 150), (230, 200, 40), (240, 140, 30), (230, 60, 40), (120, 80, 40), (170, 60, 200), (40, 160, 220))
 
 # Each pipeline stage's service (relative: resolved in the node's namespace).
 STAGE_SERVICES: dict[str, str] = {

@@ -78,6 +78,21 @@ class Surface:
 
 
 @dataclass
+class PerchEvidence:
+    """Why a perch is safe, measured on the scan (m, share); for a region, its worst cell's values.
+
+    approach_clearance: free depth of the approach prism; free_fall: free fall below the window;
+    both saturate at the filter's lookahead. support_share: share of the window on scanned surface
+    within tolerance of the perch plane; flatness_rms: RMS distance of that surface to the plane.
+    """
+
+    approach_clearance: float = float("nan")
+    free_fall: float = float("nan")
+    support_share: float = float("nan")
+    flatness_rms: float = float("nan")
+
+
+@dataclass
 class PerchRegion:
     """Part of a surface where a drone can perch."""
 
@@ -88,19 +103,23 @@ class PerchRegion:
     polygons: list[Polygon2D]
     mesh: Mesh
     area: float
+    evidence: PerchEvidence = field(default_factory=PerchEvidence)
+
+
 
 
 @dataclass
 class FilterRemoval:
-    """Area (m^2) of one surface removed by each filter."""
+    """Area (m^2) of one surface removed by each filter, in the order they run (conventions.FILTER_NAMES)."""
 
     surface_id: int
     area_total: float
     orientation: float = 0.0
     recovery_height: float = 0.0
-    obstacle_clearance: float = 0.0
-    line_of_sight: float = 0.0
     perch_window: float = 0.0
+    obstacle_clearance: float = 0.0  # the approach prism
+    support: float = 0.0
+    line_of_sight: float = 0.0       # target visibility share
     reachability: float = 0.0
     area_kept: float = 0.0
 

@@ -18,7 +18,9 @@ class FilterConfig:
     allow_intermediate: bool = param(False, "perch on surfaces between the class angles")
     class_angle_deg: float = param(15.0, "tolerance of the floor / wall / ceiling classes", "deg")
     min_recovery_height: float = param(0.5, "free fall needed below a perch to recover", "m")
-    clearance_radius: float = param(0.5, "no other geometry within this distance in front of a perch", "m")
+    approach_distance: float = param(0.5, "approach prism depth: the window swept this far along the normal "
+                                     "(the waypoint's approach point) must be free of geometry", "m")
+    approach_margin: float = param(0.1, "lateral margin added around the window for the approach prism", "m")
     window_width: float = param(0.5, "perch window, horizontal side on walls", "m")
     window_height: float = param(0.5, "perch window, vertical side on walls (along gravity)", "m")
     window_ellipse: bool = param(False, "elliptic perch window instead of a rectangle")
@@ -26,6 +28,14 @@ class FilterConfig:
     drone_radius: float = param(0.35, "drone radius for flight clearance and the fall corridor", "m")
     standoff: float = param(0.5, "point in front of a perch (along its normal) that must be reachable", "m")
     voxel_size: float = param(0.05, "voxel size of the flight-reachability occupancy grid", "m")
+    min_support: float = param(0.9, "share of the window that must have scanned surface within plane_tolerance "
+                               "of the perch plane")
+    max_support_rms: float = param(0.02, "largest RMS distance of the scanned surface under the window to the "
+                                   "perch plane", "m")
+    min_visible_share: float = param(0.2, "share of the target's sample points a perch must see")
+    visibility_points: int = param(64, "target sample points for the visibility share (seeded by seed)")
+    visibility_spacing: float = param(0.06, "grid on which visibility shares are ray cast and then "
+                                      "interpolated bilinearly", "m")
     los_offset: float = param(0.02, "line-of-sight rays start this far in front of the surface", "m")
     plane_tolerance: float = param(0.03, "geometry closer to a surface's plane than this is the surface itself", "m")
     floor_merge_tolerance: float = param(0.1, "floor pieces within this height of the lowest are one floor", "m")
@@ -33,25 +43,39 @@ class FilterConfig:
     min_region_area: float = param(0.005, "regions smaller than this are dropped", "m^2")
     max_cells_per_surface: int = param(4_000_000, "refuse rasters larger than this (absurd density)")
     max_voxels: int = param(60_000_000, "refuse occupancy grids larger than this (absurd voxel size)")
-    seed: int = param(0, "seed of the random samples used to orient surfaces")
+    seed: int = param(0, "seed of the random samples used to orient surfaces and of the target points")
 
     @property
     def cell(self) -> float:
+        """Raster cell size (m)."""
         return 1.0 / self.raster_density
+
+    @property
+    def lookahead(self) -> float:
+        """How far in front of and below a perch geometry is measured (evidence saturates here)."""
+        return max(2.0 * self.approach_distance, 2.0 * self.min_recovery_height, 2.0 * self.drone_radius)
 
     def validate(self) -> "FilterConfig":
         """Raise ValueError naming every absurd value."""
         problems = []
-        positive = ("raster_density", "voxel_size", "window_width", "window_height", "drone_radius")
+        positive = ("raster_density", "voxel_size", "window_width", "window_height", "drone_radius",
+                    "visibility_spacing")
         for name in positive:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 problems.append(f"{name}={value} must be > 0")
-        for name in ("min_recovery_height", "clearance_radius", "standoff", "los_offset", "plane_tolerance",
-                     "floor_merge_tolerance", "min_floor_area", "min_region_area"):
+        for name in ("min_recovery_height", "approach_distance", "approach_margin", "standoff", "los_offset",
+                     "plane_tolerance", "max_support_rms", "floor_merge_tolerance", "min_floor_area",
+                     "min_region_area"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 problems.append(f"{name}={value} must be >= 0")
+        for name in ("min_support", "min_visible_share"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and 0 <= value <= 1):
+                problems.append(f"{name}={value} must be a share in [0, 1]")
+        if not (1 <= self.visibility_points <= 4096):
+            problems.append(f"visibility_points={self.visibility_points} must be in [1, 4096]")
         if not (0 < self.class_angle_deg < 45):
             problems.append(f"class_angle_deg={self.class_angle_deg} must be in (0, 45)")
         if self.raster_density > 1000:

@@ -1,8 +1,18 @@
 """The filtering stage's pure core: surface candidates in, perch regions and per-filter removals out.
 
-Filters, in order: orientation/class, recovery height, obstacle clearance, line of sight, perch
-window, flight reachability. Each surface is handled on one raster in its plane frame; the line of
-sight rays of all surfaces go to the shared ray-cast scene in one batch.
+One definition of a safe perch centre, filters in order (FILTER_NAMES):
+  orientation      the surface's class (from its oriented normal) is enabled;
+  recovery_height  the cell can fall min_recovery_height (fall corridor on walls, column below
+                   ceilings) and is that high above the floor;
+  perch_window     every cell of the window centred on it passes recovery_height;
+  obstacle_clearance  the approach prism (window + approach_margin, swept approach_distance along
+                   the normal) is free of geometry;
+  support          >= min_support of the window has scanned surface within plane_tolerance of the
+                   plane, with RMS distance <= max_support_rms;
+  line_of_sight    it sees >= min_visible_share of the target's sample points;
+  reachability     its standoff point is reachable by flight from the target.
+Each surface is handled on one raster in its plane frame; the visibility rays of all surfaces go
+to the shared ray-cast scene in one batch.
 """
 
 from __future__ import annotations
@@ -18,21 +28,26 @@ from perch_common.polygons import faces_outline, from_shapely
 from perch_common.raycast import RayScene
 from perch_common.target import TargetVolume
 from perch_common.timing import Laps
-from perch_common.types import FilterRemoval, PerchRegion, Surface
-from perch_filtering.checks import clearance_blocked, geometry_in_front, recovery_blocked
+from perch_common.types import FilterRemoval, PerchEvidence, PerchRegion, Surface
+from perch_filtering.checks import approach_clearance, free_fall, geometry_in_front
 from perch_filtering.config import FilterConfig
-from perch_filtering.holes import hole_patches, patched_occlusion
+from perch_filtering.holes import hole_patches
 from perch_filtering.orientation import class_enabled, find_floor, orient, oriented_copy, visibility_scores, winding_votes
 from perch_filtering.raster import SurfaceRaster, erode_window, rasterise, window_kernel
 from perch_filtering.regions import mask_polygons, triangulate
 from perch_filtering.sampling import SampleIndex, project, sample_mesh
+from perch_filtering.support import cell_support, window_support
 from perch_filtering.validation import validate_inputs
+from perch_filtering.visibility import visible_shares
 from perch_filtering.voxels import FlightGrid, build_flight_grid, grid_rotation
 
 __all__ = ["FilterConfig", "FilterResult", "filter_surfaces", "FILTER_NAMES"]
 
+
 @dataclass
 class FilterResult:
+    """Regions, per-surface removals and the oriented surfaces of one filtering run."""
+
     regions: list[PerchRegion]
     removals: list[FilterRemoval]   # one per input surface, same order
     surfaces: list[Surface]         # oriented and classed copies of the input surfaces
@@ -50,13 +65,14 @@ class FilterResult:
 
 @dataclass
 class _Work:
-    """One surface between the raster filters and the batched ones."""
+    """One surface between the raster filters and the batched ones, with its evidence maps."""
 
     surface: Surface
     raster: SurfaceRaster | None
     alive: np.ndarray | None
     removal: FilterRemoval
     roughness: float = 0.0  # RMS distance (m) of the surface's vertices to its plane
+    evidence: dict = field(default_factory=dict)  # PerchEvidence field -> per-cell map
 
 
 def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, up: np.ndarray,
@@ -71,7 +87,8 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
     up = validate_inputs(mesh, surfaces, target, up)
     clock = Laps()
     samples = sample_mesh(mesh, config.voxel_size)
-    walls = [s for s, wall in zip(surfaces, is_wall([s.frame.normal for s in surfaces], up, config.class_angle_deg)) if wall]
+    wall = is_wall([s.frame.normal for s in surfaces], up, config.class_angle_deg)
+    walls = [s for s, is_a_wall in zip(surfaces, wall) if is_a_wall]
     rotation = grid_rotation(up, np.array([s.frame.normal for s in walls]) if walls else None,
                              np.array([s.area for s in walls]))
     grid = build_flight_grid(samples.points, rotation, target, config.voxel_size, config.drone_radius,
@@ -87,18 +104,23 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
     floor_height, floor_ids = find_floor(oriented, mesh, up, config)
     clock.lap("orientation")
 
-    work = [_raster_filters(s, mesh, samples, index, up, floor_height, config) for s in oriented]
-    clock.lap("raster_filters")
-    patches = hole_patches(oriented, config.drone_radius)
-    _line_of_sight(work, scene, RayScene(patches) if patches is not None else None, centre, config)
-    clock.lap("line_of_sight")
     kernel = window_kernel(config.window_width, config.window_height, config.cell, config.window_ellipse)
+    work = [_raster_filters(s, mesh, samples, index, up, floor_height, kernel, config) for s in oriented]
+    clock.lap("raster_filters")
+    for w in work:
+        if w.raster is not None:
+            _support(w, scene, kernel, config)
+    clock.lap("support")
+    patches = hole_patches(oriented, config.drone_radius)
+    _visibility(work, scene, RayScene(patches) if patches is not None else None,
+                target.sample(config.visibility_points, seed=config.seed), config)
+    clock.lap("line_of_sight")
     regions: list[PerchRegion] = []
     for w in work:
         if w.raster is not None:
-            kept = _window_and_reachability(w, kernel, grid, config)
+            kept = _reachability(w, grid, scene, config)
             regions.extend(_regions(w, kept, len(regions), mesh.frame_id, config))
-    clock.lap("window_reachability_regions")
+    clock.lap("reachability_regions")
     removals = [w.removal for w in work]
     result = FilterResult(regions, removals, oriented, "", floor_height, floor_ids,
                           [o.decided_by for o in orientations], time.perf_counter() - start, clock.laps)
@@ -106,59 +128,106 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
     return result
 
 
-def _window_and_reachability(w: _Work, kernel: np.ndarray, grid: FlightGrid, config: FilterConfig) -> np.ndarray:
-    """Filters 5 and 6: the whole window fits on surviving cells; the standoff point is reachable."""
-    cell_area = w.raster.cell_area
-    window = erode_window(w.alive, kernel)
-    w.removal.perch_window = float((w.alive & ~window).sum() * cell_area)
-    stand = w.raster.cell_world(window) + config.standoff * w.surface.frame.normal
-    kept = np.zeros(w.raster.shape, bool)
-    kept[window] = grid.lookup(grid.hover, stand)
-    w.removal.reachability = float((window & ~kept).sum() * cell_area)
-    w.removal.area_kept = float(kept.sum() * cell_area)
-    return kept
-
-
-def _regions(w: _Work, kept: np.ndarray, first_id: int, frame_id: str, config: FilterConfig) -> list[PerchRegion]:
-    """One region per connected piece of kept cells: polygons with holes and a triangulated mesh."""
-    out = []
-    for poly in mask_polygons(kept, w.raster):
-        if poly.area >= config.min_region_area:
-            out.append(PerchRegion(
-                id=first_id + len(out), source_surface=int(w.surface.id), surface_class=w.surface.surface_class,
-                frame=w.surface.frame, polygons=from_shapely(poly), area=float(poly.area),
-                mesh=triangulate(poly, w.raster, frame_id)))
-    return out
-
-
 def _raster_filters(surface: Surface, mesh: Mesh, samples, index: SampleIndex, up: np.ndarray,
-                    floor_height: float, config: FilterConfig) -> _Work:
-    """Rasterise one oriented surface and apply the class, recovery and clearance filters."""
+                    floor_height: float, kernel: np.ndarray, config: FilterConfig) -> _Work:
+    """Rasterise one oriented surface; apply the class, recovery, window and approach filters."""
     boundary = surface.boundary
     if not boundary and len(surface.face_indices):
         boundary = faces_outline(surface.frame, mesh.triangles()[surface.face_indices])
-    kernel_half = 0.5 * max(config.window_width, config.window_height) + config.cell
-    pad = int(np.ceil(kernel_half / config.cell)) + 1
+    prism_half = 0.5 * max(config.window_width, config.window_height) + config.approach_margin
+    pad = int(np.ceil((prism_half + config.cell) / config.cell)) + 1
     raster = rasterise(surface.frame, boundary, config.cell, pad, config.max_cells_per_surface,
                        f"surface {surface.id}")
     inside = raster.inside
-    removal = FilterRemoval(int(surface.id), float(inside.sum() * raster.cell_area))
+    cell_area = raster.cell_area
+    removal = FilterRemoval(int(surface.id), float(inside.sum() * cell_area))
     if not class_enabled(surface.surface_class, config):
         removal.orientation = removal.area_total
         return _Work(surface, None, None, removal)
     spacing = samples.spacing
     roughness = _roughness(surface, mesh)
     depth_tol = config.plane_tolerance + 2.0 * roughness
-    reach = max(config.clearance_radius, 2 * config.drone_radius, config.min_recovery_height) + spacing
-    margin = max(config.clearance_radius, config.drone_radius) + spacing + 2 * config.cell
-    near = geometry_in_front(samples, index, raster, surface.face_indices, up, depth_tol, reach, margin)
-    fall = recovery_blocked(raster, near, up, floor_height, config.min_recovery_height, config.drone_radius,
-                            spacing, surface.surface_class)
-    alive = inside & ~fall
-    removal.recovery_height = float((inside & fall).sum() * raster.cell_area)
-    clear = clearance_blocked(raster, near, config.clearance_radius, spacing)
-    removal.obstacle_clearance = float((alive & clear).sum() * raster.cell_area)
-    return _Work(surface, raster, alive & ~clear, removal, roughness)
+    lookahead = config.lookahead
+    margin = max(prism_half, lookahead) + spacing + 2 * config.cell
+    near = geometry_in_front(samples, index, raster, surface.face_indices, up, depth_tol, lookahead + spacing,
+                             margin)
+    fall = free_fall(raster, near, up, floor_height, lookahead, config.drone_radius, spacing,
+                     surface.surface_class)
+    fall_ok = fall >= config.min_recovery_height
+    removal.recovery_height = float((inside & ~fall_ok).sum() * cell_area)
+    alive = inside & fall_ok
+    centres = erode_window(fall_ok, kernel)
+    removal.perch_window = float((alive & ~centres).sum() * cell_area)
+    alive &= centres
+    clearance = approach_clearance(raster, near, 0.5 * config.window_width + config.approach_margin,
+                                   0.5 * config.window_height + config.approach_margin, lookahead, spacing)
+    approach_ok = clearance > config.approach_distance
+    removal.obstacle_clearance = float((alive & ~approach_ok).sum() * cell_area)
+    alive &= approach_ok
+    window_fall = -_window_max(-fall, kernel)
+    return _Work(surface, raster, alive, removal, roughness,
+                 {"approach_clearance": clearance, "free_fall": window_fall})
+
+
+def _window_max(values: np.ndarray, kernel: np.ndarray) -> np.ndarray:
+    """Largest value under the window centred on each cell."""
+    import cv2
+
+    return cv2.dilate(values.astype(np.float32), kernel, borderType=cv2.BORDER_REPLICATE)
+
+
+def _support(w: _Work, scene: RayScene, kernel: np.ndarray, config: FilterConfig) -> None:
+    """Filter 'support': enough of the window lies on scanned surface close to the perch plane."""
+    import cv2
+
+    under = cv2.dilate(w.alive.astype(np.uint8), kernel).astype(bool)
+    supported, distance = cell_support(scene, w.raster, under, config.plane_tolerance)
+    window = window_support(supported, distance, kernel)
+    ok = (window.share >= config.min_support - 1e-6) & (window.rms <= config.max_support_rms)
+    w.removal.support = float((w.alive & ~ok).sum() * w.raster.cell_area)
+    w.alive &= ok
+    w.evidence.update(support_share=window.share, flatness_rms=window.rms)
+
+
+def _reachability(w: _Work, grid: FlightGrid, scene: RayScene, config: FilterConfig) -> np.ndarray:
+    """Filter 'reachability': the drone fits at the standoff point in front of the perch (a drone
+    radius from the mesh, measured exactly) and that point is reachable by flight from the target."""
+    stand = w.raster.cell_world(w.alive) + config.standoff * w.surface.frame.normal
+    near = grid.lookup(grid.reachable_near, stand)
+    if near.any():
+        near[near] = scene.closest_points(stand[near])[2] >= config.drone_radius
+    kept = np.zeros(w.raster.shape, bool)
+    kept[w.alive] = near
+    w.removal.reachability = float((w.alive & ~kept).sum() * w.raster.cell_area)
+    w.removal.area_kept = float(kept.sum() * w.raster.cell_area)
+    return kept
+
+
+def _regions(w: _Work, kept: np.ndarray, first_id: int, frame_id: str, config: FilterConfig) -> list[PerchRegion]:
+    """One region per connected piece of kept cells: polygons with holes, a triangulated mesh and the
+    region's safety evidence (its worst cell's)."""
+    import shapely
+
+    out = []
+    uv = w.raster.cell_uv(kept)
+    for poly in mask_polygons(kept, w.raster):
+        if poly.area >= config.min_region_area:
+            mine = shapely.intersects_xy(poly, uv[:, 0], uv[:, 1])
+            out.append(PerchRegion(
+                id=first_id + len(out), source_surface=int(w.surface.id), surface_class=w.surface.surface_class,
+                frame=w.surface.frame, polygons=from_shapely(poly), area=float(poly.area),
+                mesh=triangulate(poly, w.raster, frame_id), evidence=_evidence(w, kept, mine)))
+    return out
+
+
+def _evidence(w: _Work, kept: np.ndarray, mine: np.ndarray) -> PerchEvidence:
+    """Worst value over the region's cells of each evidence map (NaN when a map is missing)."""
+    values = {}
+    for name, worst in (("approach_clearance", np.min), ("free_fall", np.min), ("support_share", np.min),
+                        ("flatness_rms", np.max)):
+        cells = w.evidence[name][kept][mine] if name in w.evidence and mine.any() else np.zeros(0)
+        values[name] = float(worst(cells)) if len(cells) else float("nan")
+    return PerchEvidence(**values)
 
 
 def _roughness(surface: Surface, mesh: Mesh) -> float:
@@ -171,28 +240,18 @@ def _roughness(surface: Surface, mesh: Mesh) -> float:
     return max(float(surface.rms_distance), float(np.sqrt(np.mean(depth ** 2))))
 
 
-def _line_of_sight(work: list[_Work], scene: RayScene, patches: RayScene | None, centre: np.ndarray,
-                   config: FilterConfig) -> None:
-    """Remove cells that do not see the target centre (through the mesh and the patches over small
-    holes), all surfaces in one batch of rays."""
+def _visibility(work: list[_Work], scene: RayScene, patches: RayScene | None, target_points: np.ndarray,
+                config: FilterConfig) -> None:
+    """Filter 'line_of_sight': keep cells that see at least min_visible_share of the target points."""
     live = [w for w in work if w.raster is not None and w.alive.any()]
     if not live:
         return
-    points = [w.raster.cell_world(w.alive) for w in live]
-    normals = np.concatenate([np.repeat(w.surface.frame.normal[None], len(p), axis=0) for w, p in zip(live, points)])
     # Start in front of the surface's own bumps: the configured offset plus three RMS deviations.
-    offsets = np.concatenate([np.full(len(p), config.los_offset + 3.0 * w.roughness) for w, p in zip(live, points)])
-    p = np.concatenate(points)
-    facing = np.einsum("ij,ij->i", centre - p, normals) > 0
-    visible = facing.copy()
-    visible[facing] = ~patched_occlusion(scene, patches, p[facing] + offsets[facing, None] * normals[facing],
-                                         np.repeat(centre[None], int(facing.sum()), axis=0))
-    offset = 0
-    for w, pts in zip(live, points):
-        ok = visible[offset:offset + len(pts)]
-        offset += len(pts)
-        seen = np.zeros(w.raster.shape, bool)
-        seen[w.alive] = ok
+    shares = visible_shares([w.raster for w in live], [w.alive for w in live],
+                            [config.los_offset + 3.0 * w.roughness for w in live], target_points, scene, patches,
+                            config.visibility_spacing)
+    for w, share in zip(live, shares):
+        seen = w.alive & (share >= config.min_visible_share - 1e-6)
         w.removal.line_of_sight = float((w.alive & ~seen).sum() * w.raster.cell_area)
         w.alive = seen
 

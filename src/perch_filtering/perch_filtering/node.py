@@ -46,9 +46,11 @@ def config_from_spec(spec, base: FilterConfig) -> FilterConfig:
         base, allow_walls=bool(spec.allow_walls), allow_ceiling=bool(spec.allow_ceiling),
         allow_floor=bool(spec.allow_floor), allow_intermediate=bool(spec.allow_intermediate),
         class_angle_deg=math.degrees(spec.class_angle), min_recovery_height=spec.min_recovery_height,
-        clearance_radius=spec.clearance_radius, window_width=spec.window_width,
-        window_height=spec.window_height, window_ellipse=bool(spec.window_ellipse),
-        raster_density=spec.raster_density, drone_radius=spec.drone_radius, standoff=spec.standoff)
+        approach_distance=spec.approach_distance, approach_margin=spec.approach_margin,
+        window_width=spec.window_width, window_height=spec.window_height, window_ellipse=bool(spec.window_ellipse),
+        raster_density=spec.raster_density, drone_radius=spec.drone_radius, standoff=spec.standoff,
+        min_support=spec.min_support, max_support_rms=spec.max_support_rms,
+        min_visible_share=spec.min_visible_share)
 
 
 class FilterNode(Node):

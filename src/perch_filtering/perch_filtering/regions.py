@@ -12,8 +12,8 @@ from perch_filtering.raster import SurfaceRaster
 def mask_polygons(mask: np.ndarray, raster: SurfaceRaster) -> list:
     """One shapely polygon (with holes) per 8-connected component of kept cells.
 
-    Outlines run through the centres of the outermost kept cells (not around the cells), so every
-    point of a polygon lies between cells that passed every filter.
+    Outlines run around the squares of the outermost kept cells (each cell stands for its own
+    square, as in the window kernel), so no kept cell's area is lost at a region's border.
     """
     import cv2
     import shapely
@@ -38,10 +38,10 @@ def mask_polygons(mask: np.ndarray, raster: SurfaceRaster) -> list:
         if len(outer) < 3:
             continue
         poly = shapely.Polygon(outer, [h for h in holes if len(h) >= 3])
-        if poly.area <= 0:
-            continue
         if not poly.is_valid:
             poly = shapely.make_valid(poly)
+        # Mitred half-cell buffer: from the cell centres out to the cells' own squares.
+        poly = poly.buffer(raster.cell / 2, join_style="mitre", mitre_limit=1.5)
         polygons.extend(g for g in getattr(poly, "geoms", [poly]) if g.geom_type == "Polygon" and g.area > 0)
     return polygons
 

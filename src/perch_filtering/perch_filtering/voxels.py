@@ -21,7 +21,9 @@ class FlightGrid:
     `open_space`: voxels at least ~1.5 voxels from geometry connected to the target (where the room
     was observed from). `reachable`: voxels where the drone's centre fits (drone radius) connected
     to the target by flight. `hover`: reachable voxels whose every point is a drone radius from
-    geometry (centre distance >= radius + half a voxel diagonal). Outside the grid counts as blocked.
+    geometry (centre distance >= radius + half a voxel diagonal). `reachable_near`: reachable voxels
+    and their 6-neighbours (a point there with a drone radius of free space is reached from the
+    neighbour's centre). Outside the grid counts as blocked.
     """
 
     rotation: np.ndarray
@@ -31,6 +33,7 @@ class FlightGrid:
     open_space: np.ndarray
     reachable: np.ndarray
     hover: np.ndarray | None = None
+    reachable_near: np.ndarray | None = None  # reachable voxels and their 6-neighbours
 
     def indices(self, points: np.ndarray) -> np.ndarray:
         local = project(np.asarray(points, np.float64).reshape(-1, 3), self.rotation)
@@ -84,6 +87,7 @@ def build_flight_grid(points: np.ndarray, rotation: np.ndarray, target: TargetVo
     grid.open_space = _connected_to(distance > 1.5, seeds)
     grid.reachable = _connected_to(distance >= drone_radius / voxel, seeds)
     grid.hover = grid.reachable & (distance >= drone_radius / voxel + np.sqrt(3.0) / 2)
+    grid.reachable_near = ndimage.binary_dilation(grid.reachable, SIX_CONNECTED)
     return grid
 
 

@@ -73,9 +73,7 @@ def evaluate(scene: GeneratedScene, surfaces: list, result, spec: Spec, seed: in
         if not oracle.enabled(pid):
             continue
         points = sample_plane(scene, pid, recall_spacing, rng)
-        candidate = oracle.pointwise(pid, points) & oracle.reachable(pid, points)
-        ok = np.zeros(len(points), bool)
-        ok[candidate] = oracle.window_ok(pid, points[candidate])
+        ok = oracle.valid(pid, points)
         if not ok.any():
             continue
         covered = np.zeros(int(ok.sum()), bool)

@@ -36,8 +36,9 @@ def test_checker_is_not_a_rubber_stamp():
     """The checker rejects output that ignores the filters: every enabled surface kept whole."""
     scene = generate_scene(1, "room")
     surfaces = filter_input_surfaces(scene)
-    config = FilterConfig(min_recovery_height=0.0, clearance_radius=0.0, window_width=0.02,
-                          window_height=0.02, drone_radius=0.06, standoff=0.2)
+    config = FilterConfig(min_recovery_height=0.0, approach_distance=0.0, approach_margin=0.0, window_width=0.02,
+                          window_height=0.02, drone_radius=0.06, standoff=0.2, min_support=0.0,
+                          min_visible_share=0.0)
     loose = filter_surfaces(scene.mesh, surfaces, scene.target, scene.up, config)
     score = evaluate(scene, surfaces, loose, spec_from(FilterConfig()), seed=1)
     assert score["precision"] < 0.6, score

@@ -52,6 +52,6 @@ def test_bench_filter_scene_prints_scores(capsys):
     assert code == 0
     result = json.loads(capsys.readouterr().out)
     assert result["regions"] > 0 and result["seconds"] > 0
-    assert set(result["removed_m2"]) == {"orientation", "recovery_height", "obstacle_clearance", "line_of_sight",
-                                         "perch_window", "reachability"}
+    assert set(result["removed_m2"]) == {"orientation", "recovery_height", "perch_window", "obstacle_clearance",
+                                         "support", "line_of_sight", "reachability"}
     assert result["precision"] >= 0.99 and result["recall"] >= 0.9

@@ -124,16 +124,26 @@ def test_window_flush_with_wall_is_no_obstacle_and_the_perch_window_avoids_it():
     without = room(wall_holes={1: [hole]})
     s1, r1 = run(with_glass, TARGET)
     s2, r2 = run(without, TARGET)
-    a = np.array([list(vars(r).values()) for r in r1.removals], float)
-    b = np.array([list(vars(r).values()) for r in r2.removals], float)
-    assert np.allclose(a, b)  # the coplanar glass changes nothing
-    ids = names_by_id(with_glass, s1)
-    pts = kept_points(r1, s1, ids, "room.wall1")
-    s, z = pts[:, 1], pts[:, 2]
-    near = (s > 1.5 - 0.25 + TOL) & (s < 3.0 + 0.25 - TOL) & (z > 1.0 - 0.25 + TOL) & (z < 2.0 + 0.25 - TOL)
-    assert not near.any()
-    # Right beside the window's margin the wall is kept.
-    assert np.any((np.abs(s - 3.3) < 0.03) & (np.abs(z - 1.5) < 0.03))
+    fields = [f for f in vars(r1.removals[0]) if f not in ("support", "area_kept")]
+    a = np.array([[getattr(r, f) for f in fields] for r in r1.removals], float)
+    b = np.array([[getattr(r, f) for f in fields] for r in r2.removals], float)
+    assert np.allclose(a, b)  # the coplanar glass is no obstacle: only support may differ
+    # The glass is scanned surface on the perch plane: it supports windows the bare hole does not.
+    assert sum(r.support for r in r1.removals) < sum(r.support for r in r2.removals)
+    ids = names_by_id(without, s2)
+    pts = kept_points(r2, s2, ids, "room.wall1")
+    # Over the bare hole, no window lacks more than 1 - min_support of its area (one cell of slack).
+    assert window_overlap(pts[:, 1], pts[:, 2], hole).max() <= 0.1 + 0.02 * 2 / 0.5
+    assert np.any(window_overlap(pts[:, 1], pts[:, 2], hole) > 0.02)  # but windows may reach over it a bit
+    # Right beside the hole the wall is kept.
+    assert np.any((np.abs(pts[:, 1] - 3.3) < 0.03) & (np.abs(pts[:, 2] - 1.5) < 0.03))
+
+
+def window_overlap(s: np.ndarray, z: np.ndarray, hole, half: float = 0.25) -> np.ndarray:
+    """Share of the 0.5 x 0.5 m window centred at wall coordinates (s, z) that lies over the hole."""
+    ds = np.clip(np.minimum(s + half, hole[1]) - np.maximum(s - half, hole[0]), 0, None)
+    dz = np.clip(np.minimum(z + half, hole[3]) - np.maximum(z - half, hole[2]), 0, None)
+    return ds * dz / (2 * half) ** 2
 
 
 def _two_rooms(door: bool) -> Builder:
@@ -164,24 +174,29 @@ def test_hole_in_wall_other_room_is_neither_seen_nor_reached():
     assert far.line_of_sight > 0
     # In room A the perch window keeps clear of the hole.
     pts = kept_points(result, surfaces, ids, "a.wall1")
-    y, z = pts[:, 1], pts[:, 2]
-    assert not np.any((y > 1.8 - 0.25 + TOL) & (y < 2.2 + 0.25 - TOL) & (z > 1.2 - 0.25 + TOL) & (z < 1.6 + 0.25 - TOL))
+    assert window_overlap(pts[:, 1], pts[:, 2], (1.8, 2.2, 1.2, 1.6)).max() <= 0.1 + 0.02 * 2 / 0.5
 
 
 def test_hole_in_wall_no_perch_sees_the_target_only_through_the_hole():
     b = _two_rooms(door=True)
     surfaces, result = run(b, TARGET_NEAR_HOLE)
     ids = names_by_id(b, surfaces)
-    centre = TARGET_NEAR_HOLE.centroid()
+    targets = TARGET_NEAR_HOLE.sample(64, seed=0)  # the filter's visibility points (count, seed)
+    scene = RayScene(b.mesh())
     for name in ("b.wall0", "b.wall1", "b.wall2", "b.ceiling"):
         pts = kept_points(result, surfaces, ids, name, spacing=0.1)
         if len(pts) == 0:
             continue
-        # Where each sight line crosses the dividing wall (x = 5.1): inside the doorway, not the hole.
-        t = (5.1 - pts[:, 0]) / (centre[0] - pts[:, 0])
-        cross = pts + t[:, None] * (centre - pts)
-        assert np.all((cross[:, 1] > 4 - 1.2 - 1e-6) | (cross[:, 1] < 1.2 + 1e-6)), name
-        assert not np.any((cross[:, 1] > 1.8) & (cross[:, 1] < 2.2) & (cross[:, 2] > 1.2) & (cross[:, 2] < 1.6))
+        # Counting only sight lines that cross the dividing wall (x = 5.1) outside the small hole,
+        # every kept perch still sees min_visible_share of the target (less a little interpolation).
+        normal = next(s.frame.normal for s in result.surfaces if s.id == ids[name])
+        origins = np.repeat(pts + 0.02 * normal, len(targets), axis=0)
+        ends = np.tile(targets, (len(pts), 1))
+        t = (5.1 - origins[:, 0]) / (ends[:, 0] - origins[:, 0])
+        cross = origins + t[:, None] * (ends - origins)
+        through_hole = (cross[:, 1] > 1.8) & (cross[:, 1] < 2.2) & (cross[:, 2] > 1.2) & (cross[:, 2] < 1.6)
+        seen = ~scene.occluded(origins, ends) & ~through_hole & ((ends - origins) @ normal > 0)
+        assert seen.reshape(len(pts), -1).mean(axis=1).min() >= 0.2 - 0.05, name
     # Room B is reachable through the door: its regions are not all removed by reachability.
     assert removal(result, ids["b.wall1"]).reachability == 0
 
@@ -193,10 +208,16 @@ def test_obstacle_clearance_around_a_wall_shelf():
     ids = names_by_id(b, surfaces)
     assert removal(result, ids["room.wall0"]).obstacle_clearance > 0.1
     pts = kept_points(result, surfaces, ids, "room.wall0")
+    assert len(pts) > 0
+    # The approach prism (0.5 m window + 0.1 m margin each side, 0.5 m deep) never meets the shelf ...
+    x, z = pts[:, 0], pts[:, 2]
+    half = 0.25 + 0.1
+    assert not np.any((x > 2.0 - half + TOL) & (x < 3.0 + half - TOL) & (z > 1.6 - half + TOL) & (z < 1.8 + half - TOL))
+    # ... but geometry beside the prism does not block: perches closer than 0.5 m to the shelf are kept
+    # (the former 0.5 m clearance ball removed them).
     lo, hi = np.array([2.0, 0.0, 1.6]), np.array([3.0, 0.3, 1.8])
     distance = np.linalg.norm(np.maximum(np.maximum(lo - pts, pts - hi), 0), axis=1)
-    assert distance.min() >= 0.5 - TOL
-    assert len(pts) > 0
+    assert distance.min() < 0.45
 
 
 def test_line_of_sight_behind_a_screen():
@@ -208,9 +229,12 @@ def test_line_of_sight_behind_a_screen():
     assert removal(result, ids["room.wall2"]).line_of_sight > 1.0
     pts = kept_points(result, surfaces, ids, "room.wall2", spacing=0.05)
     assert len(pts) > 0
+    # Every kept perch sees at least min_visible_share (0.2) of the target's sample points.
     scene = RayScene(b.mesh())
-    blocked = scene.occluded(pts + [0, -0.02, 0], np.repeat(target.centroid()[None], len(pts), axis=0))
-    assert not blocked.any()
+    targets = target.sample(64, seed=0)
+    origins = np.repeat(pts + [0, -0.02, 0], len(targets), axis=0)
+    seen = ~scene.occluded(origins, np.tile(targets, (len(pts), 1)))
+    assert seen.reshape(len(pts), -1).mean(axis=1).min() >= 0.2 - 0.05
 
 
 def test_classes_can_be_switched():

@@ -74,8 +74,9 @@ def test_spec_and_error_replies_keep_the_node_serving(ros_node, room_request):
     # A spec that allows nothing: a valid empty answer naming the filter that removed the most.
     spec_request = copy.copy(request)
     spec_request.spec = PerchSpec(specified=True, allow_walls=False, allow_ceiling=False, class_angle=0.26,
-                                  min_recovery_height=0.5, clearance_radius=0.5, window_width=0.5,
-                                  window_height=0.5, raster_density=50.0, drone_radius=0.35, standoff=0.5)
+                                  min_recovery_height=0.5, approach_distance=0.5, approach_margin=0.1,
+                                  window_width=0.5, window_height=0.5, raster_density=50.0, drone_radius=0.35,
+                                  standoff=0.5, min_support=0.9, max_support_rms=0.02, min_visible_share=0.2)
     reply = call(node, spec_request)
     assert reply.success and len(reply.regions) == 0
     assert reply.message.startswith("no perch region survived: orientation removed the most")

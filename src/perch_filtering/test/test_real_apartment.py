@@ -27,20 +27,18 @@ def test_real_apartment_regions_see_the_target_from_the_free_side():
     # The floor is the scan's lowest large horizontal surface (the scan's floor lies near z = 0).
     assert -0.1 < result.floor_height < 0.15
     assert {r.surface_class.name for r in result.regions} <= {"WALL", "CEILING"}
-    # Yield. The original system placed 5 perches on walls and ceilings of this apartment (85 % passed
-    # operator review), without the fall-corridor obstacle test and with centroid-oriented normals.
-    # Under this rules (h_min 0.5 m, clearance 0.5 m by 3D distance, 0.5 x 0.5 m window) the scan
-    # keeps one ceiling strip of ~0.79 m^2: furniture up to ~0.9 m high stands within 0.7 m in front of
-    # the walls (free fall from >= ~1.4 m) and the ceiling (2.35-2.45 m) clears wall points only below
-    # ~1.85-1.95 m, a band lower than the 0.5 m window on every wall. Ablations: without the obstacle
-    # part of the fall test ~0.96 m^2, without the clearance ~1.1 m^2 (each alone still kills the walls).
-    # This guards that yield against regressions; it does not reach the original's 5 perches.
+    # Yield under the safety model (approach prism, fall corridor, support on the scan, visibility share).
+    # The fall corridor is the limiting rule: furniture up to ~0.9 m high stands within 0.7 m in front of
+    # the walls; support is next (the segmented ceiling spans 2.35-2.45 m, so much of it lies more than
+    # plane_tolerance from its fitted plane). See src/perch_filtering/README.md for the measurements.
     total = sum(r.area for r in result.regions)
-    assert len(result.regions) >= 1 and total >= 0.7, (len(result.regions), total)
-    assert len({r.source_surface for r in result.regions}) >= 1
-    assert any(r.surface_class.name == "CEILING" and r.area >= 0.7 for r in result.regions)
+    assert total >= 0.2, (len(result.regions), total)
     removed = result.removed_area()
     assert removed["recovery_height"] == max(v for k, v in removed.items() if k != "orientation"), removed
+    for r in result.regions:  # every region carries evidence that meets the rules
+        e = r.evidence
+        assert e.approach_clearance > 0.5 and e.free_fall >= 0.5, e
+        assert e.support_share >= 0.9 - 1e-6 and e.flatness_rms <= 0.02 + 1e-6, e
     scene = RayScene(mesh)
     centre = target.centroid()
     for r in result.regions:

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from perch_common.conventions import FILTER_COLOURS
 from perch_common.conventions import FILTER_NAMES as FILTERS
 from perch_common.mesh import Mesh
 from perch_operator.mission_data import MissionData, latest_waypoints, target_point_scores
@@ -81,10 +82,9 @@ def _log_surfaces(rr, rec, data: MissionData) -> None:
         amounts = [getattr(r, f) for f in FILTERS]
         if max(amounts) > 0:
             by_filter.setdefault(FILTERS[int(np.argmax(amounts))], []).append(np.asarray(s.face_indices))
-    palette = [(150, 150, 150), (230, 200, 40), (230, 90, 40), (170, 60, 200), (40, 180, 200), (200, 40, 120)]
     for name, faces in by_filter.items():
         rec.log(f"world/removed_by/{name}", _mesh3d(rr, data.cropped.submesh(np.concatenate(faces)),
-                                                    palette[FILTERS.index(name)]), static=True)
+                                                    FILTER_COLOURS[FILTERS.index(name)]), static=True)
 
 
 def _log_cameras(rr, rec, data: MissionData, views: list | None) -> None:

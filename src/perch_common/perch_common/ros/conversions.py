@@ -10,7 +10,7 @@ from geometry_msgs.msg import Point, Pose, Quaternion, Vector3
 from perch_common.mesh import Mesh, MeshError
 from perch_common.target import TargetVolume
 from perch_common.transforms import pose_to_matrix, quaternion_from_matrix
-from perch_common.types import CameraPlacement, ExclusionZone, FilterRemoval, PerchRegion, PlaneFrame, Surface, SurfaceClass
+from perch_common.types import CameraPlacement, ExclusionZone, FilterRemoval, PerchEvidence, PerchRegion, PlaneFrame, Surface, SurfaceClass
 from perch_interfaces import msg as pm
 
 _TYPECODES = {np.float32: "f", np.float64: "d", np.uint32: "I", np.uint8: "B", np.int32: "i"}
@@ -142,14 +142,24 @@ def region_to_msg(region: PerchRegion) -> pm.PerchRegion:
     return pm.PerchRegion(id=int(region.id), source_surface=int(region.source_surface),
                           surface_class=int(region.surface_class), area=float(region.area),
                           frame=frame_to_msg(region.frame), polygons=polygons_to_msg(region.polygons),
-                          mesh=mesh_to_msg(region.mesh))
+                          mesh=mesh_to_msg(region.mesh), evidence=evidence_to_msg(region.evidence))
 
 
 def region_from_msg(msg: pm.PerchRegion) -> PerchRegion:
     return PerchRegion(id=msg.id, source_surface=msg.source_surface,
                        surface_class=SurfaceClass(msg.surface_class), frame=frame_from_msg(msg.frame),
                        polygons=polygons_from_msg(msg.polygons), mesh=mesh_from_msg(msg.mesh, "region mesh"),
-                       area=msg.area)
+                       area=msg.area, evidence=evidence_from_msg(msg.evidence))
+
+
+def evidence_to_msg(evidence: PerchEvidence) -> pm.PerchEvidence:
+    """Safety evidence as its message (NaN where not measured)."""
+    return pm.PerchEvidence(**{k: float(v) for k, v in vars(evidence).items()})
+
+
+def evidence_from_msg(msg: pm.PerchEvidence) -> PerchEvidence:
+    """Safety evidence from its message."""
+    return PerchEvidence(**{k: float(getattr(msg, k)) for k in PerchEvidence.__dataclass_fields__})
 
 
 def removal_to_msg(r: FilterRemoval) -> pm.FilterRemoval:
