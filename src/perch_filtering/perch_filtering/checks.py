@@ -1,6 +1,7 @@
 """The safety model's geometric measures on one surface raster: free fall and approach clearance.
 
-Both measure the mesh samples in front of the surface (its own faces and bumps excluded). Samples are up to `spacing` apart and are
+Both measure the mesh samples in front of the surface (its own faces and bumps excluded).
+Samples are up to `spacing` apart and are
 snapped to the nearest cell, so every radius is widened by a share of the spacing (GAP) and of a
 cell (SNAP). Tuned on generated scenes against the independent checker in test/: these margins
 keep precision >= 0.99 while the full worst-case margins cost ~5 points of recall.

@@ -20,7 +20,7 @@ def visible_shares(rasters: list[SurfaceRaster], masks: list[np.ndarray], offset
                    spacing: float) -> list[np.ndarray]:
     """Per raster, a float32 map of the share of `target_points` seen from each cell in its mask
     (rays start `offset` in front of the plane; points behind the plane are not seen); 0 elsewhere."""
-    nodes, owners = [], []
+    nodes = []
     for k, (raster, mask) in enumerate(zip(rasters, masks)):
         step = max(1, int(round(spacing / raster.cell)))
         rows, cols = np.nonzero(mask)
@@ -29,7 +29,6 @@ def visible_shares(rasters: list[SurfaceRaster], masks: list[np.ndarray], offset
             for dc in (0, 1):
                 need[rows // step + dr, cols // step + dc] = True
         nodes.append((step, need))
-        owners.append(np.flatnonzero(need.ravel()))
     origins, normals = [], []
     for raster, offset, (step, need) in zip(rasters, offsets, nodes):
         nr, nc = np.nonzero(need)

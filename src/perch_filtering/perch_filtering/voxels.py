@@ -36,6 +36,7 @@ class FlightGrid:
     reachable_near: np.ndarray | None = None  # reachable voxels and their 6-neighbours
 
     def indices(self, points: np.ndarray) -> np.ndarray:
+        """Voxel index (may lie outside the grid) of each world point."""
         local = project(np.asarray(points, np.float64).reshape(-1, 3), self.rotation)
         return np.floor((local - self.origin) / self.voxel).astype(np.int64)
 
