@@ -77,6 +77,9 @@ class Surface:
     boundary: list[Polygon2D] = field(default_factory=list)
 
 
+NOT_MEASURED = -1.0  # evidence value of a perch nobody measured (messages carry finite numbers only)
+
+
 @dataclass
 class PerchEvidence:
     """Why a perch is safe, measured on the scan (m, share); for a region, its worst cell's values.
@@ -84,12 +87,13 @@ class PerchEvidence:
     approach_clearance: free depth of the approach prism; free_fall: free fall below the window;
     both saturate at the filter's lookahead. support_share: share of the window on scanned surface
     within tolerance of the perch plane; flatness_rms: RMS distance of that surface to the plane.
+    NOT_MEASURED (-1) where unknown.
     """
 
-    approach_clearance: float = float("nan")
-    free_fall: float = float("nan")
-    support_share: float = float("nan")
-    flatness_rms: float = float("nan")
+    approach_clearance: float = NOT_MEASURED
+    free_fall: float = NOT_MEASURED
+    support_share: float = NOT_MEASURED
+    flatness_rms: float = NOT_MEASURED
 
 
 @dataclass

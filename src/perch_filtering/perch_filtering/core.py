@@ -28,7 +28,7 @@ from perch_common.polygons import faces_outline, from_shapely
 from perch_common.raycast import RayScene
 from perch_common.target import TargetVolume
 from perch_common.timing import Laps
-from perch_common.types import FilterRemoval, PerchEvidence, PerchRegion, Surface
+from perch_common.types import NOT_MEASURED, FilterRemoval, PerchEvidence, PerchRegion, Surface
 from perch_filtering.checks import approach_clearance, free_fall, geometry_in_front
 from perch_filtering.config import FilterConfig
 from perch_filtering.holes import hole_patches
@@ -221,12 +221,12 @@ def _regions(w: _Work, kept: np.ndarray, first_id: int, frame_id: str, config: F
 
 
 def _evidence(w: _Work, kept: np.ndarray, mine: np.ndarray) -> PerchEvidence:
-    """Worst value over the region's cells of each evidence map (NaN when a map is missing)."""
+    """Worst value over the region's cells of each evidence map (NOT_MEASURED when a map is missing)."""
     values = {}
     for name, worst in (("approach_clearance", np.min), ("free_fall", np.min), ("support_share", np.min),
                         ("flatness_rms", np.max)):
         cells = w.evidence[name][kept][mine] if name in w.evidence and mine.any() else np.zeros(0)
-        values[name] = float(worst(cells)) if len(cells) else float("nan")
+        values[name] = float(worst(cells)) if len(cells) else NOT_MEASURED
     return PerchEvidence(**values)
 
 

@@ -153,7 +153,7 @@ def region_from_msg(msg: pm.PerchRegion) -> PerchRegion:
 
 
 def evidence_to_msg(evidence: PerchEvidence) -> pm.PerchEvidence:
-    """Safety evidence as its message (NaN where not measured)."""
+    """Safety evidence as its message (NOT_MEASURED, -1, where not measured)."""
     return pm.PerchEvidence(**{k: float(v) for k, v in vars(evidence).items()})
 
 
