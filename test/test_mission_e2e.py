@@ -295,6 +295,61 @@ def test_killed_stage_ends_the_mission_with_its_name_and_the_next_one_succeeds(g
     print(f"killed stage reported {detected:.1f} s after the kill")
 
 
+def test_killing_the_node_holding_a_cached_mesh_mid_mission_is_recovered_by_resending(graph, scene):
+    """The filter node holds the cropped mesh from an earlier mission; it is killed and restarted
+    while the mission waits for a surface review. Its first request then names the mesh by id
+    only, it answers "mesh not cached", and the coordinator sends the arrays again: success."""
+    from rclpy.qos import qos_profile_services_default
+
+    from perch_common.mesh_cache import MESH_NOT_CACHED
+    from perch_interfaces.msg import SurfaceReview
+    from perch_interfaces.srv import Filter, ReviewSurfaces
+    from perch_operator.client import run_mission
+    from perch_operator.node import LATCHED_LAST
+
+    warm = run_mission(graph.node, make_goal(scene), timeout=300)   # every stage now holds the meshes
+    assert warm.success, warm.message
+    replies: list = []
+    events = graph.node.create_subscription(Filter.Event, "/perch/filter/_service_event",
+                                            lambda e: replies.extend(e.response), qos_profile_services_default)
+    reviews: list = []
+    sub = graph.node.create_subscription(SurfaceReview, "/perch/surface_review", reviews.append, LATCHED_LAST)
+    goal = make_goal(scene)
+    goal.review_surfaces = 2
+    mission = LiveMission(graph.node, goal)
+    client = graph.node.create_client(ReviewSurfaces, "/perch/review_surfaces")
+    with graph.spinner(graph.node):
+        time.sleep(1.0)   # an earlier test's latched review arrives first
+        earlier = {r.review_id for r in reviews}
+        mission.start()
+        review = wait_for(lambda: reviews[-1] if reviews and reviews[-1].review_id not in earlier else None, 120,
+                          "the surface review (the mission is paused after segment)")
+        graph.processes.processes["perch_filtering"].kill()        # SIGKILL: its mesh cache is gone
+        graph.processes.processes["perch_filtering"].wait()
+        log = graph.tmp / "logs" / "perch_filtering.log"
+        ready_before = log.read_text(errors="replace").count("ready")
+        graph.processes.start_node("perch_filtering")
+        wait_for(lambda: log.read_text(errors="replace").count("ready") > ready_before, 120,
+                 "the restarted filter node")
+        time.sleep(4.0)   # the killed process's endpoints leave the graph (3 s lease)
+        ok = client.call_async(ReviewSurfaces.Request(review_id=review.review_id))
+        assert wait_for(lambda: ok.result() if ok.done() else None, 30, "the review reply").success
+        result = mission.result()
+        wait_for(lambda: any(r.success for r in replies), 10, "the filter's successful reply event")
+    graph.node.destroy_subscription(events)
+    graph.node.destroy_subscription(sub)
+    graph.node.destroy_client(client)
+    mission.close()
+    assert result.success, result.message
+    misses = [r for r in replies if not r.success]
+    assert misses and all(r.message.startswith(MESH_NOT_CACHED) for r in misses), [r.message for r in replies]
+    assert "send the mesh arrays again" in misses[0].message
+    assert replies[-1].success
+    assert [p.drone_index for p in result.placements] == [p.drone_index for p in warm.placements]
+    np.testing.assert_allclose([_position(p) for p in result.placements], [_position(p) for p in warm.placements],
+                               atol=1e-6)
+
+
 @pytest.mark.slow
 def test_twenty_missions_without_crashes_or_memory_growth(graph, scene):
     import psutil

@@ -47,8 +47,12 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 0 if args.command is None else 2
-    with report_errors():  # expected errors exit 1 with one line
-        return int(args.func(args) or 0)
+    try:
+        with report_errors():  # expected errors exit 1 with one line
+            return int(args.func(args) or 0)
+    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM/SIGHUP in commands that start nodes
+        print(f"perch: interrupted{f' ({exc})' if str(exc) else ''}", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

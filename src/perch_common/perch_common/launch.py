@@ -1,10 +1,17 @@
-"""`perch launch`: start the graph's node processes from config/perch.yaml, stop them on Ctrl-C.
+"""`perch launch`: start the graph's nodes from config/perch.yaml, restart any that die, stop on Ctrl-C.
 
 A node runs when it is listed in the parameter file AND its package registers it in the
-entry-point group `perch.nodes` (name = node name = package name). Each node is its own
-process: `python -m <module> --ros-args --params-file FILE [-r __ns:=/N] [-p name:=value ...]`.
+entry-point group `perch.nodes` (name = node name = package name). Two ways to host them:
+
+* per-node (the default of `perch launch`): each node is its own process,
+  `python -m <module> --ros-args --params-file FILE [-r __ns:=/N] [-p node:name:=value ...]`,
+  for distributed use;
+* one-process (the default of `perch plan`/`demo`): every node in one process on one executor,
+  the way a ROS 2 component container hosts components (`perch_common.ros.container`).
+
 With a namespace every node (and its relative `perch/...` names) lives under /N, so two graphs
-run side by side on one domain.
+run side by side on one domain. Either way the graph talks on this host only (config/fastdds.xml)
+unless `--network` or PERCH_NETWORK=1 opens it.
 """
 
 from __future__ import annotations
@@ -14,7 +21,7 @@ import signal
 import subprocess
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 from pathlib import Path
 
@@ -23,21 +30,95 @@ from perch_common.config import ConfigError, default_config_path, node_names
 from perch_common.data import repo_root
 from perch_common.processes import stop_process
 
+NETWORK_ENV = "PERCH_NETWORK"          # 1/true/yes: let the graph use every network interface
+GRAPH_MODES = ("per-node", "one-process")
+CONTAINER = "perch_container"           # process name of a one-process graph
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
-def fast_liveliness_profile() -> Path:
-    """config/fastdds.xml: a process that dies unannounced leaves the graph in ~3 s, not ~20 s."""
-    return repo_root() / "config" / "fastdds.xml"
+
+def dds_profile(network: bool = False) -> Path:
+    """config/fastdds.xml (loopback + shared memory) or config/fastdds_network.xml (all interfaces)."""
+    return repo_root() / "config" / ("fastdds_network.xml" if network else "fastdds.xml")
 
 
-def use_fast_liveliness(env: dict | None = None) -> dict:
-    """Apply the Fast DDS profile to `env` (default: this process; call before rclpy.init).
+def network_requested(env: dict | None = None) -> bool:
+    """True when PERCH_NETWORK asks for a graph reachable from other hosts."""
+    value = (os.environ if env is None else env).get(NETWORK_ENV, "")
+    return value.strip().lower() in ("1", "true", "yes", "on")
 
-    A FASTRTPS_DEFAULT_PROFILES_FILE the user already set is kept.
+
+def use_perch_dds(env: dict | None = None, network: bool | None = None) -> dict:
+    """Apply Perch's Fast DDS settings to `env` (default: this process; call before rclpy.init).
+
+    Local (default): config/fastdds.xml (loopback UDP, shared memory, unicast peers on 127.0.0.1)
+    with ROS_AUTOMATIC_DISCOVERY_RANGE=SYSTEM_DEFAULT, because rmw_fastrtps's LOCALHOST range would
+    replace the profile's transports with ones bound to every interface. A profile of the user's
+    own (FASTRTPS_DEFAULT_PROFILES_FILE already set) is kept, with the LOCALHOST range.
+    Network (`network=True` or PERCH_NETWORK=1): config/fastdds_network.xml, discovery range left
+    to the user. Both profiles drop a process that died unannounced after ~3 s, not ~20 s.
     """
     target = os.environ if env is None else env
-    if fast_liveliness_profile().is_file():
-        target.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(fast_liveliness_profile()))
+    network = network_requested(target) if network is None else network
+    profile = dds_profile(network)
+    if profile.is_file():
+        target.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(profile))
+    if network:
+        target[NETWORK_ENV] = "1"   # child processes (respawned nodes) stay networked too
+        if target.get("ROS_AUTOMATIC_DISCOVERY_RANGE") == "SYSTEM_DEFAULT" and _ours(target):
+            target.pop("ROS_AUTOMATIC_DISCOVERY_RANGE")
+    elif target["FASTRTPS_DEFAULT_PROFILES_FILE"] == str(profile):
+        target["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "SYSTEM_DEFAULT"
+    else:
+        target["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     return target
+
+
+def _ours(env: dict) -> bool:
+    return env.get("FASTRTPS_DEFAULT_PROFILES_FILE") in (str(dds_profile(False)), str(dds_profile(True)))
+
+
+# Fast DDS's well-known UDP ports (RTPS spec 9.6.1.1): domain d owns 7400 + 250 d ... + 249.
+_PORT_BASE, _DOMAIN_GAIN = 7400, 250
+DOMAIN_RANGES = (range(0, 102), range(215, 233))   # domain ids ROS 2 allows on Linux
+
+
+def domain_ports(domain: int) -> range:
+    """The UDP ports a participant on `domain` binds for discovery and user traffic."""
+    start = _PORT_BASE + _DOMAIN_GAIN * domain
+    return range(start, start + _DOMAIN_GAIN)
+
+
+def domains_in_use() -> set[int]:
+    """Domains that some process on this host takes part in (a bound RTPS port), from /proc/net/udp."""
+    import psutil
+
+    used = set()
+    for conn in psutil.net_connections(kind="udp"):
+        port = conn.laddr.port if conn.laddr else 0
+        if port >= _PORT_BASE:
+            domain, offset = divmod(port - _PORT_BASE, _DOMAIN_GAIN)
+            if offset < _DOMAIN_GAIN:
+                used.add(domain)
+    return used
+
+
+def current_domain(env: dict | None = None) -> int:
+    """ROS_DOMAIN_ID of `env` (default 0)."""
+    value = (os.environ if env is None else env).get("ROS_DOMAIN_ID", "").strip()
+    try:
+        return int(value) if value else 0
+    except ValueError:
+        raise ConfigError(f"ROS_DOMAIN_ID={value!r} is not a number; set it to 0-101 or unset it") from None
+
+
+def free_domain(avoid: set[int] | None = None) -> int | None:
+    """A domain id no process on this host uses (and not in `avoid`); None when all are taken."""
+    taken = domains_in_use() | (avoid or set())
+    for ids in DOMAIN_RANGES:
+        for domain in ids:
+            if domain not in taken:
+                return domain
+    return None
 
 
 def available_nodes() -> dict[str, str]:
@@ -77,12 +158,47 @@ def parse_overrides(overrides: list[str] | tuple[str, ...]) -> dict[str, list[st
     return per_node
 
 
+def ros_arguments(config: Path, nodes: list[str], overrides: dict[str, list[str]], namespace: str = "") -> list[str]:
+    """`--ros-args --params-file CONFIG [-r __ns:=/N] -p node:param:=value ...` for the given nodes."""
+    args = ["--ros-args", "--params-file", str(config), *ros_namespace.ros_arguments(namespace)]
+    # `-p param:=v` would apply to every node and lose to the node's own section of the
+    # parameter file; `-p node:param:=v` is node-specific and wins.
+    for name in nodes:
+        for param in overrides.get("*", []) + overrides.get(name, []):
+            args += ["-p", f"{name}:{param}"]
+    return args
+
+
+@dataclass
+class Respawn:
+    """Back-off for restarting a node that died: 1 s, 2 s, 4 s ... up to `longest`; a node that ran
+    for `stable` seconds before dying starts again from `first`."""
+
+    first: float = 1.0
+    longest: float = 30.0
+    stable: float = 60.0
+    _delay: dict[str, float] = field(default_factory=dict)
+
+    def next_delay(self, name: str, ran_for: float) -> float:
+        """Seconds to wait before restarting `name`, which died after running `ran_for` seconds."""
+        delay = self.first if ran_for >= self.stable else min(self.longest, self._delay.get(name, self.first / 2) * 2)
+        self._delay[name] = delay
+        return delay
+
+
 class GraphProcesses:
-    """The node processes of one graph; a context manager that stops them all on exit."""
+    """The node processes of one graph; a context manager that stops them all on exit.
+
+    mode "per-node": one process per node (keys of `processes` are node names);
+    mode "one-process": one container process hosting every node (key CONTAINER).
+    """
 
     def __init__(self, config: Path | None = None, nodes: list[str] | None = None,
                  overrides: list[str] | tuple[str, ...] = (), log_dir: Path | None = None,
-                 env: dict[str, str] | None = None, namespace: str | None = None):
+                 env: dict[str, str] | None = None, namespace: str | None = None, mode: str = "per-node",
+                 network: bool | None = None):
+        if mode not in GRAPH_MODES:
+            raise ConfigError(f"graph mode '{mode}': use one of {', '.join(GRAPH_MODES)}")
         self.config = Path(config) if config else default_config_path()
         registered = available_nodes()
         listed = [n for n in node_names(self.config) if n in registered]
@@ -90,30 +206,37 @@ class GraphProcesses:
             unknown = [n for n in nodes if n not in registered]
             if unknown:
                 raise ConfigError(f"unknown node(s) {', '.join(unknown)}; installed: {', '.join(sorted(registered))}")
-            listed = [n for n in nodes]
+            listed = list(nodes)
         self.nodes = listed
+        self.mode = mode
         self.modules = {n: registered[n] for n in listed}
         self.overrides = parse_overrides(overrides)
         self.log_dir = Path(log_dir) if log_dir else None
         self.env = dict(os.environ if env is None else env)
         self.env.setdefault("OMP_NUM_THREADS", "2")
         self.env.setdefault("OPENBLAS_NUM_THREADS", "1")
-        use_fast_liveliness(self.env)
+        use_perch_dds(self.env, network)
         self.namespace = ros_namespace.current(self.env) if namespace is None else ros_namespace.normalise(namespace)
         if self.namespace:
             self.env[ros_namespace.NAMESPACE_ENV] = self.namespace
         self.processes: dict[str, subprocess.Popen] = {}
+        self.started_at: dict[str, float] = {}
+
+    @property
+    def units(self) -> list[str]:
+        """Names of the processes this graph runs (nodes, or the one container)."""
+        return [CONTAINER] if self.mode == "one-process" and self.nodes else list(self.nodes)
 
     def command(self, name: str) -> list[str]:
-        cmd = [sys.executable, "-m", self.modules[name], "--ros-args", "--params-file", str(self.config),
-               *ros_namespace.ros_arguments(self.namespace)]
-        # `-p param:=v` applies to every node and loses to the node's own section of the
-        # parameter file; `-p node:param:=v` is node-specific and wins.
-        for param in self.overrides.get("*", []) + self.overrides.get(name, []):
-            cmd += ["-p", f"{name}:{param}"]
-        return cmd
+        """The command line of process `name` (a node, or CONTAINER)."""
+        if name == CONTAINER:
+            return [sys.executable, "-m", "perch_common.ros.container", "--nodes", ",".join(self.nodes),
+                    *ros_arguments(self.config, self.nodes, self.overrides, self.namespace)]
+        return [sys.executable, "-m", self.modules[name],
+                *ros_arguments(self.config, [name], self.overrides, self.namespace)]
 
     def start_node(self, name: str) -> subprocess.Popen:
+        """Start process `name` (its output goes to LOG_DIR/NAME.log when a log folder is set)."""
         out = subprocess.DEVNULL
         if self.log_dir:
             self.log_dir.mkdir(parents=True, exist_ok=True)
@@ -121,28 +244,33 @@ class GraphProcesses:
         proc = subprocess.Popen(self.command(name), env=self.env, stdout=out,
                                 stderr=subprocess.STDOUT if self.log_dir else None)
         self.processes[name] = proc
+        self.started_at[name] = time.monotonic()
         return proc
 
     def start(self) -> "GraphProcesses":
-        for name in self.nodes:
+        """Start every process of the graph."""
+        for name in self.units:
             self.start_node(name)
         return self
 
     def alive(self) -> dict[str, bool]:
+        """Process name -> still running."""
         return {name: proc.poll() is None for name, proc in self.processes.items()}
 
     def stop_node(self, name: str, timeout: float = 10.0) -> None:
+        """Stop one process like Ctrl-C would (SIGKILL after `timeout`)."""
         proc = self.processes.get(name)
         if proc is not None:
             stop_process(proc, timeout)
 
     def restart(self, name: str) -> subprocess.Popen:
+        """Stop process `name` if it runs and start it again."""
         self.stop_node(name)
         return self.start_node(name)
 
     def stop(self) -> None:
-        for name in list(self.processes):
-            proc = self.processes[name]
+        """SIGINT to every process, SIGKILL to any still running after 10 s."""
+        for proc in self.processes.values():
             if proc.poll() is None:
                 proc.send_signal(signal.SIGINT)
         deadline = time.monotonic() + 10
@@ -164,7 +292,7 @@ class GraphProcesses:
                 dead = [n for n, ok in self.alive().items() if not ok]
                 if dead:
                     raise RuntimeError(f"node process(es) exited during start-up: {', '.join(dead)}")
-                time.sleep(0.2)
+                time.sleep(0.1)
         return missing
 
     def __enter__(self) -> "GraphProcesses":
@@ -174,7 +302,16 @@ class GraphProcesses:
         self.stop()
 
 
+def add_graph_arguments(p, default_mode: str) -> None:
+    """--graph-mode and --network, shared by every command that starts nodes."""
+    p.add_argument("--graph-mode", choices=GRAPH_MODES, default=default_mode,
+                   help=f"host the nodes in one process or one process per node (default: {default_mode})")
+    p.add_argument("--network", action="store_true",
+                   help=f"let the nodes use every network interface (default: this host only; or {NETWORK_ENV}=1)")
+
+
 def register(sub) -> None:
+    """The `perch launch` command."""
     p = sub.add_parser("launch", help="start the Perch node graph (Ctrl-C stops it)")
     p.add_argument("--config", type=Path, help="parameter file (default: config/perch.yaml)")
     p.add_argument("--nodes", help="comma-separated subset of nodes to start")
@@ -188,6 +325,9 @@ def register(sub) -> None:
     p.add_argument("--up", default=None, metavar="AXIS",
                    help="up axis of meshes given to missions that name none: auto, +z, -y, 'X Y Z' "
                         "(perch_operator input_up_axis; default from the config: auto)")
+    p.add_argument("--no-respawn", action="store_true",
+                   help="stop the whole graph when a node dies (default: restart it with back-off)")
+    add_graph_arguments(p, "per-node")
     p.set_defaults(func=_run)
 
 
@@ -200,29 +340,46 @@ def _run(args) -> int:
             parse_up_axis(args.up)  # a malformed axis fails before anything starts
         overrides.append(f"perch_operator:input_up_axis:={args.up}")
     graph = GraphProcesses(args.config, args.nodes.split(",") if args.nodes else None, overrides, args.log_dir,
-                           namespace=args.launch_namespace)
+                           namespace=args.launch_namespace, mode=args.graph_mode, network=args.network or None)
     if args.list or not graph.nodes:
-        for name in graph.nodes:
+        for name in graph.units:
             print(f"{name}: {' '.join(graph.command(name))}")
         if not graph.nodes:
             print(f"no installed node is listed in {graph.config}")
         return 0
     where = f" in namespace {graph.namespace}" if graph.namespace else ""
-    print(f"perch launch: starting {', '.join(graph.nodes)}{where} (Ctrl-C to stop)")
+    reach = "every network interface" if network_requested(graph.env) else "this host only"
+    print(f"perch launch: starting {', '.join(graph.nodes)}{where} ({args.graph_mode}, domain "
+          f"{current_domain(graph.env)}, {reach}; Ctrl-C to stop)", flush=True)
     stopping = False
 
     def on_signal(signum, frame):
         nonlocal stopping
         stopping = True
 
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
+    for signum in STOP_SIGNALS:
+        signal.signal(signum, on_signal)
+    respawn = Respawn()
+    pending: dict[str, float] = {}   # process name -> when to start it again
     with graph:
         while not stopping:
-            dead = [n for n, ok in graph.alive().items() if not ok]
-            if dead:
-                print(f"perch launch: node(s) exited: {', '.join(dead)}; stopping the graph", file=sys.stderr)
-                return 1
-            time.sleep(0.5)
+            now = time.monotonic()
+            for name, ok in graph.alive().items():
+                if ok or name in pending:
+                    continue
+                code = graph.processes[name].returncode
+                if args.no_respawn:
+                    print(f"perch launch: {name} exited (code {code}); stopping the graph", file=sys.stderr)
+                    return 1
+                delay = respawn.next_delay(name, now - graph.started_at[name])
+                print(f"perch launch: {name} exited (code {code}); restarting it in {delay:.0f} s",
+                      file=sys.stderr, flush=True)
+                pending[name] = now + delay
+            for name, when in list(pending.items()):
+                if now >= when and not stopping:
+                    graph.start_node(name)
+                    del pending[name]
+                    print(f"perch launch: {name} restarted", file=sys.stderr, flush=True)
+            time.sleep(0.2)
     print("perch launch: stopped")
     return 0

@@ -48,6 +48,9 @@ class MeshToolsNode(Node):
         return response
 
 
+COMPONENT = MeshToolsNode  # what a one-process graph (perch_common.ros.container) hosts
+
+
 def main(args: list[str] | None = None) -> int:
     return run_node(MeshToolsNode, args)
 

@@ -12,7 +12,7 @@ from rclpy.node import Node
 
 from perch_common.conventions import STAGE_SERVICES
 from perch_common.ros.conversions import (
-    mesh_from_msg,
+    mesh_from_request,
     region_to_msg,
     removal_to_msg,
     surface_from_msg,
@@ -86,12 +86,15 @@ class FilterNode(Node):
         if not np.any(up):
             up = parse_up_axis(node_config.up_axis)
         surfaces = [surface_from_msg(s) for s in request.surfaces]
-        result = filter_surfaces(mesh_from_msg(request.mesh, "environment mesh"), surfaces, target, up, config)
+        result = filter_surfaces(mesh_from_request(request.mesh, "environment mesh"), surfaces, target, up, config)
         response.regions = [region_to_msg(r) for r in result.regions]
         response.removals = [removal_to_msg(r) for r in result.removals]
         response.surfaces = [surface_to_msg(s) for s in result.surfaces]
         response.success, response.message = True, result.message
         return response
+
+
+COMPONENT = FilterNode  # what a one-process graph (perch_common.ros.container) hosts
 
 
 def main(args: list[str] | None = None) -> int:

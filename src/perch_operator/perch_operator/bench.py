@@ -1,107 +1,201 @@
-"""`perch bench mission`: missions on a live graph with per-stage times and the nodes' memory.
+"""`perch bench mission`: what a user waits for, from the command's start to waypoints written.
 
-    perch bench mission --scene 7 --missions 20          # stability: RSS of every node per mission
-    perch bench mission --mesh apartment.ply --target-footprint apartment_target.ply
+    perch bench mission --mesh apartment.ply --target apartment_target.ply:1.2 --json
+    perch bench mission --scene 3 --kind apartment --resolution 0.022 --noise 0.005 --repeat 3
+    perch bench mission --scene 1 --kind building --cameras 20
+    perch bench mission --scene 7 --missions 20          # stability: RSS per mission on one graph
+
+One run starts its own graph (one process by default, `--graph-mode per-node` for node processes),
+runs the mission with auto-accept and writes waypoints.yaml. JSON fields:
+  wall_s       process start to waypoints written (interpreter, imports, scene, graph start-up);
+  startup_s    graph start-up alone (nodes created, services offered);
+  mission_s    goal sent to result received (first mission);
+  stages       seconds each stage reported for its own work;
+  transport_s  mission_s minus the stages' own seconds: (de)serialising, delivering and converting
+               messages between client, coordinator and stages;
+  peak_rss_mb  peak resident memory of the whole graph (client and node processes, sampled 10 Hz,
+               and this process's own peak).
+`--repeat N` runs N fresh processes and adds the median of each figure.
 """
 
 from __future__ import annotations
 
+import json
+import os
 import statistics
+import subprocess
+import sys
+import tempfile
+import threading
 import time
 from pathlib import Path
 
+FIGURES = ("wall_s", "startup_s", "mission_s", "transport_s", "peak_rss_mb")
+
 
 def register(sub) -> None:
-    p = sub.add_parser("mission", help="run missions on a launched graph; per-stage times and node memory")
+    """The `perch bench mission` benchmark."""
+    from perch_common.launch import add_graph_arguments
+
+    p = sub.add_parser("mission", help="a whole mission from the command's start: start-up, stages, transport, memory")
     source = p.add_mutually_exclusive_group()
     source.add_argument("--mesh", type=Path, help="environment mesh (default: a generated scene)")
     source.add_argument("--scene", type=int, default=7, help="generated scene seed")
     p.add_argument("--kind", default="apartment", help="generated scene kind")
-    p.add_argument("--target-footprint", type=Path, help="target footprint mesh (extruded by --height)")
-    p.add_argument("--height", type=float, default=1.2, help="target extrusion height (m)")
-    p.add_argument("--missions", type=int, default=1, help="consecutive missions in one graph")
+    p.add_argument("--resolution", type=float, default=None, help="generated scene resolution (m; kind default)")
+    p.add_argument("--noise", type=float, default=0.0, help="generated scene vertex noise (m)")
+    p.add_argument("--target", default=None, metavar="SPEC", help="as for perch plan (default: the scene's "
+                                                                   "own target; for --mesh the cropped floor)")
     p.add_argument("--cameras", type=int, default=0, help="cameras (0: node default)")
+    p.add_argument("--missions", type=int, default=1, help="consecutive missions on one graph")
+    p.add_argument("--repeat", type=int, default=1, help="fresh processes to run (medians reported)")
     p.add_argument("--reject", action="store_true", help="after the first mission, time one rejection's re-plan")
     p.add_argument("--config", type=Path, help="parameter file")
     p.add_argument("-p", "--param", action="append", default=[], metavar="NODE:PARAM:=VALUE")
+    p.add_argument("--json", action="store_true", help="print JSON (always on; accepted for uniformity)")
+    add_graph_arguments(p, "one-process")
     p.set_defaults(func=_run)
 
 
 def build_goal(args):
-    from perch_common.mesh import load_mesh
+    """The PlanPerches goal, a description of its source, and its face count."""
     from perch_common.ros.conversions import mesh_to_msg, target_to_msg
-    from perch_common.target import TargetVolume
     from perch_interfaces.action import PlanPerches
+    from perch_operator.cli import parse_target
 
-    goal = PlanPerches.Goal(num_cameras=args.cameras, auto_accept=True, seed=-1)
+    goal = PlanPerches.Goal(num_cameras=max(0, args.cameras), auto_accept=True, seed=-1)
     if args.mesh:
-        mesh = load_mesh(args.mesh)
-        source = str(args.mesh.name)
+        from perch_common.mesh import load_mesh
+
+        mesh, source = load_mesh(args.mesh), str(args.mesh.name)
+        goal.target = parse_target(args.target)
     else:
         from perch_common.scene_generator import generate_scene
 
-        scene = generate_scene(args.scene, args.kind)
+        extra = {} if args.resolution is None else {"resolution": args.resolution}
+        scene = generate_scene(args.scene, args.kind, noise=args.noise, **extra)
         mesh, source = scene.mesh, f"{args.kind} seed {args.scene}"
-        goal.target = target_to_msg(scene.target)
-    if args.target_footprint:
-        goal.target = target_to_msg(TargetVolume.from_footprint_mesh(load_mesh(args.target_footprint), args.height))
+        goal.target = target_to_msg(scene.target) if args.target is None else parse_target(args.target)
     goal.mesh = mesh_to_msg(mesh)
     return goal, source, mesh.num_faces
 
 
+class RssSampler:
+    """Peak of the summed RSS of some processes, sampled in a thread."""
+
+    def __init__(self, pids: list[int], period: float = 0.1):
+        import psutil
+
+        self.procs = [psutil.Process(pid) for pid in set(pids) | {os.getpid()}]
+        self.period = period
+        self.peak_bytes = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, daemon=True)
+
+    def _loop(self) -> None:
+        while not self._stop.is_set():
+            total = 0
+            for proc in self.procs:
+                try:
+                    total += proc.memory_info().rss
+                except Exception:  # noqa: BLE001 - a process that ended counts as 0
+                    pass
+            self.peak_bytes = max(self.peak_bytes, total)
+            self._stop.wait(self.period)
+
+    def __enter__(self) -> "RssSampler":
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        self._thread.join()
+
+
 def _run(args) -> int:
+    from perch_common.bench import emit
+
+    if args.repeat > 1:
+        return emit(_repeated(args))
+    result = _one_run(args)
+    emit(result)
+    return 1 if result["failures"] or result.get("dead_nodes") else 0
+
+
+def _one_run(args) -> dict:
     import psutil
     import rclpy
 
-    from perch_common.bench import emit, peak_rss_mb
-    from perch_common.launch import GraphProcesses, use_fast_liveliness
+    from perch_common.bench import peak_rss_mb
+    from perch_common.launch import use_perch_dds
     from perch_operator.client import run_mission
-    from perch_operator.runner import client_context
+    from perch_operator.mission_data import waypoint_dict, write_waypoints_yaml
+    from perch_operator.runner import choose_domain, client_context, graph_ros_args, start_own_graph
 
-    use_fast_liveliness()
+    process_start = psutil.Process().create_time()
+    use_perch_dds(network=args.network or None)
     goal, source, faces = build_goal(args)
-    with client_context(), GraphProcesses(args.config, None, args.param) as graph:
+    out_dir = Path(tempfile.mkdtemp(prefix="perch_bench_mission_"))
+    domain = choose_domain()
+    in_process = args.graph_mode == "one-process"
+    ros_args = graph_ros_args(args.config, args.param, out_dir / "logs") if in_process else None
+    with client_context(ros_args, domain):
         node = rclpy.create_node("perch_bench_mission")
-        started = time.monotonic()
-        from perch_common.conventions import NODE_SERVICES
+        graph = start_own_graph(node, args.graph_mode, domain, args.config, args.param, out_dir / "logs")
+        try:
+            with RssSampler(graph.pids()) as sampler:
+                missions, failures, stage_times = [], [], {}
+                for i in range(max(1, args.missions)):
+                    t0 = time.monotonic()
+                    result = run_mission(node, goal, timeout=1800)
+                    missions.append(time.monotonic() - t0)
+                    if i == 0:
+                        write_waypoints_yaml(out_dir / "waypoints.yaml", [waypoint_dict(w) for w in result.waypoints])
+                        wall = time.time() - process_start
+                        first = result
+                    if not result.success:
+                        failures.append(f"mission {i}: {result.message}")
+                    for name, seconds in zip(result.stage_names, result.stage_seconds):
+                        stage_times.setdefault(name, []).append(seconds)
+                reject = _time_rejection(node, first) if args.reject and first.success and first.placements else None
+            dead = [n for n, ok in graph.processes.alive().items() if not ok] if graph.processes else []
+        finally:
+            graph.stop()
+    stages = {n: round(s, 3) for n, s in zip(first.stage_names, first.stage_seconds) if n != "total"}
+    out = {"source": source, "faces": faces, "graph_mode": args.graph_mode, "domain": domain,
+           "wall_s": round(wall, 3), "startup_s": round(graph.startup_seconds, 3), "mission_s": round(missions[0], 3),
+           "stages": stages, "transport_s": round(missions[0] - sum(stages.values()), 3),
+           "peak_rss_mb": round(max(sampler.peak_bytes / 2**20, peak_rss_mb()), 1),
+           "cameras": len(first.placements), "coverage": first.coverage, "mean_uncertainty": first.mean_uncertainty,
+           "fitness": first.fitness, "failures": failures, "dead_nodes": dead,
+           "load_average_1min": round(os.getloadavg()[0], 2), "waypoints": str(out_dir / "waypoints.yaml")}
+    if len(missions) > 1:
+        out["missions"] = len(missions)
+        out["mission_s_all"] = [round(m, 3) for m in missions]
+        out["stage_seconds_median"] = {k: round(statistics.median(v), 3) for k, v in stage_times.items()}
+    if reject is not None:
+        out["reject_replan_s"] = reject
+    return out
 
-        missing = graph.wait_for_services(node, [NODE_SERVICES[n][0] for n in graph.nodes if n in NODE_SERVICES], 120)
-        if missing:
-            raise RuntimeError(f"services missing: {missing}")
-        startup = time.monotonic() - started
-        procs = {name: psutil.Process(p.pid) for name, p in graph.processes.items()}
-        stage_times: dict[str, list[float]] = {}
-        rss: dict[str, list[float]] = {name: [] for name in procs}
-        walls, failures = [], []
-        for i in range(args.missions):
-            t0 = time.monotonic()
-            result = run_mission(node, goal, timeout=900)
-            walls.append(time.monotonic() - t0)
-            if not result.success:
-                failures.append(f"mission {i}: {result.message}")
-            for name, seconds in zip(result.stage_names, result.stage_seconds):
-                stage_times.setdefault(name, []).append(seconds)
-            for name, proc in procs.items():
-                rss[name].append(proc.memory_info().rss / 2**20)
-        dead = [n for n, ok in graph.alive().items() if not ok]
-        out = {"source": source, "faces": faces, "missions": args.missions, "failures": failures, "dead_nodes": dead,
-               "graph_startup_s": round(startup, 2), "mission_wall_s_median": round(statistics.median(walls), 3),
-               "stage_seconds_median": {k: round(statistics.median(v), 3) for k, v in stage_times.items()},
-               "cameras": len(result.placements), "coverage": result.coverage,
-               "mean_uncertainty": result.mean_uncertainty, "fitness": result.fitness,
-               "rss_mb_first_last": {k: [round(v[0], 1), round(v[-1], 1)] for k, v in rss.items() if v},
-               "rss_mb_growth_second_half": {k: round(_growth(v), 1) for k, v in rss.items() if v},
-               "client_peak_rss_mb": round(peak_rss_mb(), 1)}
-        if args.reject and result.success and result.placements:
-            out["reject_replan_s"] = _time_rejection(node, result)
-        emit(out)
-        return 1 if failures or dead else 0
 
-
-def _growth(values: list[float]) -> float:
-    """RSS change over the second half of the missions (the first ones warm caches up)."""
-    half = values[len(values) // 2:]
-    return half[-1] - half[0] if len(half) > 1 else 0.0
+def _repeated(args) -> dict:
+    """`--repeat N`: N fresh processes (each pays its own start-up), and the median of each figure."""
+    argv = [a for a in sys.argv[1:]]
+    if "--repeat" in argv:
+        i = argv.index("--repeat")
+        del argv[i:i + 2]
+    runs = []
+    for _ in range(args.repeat):
+        done = subprocess.run([sys.executable, "-m", "perch_common.cli", *argv], capture_output=True, text=True)
+        if done.returncode not in (0, 1) or not done.stdout.strip():
+            raise RuntimeError(f"benchmark run failed (exit {done.returncode}): {done.stderr[-2000:]}")
+        runs.append(json.loads(done.stdout))
+    median = {k: round(statistics.median(r[k] for r in runs), 3) for k in FIGURES}
+    stage_names = runs[0]["stages"].keys()
+    median["stages"] = {n: round(statistics.median(r["stages"].get(n, float("nan")) for r in runs), 3)
+                        for n in stage_names}
+    return {"source": runs[0]["source"], "faces": runs[0]["faces"], "graph_mode": args.graph_mode,
+            "repeat": args.repeat, "median": median, "runs": runs}
 
 
 def _time_rejection(node, result) -> float:

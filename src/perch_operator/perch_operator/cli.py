@@ -46,6 +46,9 @@ def register_demo(sub) -> None:
     p.add_argument("--seed", type=int, default=DEMO_SEED, help="scene seed")
     p.add_argument("--cameras", type=non_negative_int, default=0,
                    help="number of cameras (0: the placement node's default)")
+    from perch_common.launch import add_graph_arguments
+
+    add_graph_arguments(p, "one-process")
     p.set_defaults(func=_demo, out=Path("out/demo"), config=None, param=[], timeout=600.0, no_launch=False,
                    quiet=False, overwrite=True)
 
@@ -81,11 +84,15 @@ def _common(p) -> None:
     p.add_argument("--config", type=Path, help="parameter file for the nodes it launches")
     p.add_argument("-p", "--param", action="append", default=[], metavar="NODE:PARAM:=VALUE",
                    help="parameter override for the nodes it launches (repeatable)")
-    p.add_argument("--no-launch", action="store_true", help="use the running graph only")
+    p.add_argument("--no-launch", action="store_true",
+                   help="use the graph already running on this ROS domain (else: start the mission's own graph)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace the outputs of an earlier mission in the output folder (else refused)")
     p.add_argument("--timeout", type=float, default=900.0, help="mission time limit (s)")
     p.add_argument("--quiet", action="store_true", help="no progress display")
+    from perch_common.launch import add_graph_arguments
+
+    add_graph_arguments(p, "one-process")
 
 
 def parse_target(spec: str | None):
@@ -169,18 +176,25 @@ def check_output_folder(out: Path, overwrite: bool, inputs) -> None:
 
 
 def run_plan(goal, args, describe: dict) -> int:
-    """Launch what is missing, run and record the mission, write the outputs, print the summary."""
+    """Start the mission's own graph (or use the running one with --no-launch), run and record the
+    mission, write the outputs, print the summary; SIGTERM/SIGHUP stop the nodes like Ctrl-C."""
     import rclpy
 
-    from perch_common.launch import use_fast_liveliness
-    from perch_operator.runner import client_context, ensure_graph
+    from perch_common.launch import use_perch_dds
+    from perch_operator.runner import choose_domain, client_context, graph_ros_args, start_own_graph
 
-    use_fast_liveliness()
+    use_perch_dds(network=args.network or None)
     started = time.monotonic()
-    with client_context():
+    launch = not args.no_launch
+    domain = choose_domain() if launch else None
+    in_process = launch and args.graph_mode == "one-process"
+    ros_args = graph_ros_args(args.config, args.param, args.out / "logs") if in_process else None
+    with client_context(ros_args, domain):
         node = rclpy.create_node("perch_plan")
-        graph = None if args.no_launch else ensure_graph(node, args.config, args.param, args.out / "logs")
+        graph = None
         try:
+            if launch:
+                graph = start_own_graph(node, args.graph_mode, domain, args.config, args.param, args.out / "logs")
             return _mission_and_outputs(node, goal, args, describe, started)
         finally:
             if graph is not None:
@@ -209,8 +223,6 @@ def _demo(args) -> int:
     from perch_common.scene_generator import generate_scene
     from perch_interfaces.action import PlanPerches
 
-    # The demo's graph talks on this machine only; it never disturbs (or joins) a networked graph.
-    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     os.environ.setdefault("OMP_NUM_THREADS", "2")
     started = time.monotonic()
     scene = generate_scene(args.seed, "apartment")

@@ -20,7 +20,14 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from perch_common.conventions import CONFIRM_SERVICE, STAGE_SERVICES
 from perch_common.errors import PerchError
 from perch_common.mesh import MeshError, validate_mesh
-from perch_common.ros.conversions import mesh_from_msg, mesh_to_msg, target_from_msg, target_to_msg, to_array
+from perch_common.ros.conversions import (
+    cached_mesh_to_msg,
+    id_only_msg,
+    mesh_from_request,
+    target_from_msg,
+    target_to_msg,
+    to_array,
+)
 from perch_common.ros.node_main import run_node
 from perch_common.ros.params import declare_config, read_config
 from perch_common.ros.service import answering, create_stage_service
@@ -78,11 +85,14 @@ class OperatorNode(Node):
     @answering
     def _crop(self, request: srv.Crop.Request, response: srv.Crop.Response) -> srv.Crop.Response:
         config = read_config(self, OperatorConfig).crop
-        mesh = validate_mesh(mesh_from_msg(request.mesh, "crop mesh"), "crop mesh")
+        mesh = validate_mesh(mesh_from_request(request.mesh, "crop mesh"), "crop mesh")
         keep = [box_from_ros(b, f"keep box {i}") for i, b in enumerate(request.keep_boxes)]
         remove = [box_from_ros(b, f"remove box {i}") for i, b in enumerate(request.remove_boxes)]
         result = crop_mesh(mesh, keep, remove, target_from_msg(request.target), config)
-        response.mesh = mesh_to_msg(result.mesh, stamp=request.mesh.header.stamp)
+        if len(result.kept_faces) == mesh.num_faces:   # nothing cropped: name the caller's mesh, do not echo it
+            response.mesh = id_only_msg(request.mesh)
+        else:
+            response.mesh = cached_mesh_to_msg(result.mesh, stamp=request.mesh.header.stamp)
         response.kept_faces = to_array(result.kept_faces, np.uint32)
         response.target = target_to_msg(result.target)
         response.success = True
@@ -227,6 +237,9 @@ class OperatorNode(Node):
 
     def _frame_id(self) -> str:
         return str(self.get_parameter("frame_id").value)
+
+
+COMPONENT = OperatorNode  # what a one-process graph (perch_common.ros.container) hosts
 
 
 def main(args: list[str] | None = None) -> int:

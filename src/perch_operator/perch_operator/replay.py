@@ -14,7 +14,7 @@ from pathlib import Path
 
 from perch_common.errors import PerchError
 from perch_operator.diff import Tolerance, diff_messages
-from perch_operator.runfile import StageCall, stage_calls
+from perch_operator.runfile import StageCall, resolve_mesh_ids, stage_calls
 from perch_operator.stages import STAGES
 
 
@@ -38,7 +38,8 @@ def replay(node, path: str | Path, check: bool = True, tol: Tolerance = Toleranc
     from perch_common.ros.testing import call_service
 
     out = out or sys.stdout
-    calls = [c for c in stage_calls(path) if c.request is not None and (stages is None or c.stage in stages)]
+    calls = [c for c in stage_calls(path) if c.request is not None and (stages is None or c.stage in stages)
+             and not _mesh_resend(c)]
     if not calls:
         raise PerchError(f"{path}: no stage requests recorded (were the stage services' introspection "
                          "parameters on when it was recorded?)")
@@ -55,6 +56,8 @@ def replay(node, path: str | Path, check: bool = True, tol: Tolerance = Toleranc
             outcome.error = f"{exc} (is the graph running? `perch launch`)"
             reply = None
         outcome.seconds = time.monotonic() - started
+        if reply is not None:   # a reply naming the request's mesh by id compares as that mesh
+            resolve_mesh_ids([StageCall(call.stage, call.service, call.request, reply)])
         if reply is not None and check:
             if call.response is None:
                 outcome.error = "no recorded reply to compare with"
@@ -63,6 +66,13 @@ def replay(node, path: str | Path, check: bool = True, tol: Tolerance = Toleranc
         outcomes.append(outcome)
         _print_outcome(outcome, check, out)
     return outcomes
+
+
+def _mesh_resend(call: StageCall) -> bool:
+    """A call answered "mesh not cached" (the coordinator sent the arrays next): nothing to replay."""
+    from perch_common.mesh_cache import is_mesh_not_cached
+
+    return call.response is not None and not call.response.success and is_mesh_not_cached(call.response.message)
 
 
 def _print_outcome(o: CallOutcome, check: bool, out) -> None:

@@ -73,7 +73,30 @@ def stage_calls(path: str | Path) -> list[StageCall]:
             call.stamp_ns = stamp
         if info.event_type in (RESPONSE_SENT, RESPONSE_RECEIVED) and len(event.response) and call.response is None:
             call.response = event.response[0]
-    return sorted(calls.values(), key=lambda c: c.stamp_ns)
+    ordered = sorted(calls.values(), key=lambda c: c.stamp_ns)
+    resolve_mesh_ids(ordered)
+    return ordered
+
+
+def resolve_mesh_ids(calls: list[StageCall]) -> None:
+    """Give id-only meshes (perch_common.mesh_cache) the arrays recorded under that id earlier.
+
+    Each mesh is recorded once, where it first travelled with its arrays; later requests and
+    replies name it by content id. An id recorded nowhere with arrays stays id-only.
+    """
+    from perch_common.ros.conversions import is_id_only
+
+    meshes: dict[str, Any] = {}
+    for call in calls:
+        for message in (call.request, call.response):
+            mesh = getattr(message, "mesh", None)
+            if mesh is None or not mesh.content_id:
+                continue
+            if is_id_only(mesh):
+                if mesh.content_id in meshes:
+                    message.mesh = meshes[mesh.content_id]
+            else:
+                meshes.setdefault(mesh.content_id, mesh)
 
 
 def metadata(path: str | Path) -> dict[str, dict[str, Any]]:

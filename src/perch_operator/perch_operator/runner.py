@@ -1,14 +1,17 @@
 """Run one recorded mission from the command line and write its outputs.
 
-Used by `perch plan` and `perch demo`: start whatever part of the graph is missing, record the
-mission to run.mcap in a staging folder, then write waypoints.yaml, run.rrd and report.html from the
-mission result (the recording adds the stage replies) and move them into the output folder together.
+Used by `perch plan` and `perch demo`: start the mission's own graph (in this process by default,
+or as node processes) on a domain no other graph uses, record the mission to run.mcap in a staging
+folder, then write waypoints.yaml, run.rrd and report.html from the mission result (the recording
+adds the stage replies) and move them into the output folder together. `--no-launch` uses the
+graph already running instead.
 """
 
 from __future__ import annotations
 
 import contextlib
 import shutil
+import signal
 import sys
 import time
 from dataclasses import dataclass
@@ -36,30 +39,165 @@ class PlanOutputs:
 
 
 @contextlib.contextmanager
-def client_context():
-    """rclpy for a command-line client: Ctrl-C raises KeyboardInterrupt in Python (not a silent
-    context shutdown), so a mission can be cancelled and its recording closed properly."""
+def client_context(ros_args: list[str] | None = None, domain_id: int | None = None):
+    """rclpy for a command-line client: Ctrl-C, SIGTERM and SIGHUP raise KeyboardInterrupt in Python
+    (not a silent context shutdown), so a mission can be cancelled, its recording closed and the
+    nodes it started stopped. `ros_args` (`--ros-args ...`) configure nodes hosted in this process."""
     import rclpy
     from rclpy.signals import SignalHandlerOptions
 
     from perch_common import namespace
 
+    previous = {signum: signal.signal(signum, _interrupt) for signum in (signal.SIGTERM, signal.SIGHUP)}
     # Every node of this client process resolves Perch's relative names in the graph's namespace.
-    rclpy.init(args=["--ros-args", *namespace.ros_arguments(namespace.current())],
+    rclpy.init(args=["perch", "--ros-args", *namespace.ros_arguments(namespace.current()), *(ros_args or [])],
+               domain_id=domain_id,
                signal_handler_options=SignalHandlerOptions.NO)
     try:
         yield
     finally:
         rclpy.try_shutdown()
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
+def _interrupt(signum, frame):
+    """SIGTERM/SIGHUP end a client the way Ctrl-C does."""
+    raise KeyboardInterrupt(signal.Signals(signum).name)
 
 
 def offered_services(node) -> set[str]:
     return {name for name, _ in node.get_service_names_and_types()}
 
 
+def graph_ros_args(config: Path | None, overrides, log_dir: Path | None) -> list[str]:
+    """`--ros-args` for nodes hosted in this process: parameters, and logs into `log_dir` (not the terminal)."""
+    import os
+
+    from perch_common.config import default_config_path
+    from perch_common.launch import parse_overrides, ros_arguments
+
+    if log_dir is not None:
+        log_dir.mkdir(parents=True, exist_ok=True)
+        os.environ["ROS_LOG_DIR"] = str(log_dir.resolve())   # read by rclpy.init
+    return [*ros_arguments(Path(config) if config else default_config_path(), mission_nodes(),
+                           parse_overrides(overrides)), "--disable-stdout-logs"]
+
+
+def mission_nodes() -> list[str]:
+    """The installed nodes a mission needs (NODE_SERVICES), in start order."""
+    from perch_common.launch import available_nodes
+
+    registered = available_nodes()
+    return [n for n in NODE_SERVICES if n in registered]
+
+
+def choose_domain(out=sys.stderr) -> int:
+    """This shell's ROS domain when no process on this host uses it, else a free one (said so).
+
+    `perch plan` never joins a graph it did not start (it may run other parameters): with the
+    current domain taken it moves its own graph to a free domain, or explains how to proceed.
+    """
+    from perch_common import namespace
+    from perch_common.launch import current_domain, domains_in_use, free_domain
+
+    domain = current_domain()
+    if domain not in domains_in_use() or namespace.current():
+        return domain   # a namespace of its own already keeps the graphs apart on one domain
+    other = free_domain()
+    if other is None:
+        raise PerchError(f"ROS domain {domain} already has a graph and no other domain is free on this host; "
+                         "use it with --no-launch, or stop a graph")
+    out.write(f"perch: ROS domain {domain} already has a graph (use --no-launch to run on it); this mission "
+              f"starts its own on free domain {other}: decide with `ROS_DOMAIN_ID={other} perch operator ...`\n")
+    return other
+
+
+@dataclass
+class OwnGraph:
+    """The graph a command started for itself: nodes in this process (container) or node processes."""
+
+    mode: str
+    domain: int
+    container: object | None = None      # perch_common.ros.container.NodeContainer
+    processes: object | None = None      # perch_common.launch.GraphProcesses
+    startup_seconds: float = 0.0
+
+    def pids(self) -> list[int]:
+        """Process ids that host the nodes (this process in one-process mode)."""
+        import os
+
+        if self.processes is None:
+            return [os.getpid()]
+        return [p.pid for p in self.processes.processes.values()]
+
+    def stop(self) -> None:
+        """Stop every node this graph started."""
+        if self.container is not None:
+            self.container.stop()
+        if self.processes is not None:
+            self.processes.stop()
+
+
+def start_own_graph(node, mode: str, domain: int, config: Path | None = None, overrides=(),
+                    log_dir: Path | None = None, timeout: float = 90.0, out=sys.stderr) -> OwnGraph:
+    """Start every node a mission needs and wait for their services (nothing of another graph is used).
+
+    one-process: the nodes join this process's rclpy context (created by client_context with
+    `ros_arguments(...)`); per-node: child processes on `domain`.
+    """
+    import os
+
+    from perch_common.launch import GraphProcesses
+
+    started = time.monotonic()
+    nodes = mission_nodes()
+    graph = OwnGraph(mode, domain)
+    try:
+        if mode == "one-process":
+            from perch_common.ros.container import NodeContainer
+
+            graph.container = NodeContainer(nodes).start()
+        else:
+            env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
+            graph.processes = GraphProcesses(config, nodes, overrides, log_dir, env=env,
+                                             namespace=node.get_namespace()).start()
+            out.write(f"perch: starting {', '.join(nodes)}" + (f" (logs in {log_dir})" if log_dir else "") + "\n")
+        wanted = [node.resolve_service_name(NODE_SERVICES[n][0]) for n in nodes]
+        missing = _wait_offered(node, wanted, timeout, graph.processes)
+        if missing:
+            raise PerchError(f"services {', '.join(missing)} did not appear within {timeout:.0f} s"
+                             + (f"; see the logs in {log_dir}" if log_dir and graph.processes else ""))
+    except BaseException:
+        graph.stop()
+        raise
+    graph.startup_seconds = time.monotonic() - started
+    return graph
+
+
+def _wait_offered(node, names: list[str], timeout: float, processes=None) -> list[str]:
+    """Wait until `node` sees every service; a node process that exits ends the wait with an error."""
+    if processes is not None:
+        try:
+            return processes.wait_for_services(node, names, timeout)
+        except RuntimeError as exc:
+            raise PerchError(str(exc)) from None
+    deadline = time.monotonic() + timeout
+    missing = list(names)
+    while missing and time.monotonic() < deadline:
+        missing = [n for n in missing if n not in offered_services(node)]
+        if missing:
+            time.sleep(0.02)
+    return missing
+
+
 def ensure_graph(node, config: Path | None = None, overrides=(), log_dir: Path | None = None,
                  settle: float = 2.0, timeout: float = 90.0, out=sys.stderr):
-    """Start the nodes whose services are not in the graph; returns the GraphProcesses (or None)."""
+    """Start the nodes whose services are not in the graph; returns the GraphProcesses (or None).
+
+    For `perch replay --launch`, which replays onto whatever graph runs; `perch plan` uses
+    start_own_graph instead and never mixes with a running graph.
+    """
     from perch_common.launch import GraphProcesses, available_nodes
 
     resolved = {n: [node.resolve_service_name(s) for s in services] for n, services in NODE_SERVICES.items()}

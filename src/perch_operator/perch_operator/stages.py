@@ -1,7 +1,10 @@
 """Calling the stage services from the coordinator: waits, timeouts, vanished servers, failures.
 
 Every failure becomes a StageError whose message names the stage and its service, so the
-mission result says which stage to look at.
+mission result says which stage to look at. Each mesh goes to a stage once: a request whose mesh
+the service already holds carries its content id only, and a "mesh not cached" reply (the node
+restarted) is answered by sending the arrays again (perch_common.mesh_cache). A stage hosted in this
+process reads this process's cache, so it gets by id whatever that cache holds.
 """
 
 from __future__ import annotations
@@ -11,8 +14,10 @@ import time
 from dataclasses import dataclass
 from typing import Callable
 
-from perch_common.conventions import STAGE_SERVICES
+from perch_common.conventions import NODE_SERVICES, STAGE_SERVICES
 from perch_common.errors import PerchError
+from perch_common.mesh_cache import PROCESS_CACHE, MeshBook, is_mesh_not_cached
+from perch_common.ros.conversions import id_only_msg, is_id_only, msg_content_id
 from perch_interfaces import srv
 
 
@@ -33,6 +38,7 @@ STAGES = {s.name: s for s in (
     Stage("filter", STAGE_SERVICES["filter"], srv.Filter),
     Stage("optimise", STAGE_SERVICES["optimise"], srv.Optimise),
 )}
+SERVICE_NODES = {service: node for node, services in NODE_SERVICES.items() for service in services}
 
 
 class StageError(PerchError):
@@ -64,6 +70,7 @@ class StageCaller:
 
         self._cancel_msg = String
         self.cancel_pub = node.create_publisher(String, CANCEL_TOPIC, 10)
+        self.meshes = MeshBook()
 
     def _abandon(self, stage: str, client, future) -> None:
         """Stop waiting for a call and tell the stage to stop its work (it checks between steps)."""
@@ -71,7 +78,49 @@ class StageCaller:
         self.cancel_pub.publish(self._cancel_msg(data=STAGES[stage].service))
 
     def call(self, stage: str, request, cancelled: Callable[[], bool] = lambda: False):
-        """The stage's successful reply; raises StageError (or MissionCancelled)."""
+        """The stage's successful reply; raises StageError (or MissionCancelled).
+
+        The request's mesh (when it has one) travels by content id when the service holds it;
+        the request object itself is left as given."""
+        service = STAGES[stage].service
+        full = getattr(request, "mesh", None)
+        key = ""
+        if full is not None and len(full.triangles):
+            full.content_id = full.content_id or msg_content_id(full)
+            key = full.content_id
+        try:
+            if key and (self.meshes.send_id_only(service, key) or self._shares_cache(stage, key)):
+                request.mesh = id_only_msg(full)
+                response = self._send(stage, request, cancelled)
+                if response.success or not is_mesh_not_cached(response.message):
+                    return self._accepted(stage, response, key, full)
+                self.meshes.missed(service, key)
+                request.mesh = full
+            return self._accepted(stage, self._send(stage, request, cancelled), key, full)
+        finally:
+            if full is not None:
+                request.mesh = full
+
+    @staticmethod
+    def _shares_cache(stage: str, key: str) -> bool:
+        """The stage's node lives in this process, whose cache holds the mesh (a one-process graph)."""
+        return SERVICE_NODES.get(STAGES[stage].service) in PROCESS_CACHE.hosts and key in PROCESS_CACHE
+
+    def _accepted(self, stage: str, response, key: str, sent):
+        """Raise StageError for a failed reply; note which meshes the service now holds."""
+        if not response.success:
+            raise StageError(stage, f"failed: {response.message}", self.services[stage])
+        service = STAGES[stage].service
+        self.meshes.holds(service, key)
+        reply_mesh = getattr(response, "mesh", None)
+        if reply_mesh is not None and reply_mesh.content_id:
+            self.meshes.holds(service, reply_mesh.content_id)
+            if is_id_only(reply_mesh) and reply_mesh.content_id == key:
+                response.mesh = sent   # the stage named the mesh it was sent instead of echoing it
+        return response
+
+    def _send(self, stage: str, request, cancelled: Callable[[], bool]):
+        """One call of the stage's service; its reply, successful or not."""
         client = self.clients[stage]
         if not client.wait_for_service(timeout_sec=self.service_wait):
             raise StageError(stage, f"service not available within {self.service_wait:.0f} s; is its node "
@@ -100,6 +149,4 @@ class StageCaller:
         response = future.result()
         if response is None:
             raise StageError(stage, "the call ended without a reply", self.services[stage])
-        if not response.success:
-            raise StageError(stage, f"failed: {response.message}", self.services[stage])
         return response

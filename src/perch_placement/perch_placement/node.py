@@ -10,7 +10,7 @@ from rclpy.node import Node
 from perch_common.conventions import STAGE_SERVICES
 from perch_common.ros.conversions import (
     exclusion_from_msg,
-    mesh_from_msg,
+    mesh_from_request,
     placement_from_msg,
     placement_to_msg,
     region_from_msg,
@@ -68,7 +68,7 @@ class PlacementNode(Node):
             raise ValueError("no perch regions given: nothing to place cameras on")
         count = int(request.num_cameras) if request.num_cameras > 0 else config.num_cameras
         result = optimise(
-            mesh_from_msg(request.mesh, "environment mesh"),
+            mesh_from_request(request.mesh, "environment mesh"),
             [region_from_msg(r) for r in request.regions], target, count, config,
             fixed=[placement_from_msg(p) for p in request.fixed],
             exclusions=[exclusion_from_msg(z) for z in request.exclusions],
@@ -81,6 +81,9 @@ class PlacementNode(Node):
         response.success = len(result.placements) > 0 or count == 0
         response.message = result.message
         return response
+
+
+COMPONENT = PlacementNode  # what a one-process graph (perch_common.ros.container) hosts
 
 
 def main(args: list[str] | None = None) -> int:

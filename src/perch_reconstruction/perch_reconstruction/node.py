@@ -21,7 +21,7 @@ from std_srvs.srv import Trigger
 from perch_common.conventions import STAGE_SERVICES
 from perch_common.errors import EXPECTED
 from perch_common.frames import Alignment, aligned_frame_name
-from perch_common.ros.conversions import mesh_from_msg, mesh_to_msg, xyz
+from perch_common.ros.conversions import cached_mesh_to_msg, mesh_from_request, xyz
 from perch_common.ros.node_main import run_node
 from perch_common.ros.params import declare_config
 from perch_common.ros.service import answering, create_stage_service
@@ -141,7 +141,7 @@ class ReconstructionNode(Node):
                 mesh, stats = self.ingest.finish(gravity if np.any(gravity) else None, int(request.target_faces))
         finally:
             self._offline_status = None
-        response.mesh = mesh_to_msg(mesh, self.get_clock().now().to_msg())
+        response.mesh = cached_mesh_to_msg(mesh, self.get_clock().now().to_msg())
         self._answer_alignment(response, stats.frame_id, stats.clean)
         response.frames_integrated, response.frames_dropped = stats.frames_integrated, stats.frames_dropped
         response.success = True
@@ -178,11 +178,11 @@ class ReconstructionNode(Node):
         if request.target_faces:
             config = dataclasses.replace(config, target_faces=int(request.target_faces))
         gravity = xyz(request.gravity)
-        given = mesh_from_msg(request.mesh, "mesh to clean")
+        given = mesh_from_request(request.mesh, "mesh to clean")
         given.frame_id = request.mesh.header.frame_id or self.config.frame_id
         mesh, report = clean_mesh_with_report(given, gravity if np.any(gravity) else None, config)
         mesh.frame_id = aligned_frame_name(given.frame_id)
-        response.mesh = mesh_to_msg(mesh, self.get_clock().now().to_msg())
+        response.mesh = cached_mesh_to_msg(mesh, self.get_clock().now().to_msg())
         self._answer_alignment(response, given.frame_id, report)
         response.success = True
         response.message = (f"{report.faces_in} -> {report.faces_out} faces ({report.pieces_removed_faces} in "
@@ -204,6 +204,9 @@ class ReconstructionNode(Node):
     def destroy_node(self):
         self.ingest.stop()
         return super().destroy_node()
+
+
+COMPONENT = ReconstructionNode  # what a one-process graph (perch_common.ros.container) hosts
 
 
 def main(args: list[str] | None = None) -> int:

@@ -11,7 +11,7 @@ from rclpy.node import Node
 
 from perch_common.conventions import STAGE_SERVICES
 from perch_common.errors import PerchError
-from perch_common.ros.conversions import mesh_from_msg, surface_to_msg, to_array
+from perch_common.ros.conversions import mesh_from_request, surface_to_msg, to_array
 from perch_common.ros.node_main import run_node
 from perch_common.ros.params import declare_config, read_config
 from perch_common.ros.service import answering, create_stage_service
@@ -54,7 +54,7 @@ class SegmentationNode(Node):
             config.validate()
         except ValueError as exc:
             raise PerchError(f"parameters of perch_segmentation: {exc}") from exc
-        mesh = mesh_from_msg(request.mesh, "request mesh")
+        mesh = mesh_from_request(request.mesh, "request mesh")
         result = segment_mesh(mesh, config)
         response.surfaces = [surface_to_msg(s) for s in result.surfaces]
         response.face_labels = face_labels_array(result.face_labels)
@@ -63,6 +63,9 @@ class SegmentationNode(Node):
         response.message = (f"{len(result.surfaces)} surfaces from {mesh.num_faces} faces "
                             f"({100 * labelled:.0f}% of faces on a surface)")
         return response
+
+
+COMPONENT = SegmentationNode  # what a one-process graph (perch_common.ros.container) hosts
 
 
 def main(args: list[str] | None = None) -> int:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import array
+import copy
 
 import numpy as np
 from geometry_msgs.msg import Point, Pose, Quaternion, Vector3
@@ -82,6 +83,62 @@ def mesh_from_msg(msg: pm.TriangleMesh, what: str = "mesh") -> Mesh:
             raise MeshError(f"{what}: {name} has {len(arr)} entries for {len(vertices)} vertices")
     return Mesh(vertices, from_array(msg.triangles, np.uint32, 3).astype(np.int64),
                 None if colors is None else colors.copy(), normals, frame_id=msg.header.frame_id or "map")
+
+
+def msg_content_id(msg: pm.TriangleMesh) -> str:
+    """The content id of a mesh message's arrays (as they travel), computed, not trusted."""
+    from perch_common.mesh_cache import content_id
+
+    return content_id(from_array(msg.vertices, np.float32), from_array(msg.triangles, np.uint32),
+                      from_array(msg.vertex_colors, np.uint8), from_array(msg.vertex_normals, np.float32))
+
+
+def is_id_only(msg: pm.TriangleMesh) -> bool:
+    """A mesh message that names a held mesh by content id instead of carrying arrays."""
+    return bool(msg.content_id) and not len(msg.vertices) and not len(msg.triangles)
+
+
+def id_only_msg(msg: pm.TriangleMesh) -> pm.TriangleMesh:
+    """The same mesh by content id alone (header kept)."""
+    return pm.TriangleMesh(header=msg.header, content_id=msg.content_id)
+
+
+def _keep(msg: pm.TriangleMesh, what: str) -> Mesh:
+    """Decode `msg`, freeze its arrays and keep it in this process's mesh cache under msg.content_id."""
+    from perch_common.mesh_cache import PROCESS_CACHE
+
+    mesh = mesh_from_msg(msg, what)
+    for values in (mesh.vertices, mesh.faces, mesh.vertex_colors, mesh.vertex_normals):
+        if values is not None:
+            values.flags.writeable = False   # shared by every request naming it: never changed in place
+    PROCESS_CACHE.put(msg.content_id, mesh)
+    return mesh
+
+
+def mesh_from_request(msg: pm.TriangleMesh, what: str = "mesh") -> Mesh:
+    """A request's mesh: its arrays (kept in this process's cache under their id), or, for an
+    id-only message, the held mesh; raises MeshNotCached when this process does not hold it.
+    The returned arrays are read-only (shared with later requests)."""
+    from perch_common.mesh_cache import PROCESS_CACHE, MeshNotCached
+
+    if is_id_only(msg):
+        mesh = PROCESS_CACHE.get(msg.content_id)
+        if mesh is None:
+            raise MeshNotCached(msg.content_id, what)
+        mesh = copy.copy(mesh)   # its own frame_id; the (read-only) arrays stay shared
+        mesh.frame_id = msg.header.frame_id or mesh.frame_id
+        return mesh
+    msg.content_id = msg_content_id(msg)
+    return _keep(msg, what)
+
+
+def cached_mesh_to_msg(mesh: Mesh, stamp=None) -> pm.TriangleMesh:
+    """mesh_to_msg with its content id, and kept in this process's mesh cache, for a reply whose
+    mesh later requests (to this or another node in this process) may name by id."""
+    msg = mesh_to_msg(mesh, stamp)
+    msg.content_id = msg_content_id(msg)
+    _keep(msg, "reply mesh")
+    return msg
 
 
 # --- planes and polygons -----------------------------------------------------------------------

@@ -11,6 +11,7 @@ from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 
 from perch_common.memory import limit_heap_growth
+from perch_common.mesh_cache import PROCESS_CACHE
 
 
 @contextlib.contextmanager
@@ -28,6 +29,7 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None, threads
     limit_heap_growth()  # big request buffers go back to the system once freed
     with ros_context(args if args is not None else sys.argv):
         node = factory()
+        PROCESS_CACHE.hosts.add(node.get_name())   # requests it reads may name this process's meshes by id
         executor = MultiThreadedExecutor(num_threads=threads)
         executor.add_node(node)
         try:

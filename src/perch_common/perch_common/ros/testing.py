@@ -13,7 +13,7 @@ from typing import Any, Iterator
 import rclpy
 from rclpy.node import Node
 
-from perch_common.launch import use_fast_liveliness
+from perch_common.launch import use_perch_dds
 from perch_common.processes import stop_process
 
 
@@ -24,11 +24,10 @@ def isolated_ros_env(domain_id: int | None = None) -> dict[str, str]:
         # PERCH_TEST_DOMAIN pins the domain, so that test runs started side by side never share one.
         domain_id = int(os.environ.get("PERCH_TEST_DOMAIN") or 100 + os.getpid() % 100)
     env["ROS_DOMAIN_ID"] = str(domain_id)
-    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     env.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
     env.setdefault("OMP_NUM_THREADS", "2")
     env.setdefault("OPENBLAS_NUM_THREADS", "1")
-    return use_fast_liveliness(env)
+    return use_perch_dds(env)
 
 
 def use_isolated_ros_env(domain_id: int | None = None) -> None:

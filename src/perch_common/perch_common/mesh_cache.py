@@ -1,0 +1,154 @@
+"""Each mesh sent once: content ids for meshes, a bounded per-process LRU of received meshes, and
+the caller's book of which service already holds which mesh.
+
+Protocol (TriangleMesh.content_id): a mesh message with arrays may name its content id; one with
+empty arrays and a content id means "the mesh you already hold under this id". A node that does
+not hold it answers success=false with a message starting with MESH_NOT_CACHED; the caller then
+sends the arrays again. Every node hosted in one process shares PROCESS_CACHE, so in a
+one-process graph the cleaned and cropped meshes reach the next stages by id only; across
+processes a stage gets each mesh's arrays once and its id afterwards (re-plans, repeated missions).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import threading
+from collections import OrderedDict
+
+import numpy as np
+
+from perch_common.errors import PerchError
+from perch_common.mesh import Mesh
+
+MESH_NOT_CACHED = "mesh not cached"
+DEFAULT_BUDGET_MB = 2048          # per process; PERCH_MESH_CACHE_MB overrides (0 disables the cache)
+
+
+class MeshNotCached(PerchError):
+    """A request named a mesh by content id that this node does not hold."""
+
+    def __init__(self, content_id: str, what: str = "mesh"):
+        super().__init__(f"{MESH_NOT_CACHED}: {what} {content_id} is not held by this node (it restarted or "
+                         "evicted it); send the mesh arrays again")
+        self.content_id = content_id
+
+
+def content_id(vertices: np.ndarray, faces: np.ndarray, colors: np.ndarray | None = None,
+               normals: np.ndarray | None = None) -> str:
+    """A 128-bit hash of the mesh as it travels (float32 vertices, uint32 faces, colours, normals)."""
+    digest = hashlib.blake2b(digest_size=16)
+    for array, dtype in ((vertices, np.float32), (faces, np.uint32), (colors, np.uint8), (normals, np.float32)):
+        data = np.ascontiguousarray(np.zeros(0) if array is None else array, dtype)
+        digest.update(np.int64(data.size).tobytes())
+        digest.update(memoryview(data).cast("B"))
+    return digest.hexdigest()
+
+
+def mesh_content_id(mesh: Mesh) -> str:
+    """content_id of a Mesh."""
+    return content_id(mesh.vertices, mesh.faces, mesh.vertex_colors, mesh.vertex_normals)
+
+
+def _mesh_bytes(mesh: Mesh) -> int:
+    arrays = (mesh.vertices, mesh.faces, mesh.vertex_colors, mesh.vertex_normals)
+    return sum(a.nbytes for a in arrays if a is not None)
+
+
+class MeshCache:
+    """Meshes by content id, least recently used dropped first once `budget_bytes` is exceeded.
+
+    `hosts` names the nodes of this process that read requests through this cache, so that a
+    caller in the same process can send them a mesh the cache holds by id alone.
+    """
+
+    def __init__(self, budget_bytes: int):
+        self.budget_bytes = int(budget_bytes)
+        self.hosts: set[str] = set()
+        self._items: OrderedDict[str, tuple[Mesh, int]] = OrderedDict()
+        self._lock = threading.Lock()
+        self.used_bytes = 0
+
+    def put(self, key: str, mesh: Mesh) -> None:
+        """Keep `mesh` under `key` (a mesh larger than the whole budget is not kept)."""
+        size = _mesh_bytes(mesh)
+        with self._lock:
+            if key in self._items:
+                self._items.move_to_end(key)
+                return
+            if size > self.budget_bytes:
+                return
+            self._items[key] = (mesh, size)
+            self.used_bytes += size
+            while self.used_bytes > self.budget_bytes:
+                _, (_, dropped) = self._items.popitem(last=False)
+                self.used_bytes -= dropped
+
+    def get(self, key: str) -> Mesh | None:
+        """The mesh under `key` (now the most recently used), or None."""
+        with self._lock:
+            item = self._items.get(key)
+            if item is None:
+                return None
+            self._items.move_to_end(key)
+            return item[0]
+
+    def __contains__(self, key: str) -> bool:
+        with self._lock:
+            return key in self._items
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def clear(self) -> None:
+        """Drop every mesh."""
+        with self._lock:
+            self._items.clear()
+            self.used_bytes = 0
+
+
+def _budget_from_env() -> int:
+    value = os.environ.get("PERCH_MESH_CACHE_MB", "").strip()
+    try:
+        megabytes = float(value) if value else DEFAULT_BUDGET_MB
+    except ValueError:
+        raise PerchError(f"PERCH_MESH_CACHE_MB={value!r} is not a number of megabytes") from None
+    if megabytes < 0:
+        raise PerchError(f"PERCH_MESH_CACHE_MB={value!r} must be >= 0 (0 disables the mesh cache)")
+    return int(megabytes * 2**20)
+
+
+PROCESS_CACHE = MeshCache(_budget_from_env())
+
+
+class MeshBook:
+    """The caller's knowledge of which service holds which mesh id, to send each mesh once.
+
+    A service holds a mesh it was sent (and answered successfully) or produced in a reply. A
+    MESH_NOT_CACHED reply (the node restarted or evicted it) removes that belief.
+    """
+
+    def __init__(self) -> None:
+        self.held: dict[str, set[str]] = {}
+        self._lock = threading.Lock()
+
+    def holds(self, service: str, key: str) -> None:
+        """Record that `service` holds mesh `key`."""
+        if key:
+            with self._lock:
+                self.held.setdefault(service, set()).add(key)
+
+    def send_id_only(self, service: str, key: str) -> bool:
+        """Whether `service` is known to hold mesh `key`."""
+        with self._lock:
+            return bool(key) and key in self.held.get(service, ())
+
+    def missed(self, service: str, key: str) -> None:
+        """`service` answered MESH_NOT_CACHED for `key`."""
+        with self._lock:
+            self.held.get(service, set()).discard(key)
+
+
+def is_mesh_not_cached(message: str) -> bool:
+    """Whether a reply message is a MESH_NOT_CACHED error."""
+    return message.startswith(MESH_NOT_CACHED) or f": {MESH_NOT_CACHED}:" in message

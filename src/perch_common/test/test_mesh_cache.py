@@ -1,0 +1,62 @@
+"""Each mesh sent once: content ids, the bounded LRU, and the caller's book of who holds what."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from perch_common.mesh import Mesh
+from perch_common.mesh_cache import (
+    MESH_NOT_CACHED,
+    MeshBook,
+    MeshCache,
+    MeshNotCached,
+    is_mesh_not_cached,
+    mesh_content_id,
+)
+
+
+def _mesh(n: int, shift: float = 0.0) -> Mesh:
+    rng = np.random.default_rng(n)
+    return Mesh(rng.random((n, 3)) + shift, rng.integers(0, n, (2 * n, 3)))
+
+
+def test_content_id_is_stable_and_changes_with_any_array():
+    a = _mesh(100)
+    assert mesh_content_id(a) == mesh_content_id(Mesh(a.vertices.copy(), a.faces.copy()))
+    moved = Mesh(a.vertices + 1e-3, a.faces)
+    coloured = Mesh(a.vertices, a.faces, np.zeros((100, 3), np.uint8))
+    assert len({mesh_content_id(a), mesh_content_id(moved), mesh_content_id(coloured)}) == 3
+    assert len(mesh_content_id(a)) == 32
+
+
+def test_lru_drops_least_recently_used_beyond_its_budget():
+    meshes = [_mesh(1000, i) for i in range(3)]
+    size = meshes[0].vertices.nbytes + meshes[0].faces.nbytes
+    cache = MeshCache(budget_bytes=int(2.5 * size))
+    cache.put("a", meshes[0])
+    cache.put("b", meshes[1])
+    assert cache.get("a") is meshes[0]          # a is now the most recent
+    cache.put("c", meshes[2])                   # over budget: b goes
+    assert "b" not in cache and "a" in cache and "c" in cache
+    assert cache.used_bytes == 2 * size
+    cache.put("huge", _mesh(10000))             # larger than the whole budget: not kept
+    assert "huge" not in cache and len(cache) == 2
+
+
+def test_book_sends_ids_only_where_held_and_forgets_on_a_miss():
+    book = MeshBook()
+    assert not book.send_id_only("/perch/segment", "m1")
+    book.holds("/perch/crop", "m1")
+    assert not book.send_id_only("/perch/segment", "m1")        # crop holding it says nothing of segment
+    book.holds("/perch/segment", "m1")
+    assert book.send_id_only("/perch/segment", "m1") and not book.send_id_only("/perch/segment", "")
+    book.missed("/perch/segment", "m1")                         # it restarted
+    assert not book.send_id_only("/perch/segment", "m1") and book.send_id_only("/perch/crop", "m1")
+
+
+def test_not_cached_error_names_the_fix_and_is_recognised_inside_a_stage_error():
+    error = MeshNotCached("abc", "request mesh")
+    assert str(error).startswith(MESH_NOT_CACHED) and "send the mesh arrays again" in str(error)
+    assert is_mesh_not_cached(str(error))
+    assert is_mesh_not_cached(f"stage segment (/perch/segment): failed: {error}")
+    assert not is_mesh_not_cached("mesh is empty")
