@@ -72,10 +72,11 @@ def load_mission(path: str | Path) -> MissionData:
         elif call.stage == "optimise" and data.mesh is None and call.request is not None:
             data.mesh = mesh_from_msg(call.request.mesh)
     latest: dict[int, object] = {}
-    for topic, msg, _ in iter_messages(path, ["/perch/proposals", "/perch/waypoints", TF_STATIC_TOPIC]):
+    tf_static = "/" + TF_STATIC_TOPIC  # iter_messages names topics relative to the recorded namespace
+    for topic, msg, _ in iter_messages(path, ["/perch/proposals", "/perch/waypoints", tf_static]):
         if topic == "/perch/proposals":
             latest[msg.id] = msg
-        elif topic == TF_STATIC_TOPIC:
+        elif topic == tf_static:
             for transform in msg.transforms:
                 if transform.child_frame_id.endswith(ALIGNED_SUFFIX):
                     data.alignment = alignment_from_msg(transform)

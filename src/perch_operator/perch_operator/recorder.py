@@ -17,6 +17,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from perch_common.conventions import CONFIRM_SERVICE
 from perch_common.ros.msgdefs import full_definition, message_class
+from perch_common.ros.static_transforms import TF_STATIC_TOPIC
 from perch_operator.stages import STAGES
 
 EVENT_SUFFIX = "/_service_event"
@@ -66,9 +67,10 @@ class MissionRecorder:
         """Subscribe to every /perch topic now in the graph and every known service event topic."""
         topics = {self.node.resolve_topic_name(name): type_name
                   for name, type_name in dict(event_topics(), **MISSION_TOPICS).items()}
+        tf_static = self.node.resolve_topic_name(TF_STATIC_TOPIC)
         for name, types in self.node.get_topic_names_and_types():
-            # /tf_static: the mission's input frame -> gravity-aligned frame transform.
-            if (name.startswith(self.prefix + "/") or name == "/tf_static") and types:
+            # tf_static: the mission's input frame -> gravity-aligned frame transform (this graph's namespace).
+            if (name.startswith(self.prefix + "/") or name == tf_static) and types:
                 topics.setdefault(name, types[0])
         for name, type_name in topics.items():
             if name not in self._subs:

@@ -15,7 +15,9 @@ from perch_common.frames import Alignment
 from perch_common.transforms import matrix_from_quaternion, quaternion_from_matrix
 from tf2_msgs.msg import TFMessage
 
-TF_STATIC_TOPIC = "/tf_static"
+# Relative, as nav2 remaps tf for multi-robot graphs: /tf_static in the root namespace, /N/tf_static in namespace N,
+# so two graphs side by side never mix their frames.
+TF_STATIC_TOPIC = "tf_static"
 # tf2_ros's StaticBroadcasterQoS: reliable, transient local, depth 1.
 TF_STATIC_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
                            durability=DurabilityPolicy.TRANSIENT_LOCAL)
