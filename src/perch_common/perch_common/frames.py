@@ -1,8 +1,10 @@
 """The frame contract: stages work in a gravity-aligned frame (z up); users get the input's own frame.
 
-The gravity-aligned frame is the input frame rotated about its origin so that up becomes +z (the
-smallest such rotation). Its name is the input frame's plus ALIGNED_SUFFIX; the transform between
-the two is published on /tf_static and recorded with every mission.
+The gravity-aligned frame is the input frame rotated about its origin so that up becomes +z and
+the room's walls face +-x and +-y (gravity_aligned_rotation): a property of the room, so that the
+same room given in any orientation is planned in the same aligned frame. Its name is the input
+frame's plus ALIGNED_SUFFIX; the transform between the two is published on /tf_static and recorded
+with every mission.
 """
 
 from __future__ import annotations
@@ -16,6 +18,35 @@ from perch_common.types import CameraPlacement
 
 ALIGNED_SUFFIX = "_gravity_aligned"
 Z_UP = np.array([0.0, 0.0, 1.0])
+
+
+def gravity_aligned_rotation(up: np.ndarray, axes: np.ndarray | None = None,
+                             reference: np.ndarray | None = None) -> np.ndarray:
+    """The rotation taking `up` onto +z and, given the room's plane directions `axes` (rows), its walls
+    onto +-x and +-y; without axes the smallest rotation taking up onto +z.
+
+    Which wall direction becomes +x is the one pointing most towards `reference` (a point of the room
+    such as its area-weighted centroid, seen from the frame's origin), so the choice rotates with the
+    room rather than with the input's axes.
+    """
+    up = np.asarray(up, np.float64) / np.linalg.norm(up)
+    tilt = rotation_between(up, Z_UP)
+    if axes is None or reference is None:
+        return tilt
+    axes = np.asarray(axes, np.float64)
+    walls = axes[np.argsort(np.abs(axes @ up))[:2]] @ tilt.T  # the two directions across up, after the tilt
+    walls[:, 2] = 0.0
+    lengths = np.linalg.norm(walls, axis=1)
+    if np.any(lengths < 0.5):  # no clear wall direction across up: keep the smallest rotation
+        return tilt
+    first = walls[0] / lengths[0]
+    towards = tilt @ np.asarray(reference, np.float64)
+    towards[2] = 0.0
+    second = np.array([-first[1], first[0], 0.0])
+    candidates = np.stack([first, -first, second, -second])
+    x = candidates[int(np.argmax(candidates @ towards))] if np.linalg.norm(towards) > 1e-9 else first
+    yaw = np.stack([x, np.cross(Z_UP, x), Z_UP])  # rows: the new axes in the tilted frame
+    return yaw @ tilt
 
 
 def aligned_frame_name(input_frame: str) -> str:
@@ -33,9 +64,10 @@ class Alignment:
     up_confidence: float = 1.0
 
     @staticmethod
-    def from_up(input_frame: str, up: np.ndarray, up_source: str = "given", up_confidence: float = 1.0) -> "Alignment":
-        """The alignment that turns `up` (in the input frame) onto +z."""
-        return Alignment(input_frame, rotation_between(np.asarray(up, np.float64), Z_UP), up_source, up_confidence)
+    def from_up(input_frame: str, up: np.ndarray, up_source: str = "given", up_confidence: float = 1.0,
+                axes: np.ndarray | None = None, reference: np.ndarray | None = None) -> "Alignment":
+        """The alignment that turns `up` (in the input frame) onto +z (see gravity_aligned_rotation)."""
+        return Alignment(input_frame, gravity_aligned_rotation(up, axes, reference), up_source, up_confidence)
 
     @property
     def aligned_frame(self) -> str:

@@ -29,6 +29,7 @@ EXTREME_SHARE = 0.08      # the floor/ceiling planes: within this share of the h
 FULL_WEIGHT_AREA = 0.3    # m^2 of furniture-top area that gives a vote its full weight
 CONFIDENT = 0.5           # below: the estimate is weak and says so
 FACE_SUBSET = 100_000     # faces whose geometry is computed at all (a uniform subset above this)
+REFINE_STEPS = 20          # mean-shift steps: copies of a scan in other orientations converge alike
 SAMPLES = 20000           # area-weighted face sample standing for the scan
 SEARCH_SAMPLES = 4000     # of those, used for the coarse direction search (1000 directions)
 AXIS_VOTES = ("furniture tops face up", "cameras' image-down axes point down")
@@ -54,10 +55,17 @@ class UpEstimate:
     source: str                           # "gravity", "scan" or "none"
     axis_confidence: float = 1.0          # how clearly this axis (either sign) is the vertical
     sign_confidence: float = 1.0          # how clearly the evidence picks this sign
-    axes: np.ndarray = field(default_factory=lambda: np.eye(3))  # the room's three plane directions (rows)
+    axes: np.ndarray = field(default_factory=lambda: np.eye(3))  # the room's three plane directions (rows, refined)
     plane_share: float = 0.0              # area share within 10 degrees of the three room axes
     votes: list[UpVote] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    centroid: np.ndarray = field(default_factory=lambda: np.zeros(3))  # area-weighted, of the scan
+
+    def aligned_rotation(self, up: np.ndarray | None = None) -> np.ndarray:
+        """The rotation into the scan's gravity-aligned frame for `up` (default: this estimate's up)."""
+        from perch_common.frames import gravity_aligned_rotation
+
+        return gravity_aligned_rotation(self.up if up is None else up, self.axes, self.centroid)
 
     @property
     def confident(self) -> bool:
@@ -95,9 +103,6 @@ def estimate_up(normals: np.ndarray, areas: np.ndarray, centroids: np.ndarray,
     down_hint: rough gravity, e.g. the mean image-down axis of the cameras; gravity: a recorded
     gravity direction (wins). Deterministic for a given seed.
     """
-    if gravity is not None and np.linalg.norm(gravity) > 1e-9:
-        up = -np.asarray(gravity, np.float64) / np.linalg.norm(gravity)
-        return UpEstimate(up, 1.0, "gravity", notes=["recorded gravity direction"])
     normals = np.asarray(normals, np.float64)
     areas = np.asarray(areas, np.float64)
     centroids = np.asarray(centroids, np.float64)
@@ -112,14 +117,17 @@ def estimate_up(normals: np.ndarray, areas: np.ndarray, centroids: np.ndarray,
         pick = np.random.default_rng(seed).choice(len(areas), SAMPLES, p=areas / areas.sum())
         normals, centroids = normals[pick], centroids[pick]
         areas = np.full(SAMPLES, areas.sum() / SAMPLES)
-    axes = _room_axes(normals, areas)
+    axes = np.stack([_refine(a, normals, areas) for a in _room_axes(normals, areas)])
+    centroid = areas @ centroids / areas.sum()
+    if gravity is not None and np.linalg.norm(gravity) > 1e-9:
+        up = -np.asarray(gravity, np.float64) / np.linalg.norm(gravity)
+        return UpEstimate(up, 1.0, "gravity", axes=axes, centroid=centroid, notes=["recorded gravity direction"])
     hint = None
     if down_hint is not None and np.linalg.norm(down_hint) > 1e-9:
         hint = -np.asarray(down_hint, np.float64) / np.linalg.norm(down_hint)
     extents = np.array([np.diff(np.percentile(centroids @ a, [1, 99]))[0] for a in axes])
     candidates = []
     for i, axis in enumerate(axes):
-        axis = _refine(axis, normals, areas)
         votes = _sign_votes(axis, normals, areas, centroids, hint)
         thin = float(extents.min() / max(extents[i], 1e-9))
         # Rooms are wider than tall (the main cue); one-sided horizontal faces add to it. Position votes
@@ -150,7 +158,8 @@ def estimate_up(normals: np.ndarray, areas: np.ndarray, centroids: np.ndarray,
         notes.append(f"weak evidence (confidence {confidence:.2f} < {CONFIDENT})")
     if agreement < 0:  # say the evidence along the chosen direction
         votes = _sign_votes(up, normals, areas, centroids, hint)
-    return UpEstimate(up, confidence, "scan", axis_confidence, sign_confidence, axes, plane_share, votes, notes)
+    return UpEstimate(up, confidence, "scan", axis_confidence, sign_confidence, axes, plane_share, votes, notes,
+                      centroid)
 
 
 def estimate_mesh_up(mesh, down_hint: np.ndarray | None = None, gravity: np.ndarray | None = None,
@@ -188,13 +197,15 @@ def _room_axes(normals: np.ndarray, weights: np.ndarray) -> np.ndarray:
 
 def _refine(axis: np.ndarray, normals: np.ndarray, areas: np.ndarray) -> np.ndarray:
     """Area-weighted mean of the normals within 10 degrees of +-axis (folded onto +axis)."""
-    for _ in range(2):
+    for _ in range(REFINE_STEPS):
         cos = normals @ axis
         near = np.abs(cos) > COS_10
         if not near.any():
             return axis
         mean = (normals[near] * (np.sign(cos[near]) * areas[near])[:, None]).sum(axis=0)
-        axis = mean / np.linalg.norm(mean)
+        previous, axis = axis, mean / np.linalg.norm(mean)
+        if previous @ axis > 1 - 1e-15:
+            break
     return axis
 
 
@@ -316,3 +327,20 @@ def contradiction(up: np.ndarray, estimate: UpEstimate) -> str:
 def _option_value(up: np.ndarray) -> str:
     name = axis_name(up)
     return name if name[0] in "+-" else f"'{name}'"
+
+
+def up_for_file(text: str, mesh, path: str | Path | None, option: str = "--up") -> UpChoice:
+    """choose_up for a mesh read from `path` (its format's convention), warnings printed to stderr."""
+    import sys
+
+    choice = choose_up(text, mesh, file_convention(path), option)
+    for warning in choice.warnings:
+        print(f"warning: {warning}", file=sys.stderr)
+    return choice
+
+
+def add_up_argument(parser, what: str = "the mesh") -> None:
+    """The --up AXIS option of the file-based commands (plan, clean, segment, filter, place)."""
+    parser.add_argument("--up", default="auto", metavar="AXIS",
+                        help=f"up axis of {what}: auto (estimated; when unsure the file's convention: glTF/GLB "
+                             "+y, others +z), +x, -x, +y, -y, +z, -z or 'X Y Z'. Outputs stay in its own frame")

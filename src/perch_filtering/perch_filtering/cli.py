@@ -10,7 +10,7 @@ import numpy as np
 
 from perch_common.mesh import Mesh, load_mesh
 from perch_common.target import TargetVolume
-from perch_common.transforms import parse_up_axis
+from perch_common.up_axis import add_up_argument, up_for_file
 from perch_filtering.config import FilterConfig
 
 
@@ -19,12 +19,12 @@ def register(sub) -> None:
                        description="Run the filtering stage on a mesh and its segmented surfaces; writes "
                                    "OUT/regions.json (regions, per-filter removed area), OUT/surfaces.json "
                                    "(oriented, classed surfaces) and OUT/regions.ply.")
-    p.add_argument("mesh", help="environment mesh (z-up unless --up says otherwise)")
+    p.add_argument("mesh", help="environment mesh, in any orientation (--up)")
     p.add_argument("--surfaces", required=True,
                    help="surfaces file (YAML or JSON, as written by `perch segment` or to OUT/surfaces.json), or 'segment' "
                         "to segment the mesh first with perch_segmentation")
     add_target_arguments(p)
-    p.add_argument("--up", default=None, help="up axis (+z, -y, or 'x y z'); default: the config's up_axis")
+    add_up_argument(p)
     p.add_argument("--config", default=None, help="parameter YAML (default: config/perch.yaml)")
     p.add_argument("-p", "--param", action="append", default=[], metavar="NAME=VALUE",
                    help="override one filter parameter, e.g. -p allow_floor=true")
@@ -84,11 +84,11 @@ def run(args) -> int:
     refuse_overwriting_inputs([out] + [out / n for n in ("regions.json", "surfaces.json", "regions.ply")],
                               [args.mesh, args.surfaces if args.surfaces != "segment" else None, args.target_mesh,
                                args.config])
-    config, up_axis = load_config(args.config, args.param)
+    config, _ = load_config(args.config, args.param)
     mesh = load_mesh(args.mesh)
     surfaces = segment_surfaces(mesh) if args.surfaces == "segment" else read_surfaces(args.surfaces)
     target = target_from_args(args)
-    up = parse_up_axis(args.up or up_axis)
+    up = up_for_file(args.up, mesh, args.mesh).up  # filtering takes any up: outputs stay in the mesh's frame
     result = filter_surfaces(mesh, surfaces, target, up, config)
     paths = write_result(Path(args.output), result)
     print(result.message)

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from perch_common.errors import PerchError
+from perch_common.up_axis import add_up_argument
 
 DEMO_SEED = 7
 
@@ -32,9 +33,7 @@ def register_plan(sub) -> None:
                    help="multiply --mesh coordinates by this (0.001 for a mesh in millimetres)")
     p.add_argument("--seed", type=int, default=-1, help="optimiser seed (negative: the node's default)")
     p.add_argument("--auto-accept", action="store_true", help="accept every proposal (else: perch operator ...)")
-    p.add_argument("--up", default="auto", metavar="AXIS",
-                   help="up axis of the mesh: auto (estimated; the file's convention when unsure: glTF/GLB +y, "
-                        "others +z), +x, -x, +y, -y, +z, -z or 'X Y Z'. Outputs stay in the mesh's own frame")
+    add_up_argument(p, "the mesh (--mesh)")
     p.add_argument("--review-surfaces", type=non_negative_int, default=0, metavar="N",
                    help="before filtering, wait for `perch operator review ID [--reject ...]` on the N largest surfaces")
     _common(p)

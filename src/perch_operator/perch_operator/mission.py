@@ -159,15 +159,18 @@ class Mission:
         if not mesh_msg.header.frame_id:
             mesh_msg.header.frame_id = self.options.frame_id
         self.alignment = self._given_mesh_alignment(goal, mesh_msg)
+        aligned = mesh_from_msg(mesh_msg, "mission mesh").transformed(self.alignment.to_aligned())
+        aligned.frame_id = self.alignment.aligned_frame
+        aligned_msg = mesh_to_msg(aligned, stamp=mesh_msg.header.stamp)
         if not self.options.clean_given_mesh:
             self._planned.remove("clean")
-            aligned = mesh_from_msg(mesh_msg, "mission mesh").transformed(self.alignment.to_aligned())
-            aligned.frame_id = self.alignment.aligned_frame
-            return mesh_to_msg(aligned, stamp=mesh_msg.header.stamp)
-        # Gravity points along -up: cleaning turns the mesh into the same gravity-aligned frame.
-        gravity = vector_msg(-self.alignment.up)
-        reply = self._call("clean", srv.CleanMesh.Request(mesh=mesh_msg, gravity=gravity))
-        self.alignment = alignment_from_msg(reply.alignment, self.alignment.up_source, self.alignment.up_confidence)
+            return aligned_msg
+        # Cleaned after aligning: its vertex welding then works in the room's own frame, so the same
+        # room in any orientation is cleaned alike. Its (near-identity) correction joins the alignment.
+        reply = self._call("clean", srv.CleanMesh.Request(mesh=aligned_msg, gravity=vector_msg([0.0, 0.0, -1.0])))
+        correction = alignment_from_msg(reply.alignment).rotation
+        self.alignment = Alignment(self.alignment.input_frame, correction @ self.alignment.rotation,
+                                   self.alignment.up_source, self.alignment.up_confidence)
         return reply.mesh
 
     def _given_mesh_alignment(self, goal: PlanPerches.Goal, mesh_msg) -> Alignment:
@@ -181,7 +184,8 @@ class Mission:
         for warning in choice.warnings:
             self.notes.append(warning)
             self.feedback("clean", self._fraction(), warning)
-        return Alignment.from_up(mesh_msg.header.frame_id, choice.up, choice.source, choice.estimate.confidence)
+        return Alignment(mesh_msg.header.frame_id, choice.estimate.aligned_rotation(choice.up), choice.source,
+                         choice.estimate.confidence)
 
     def _reviewed(self, surfaces: list, count: int) -> list:
         """With count > 0, the operator reviews the `count` largest surfaces; rejected ones are dropped."""

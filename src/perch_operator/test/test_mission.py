@@ -175,7 +175,7 @@ def test_mesh_path_is_loaded_by_the_coordinator_and_cleaned_along_minus_up(meshe
     stage, clean = stages.requests[0]
     assert stage == "clean" and len(clean.mesh.triangles) == 3 * meshes.room().num_faces
     assert (clean.gravity.x, clean.gravity.y, clean.gravity.z) == (0.0, 0.0, -1.0)
-    assert clean.mesh.header.frame_id == "map" and result.success
+    assert clean.mesh.header.frame_id == "map_gravity_aligned" and result.success
 
 
 def rotated_room_goal(meshes, orientation: str = "y-down", **fields):
@@ -200,7 +200,8 @@ def test_a_rotated_mesh_is_planned_gravity_aligned_and_answered_in_its_own_frame
                       on_alignment=aligned.append)
     result = mission.run(goal)
     clean = stages.requests[0][1]
-    np.testing.assert_allclose(xyz(clean.gravity), -up, atol=1e-9)  # gravity along the true down
+    # Cleaned after aligning: the mesh arrives gravity-aligned, gravity along -z.
+    assert clean.mesh.header.frame_id == "scan_gravity_aligned" and xyz(clean.gravity).tolist() == [0, 0, -1]
     alignment = alignment_from_msg(result.alignment)
     assert result.alignment.header.frame_id == "scan" and result.alignment.child_frame_id == "scan_gravity_aligned"
     assert aligned and aligned[0].input_frame == "scan"

@@ -49,6 +49,8 @@ def write_placements(path: Path, problem, result, config) -> None:
     import yaml
 
     def plain(p):
+        if problem.alignment is not None:  # back in the mesh file's own frame
+            p = problem.alignment.placement_to_input(p)
         return {"drone_index": p.drone_index, "region_id": p.region_id,
                 "drone_pose": np.round(p.drone_pose, 6).tolist(), "camera_pose": np.round(p.camera_pose, 6).tolist(),
                 "pan_deg": round(math.degrees(p.pan), 3), "tilt_deg": round(math.degrees(p.tilt), 3),
@@ -56,6 +58,7 @@ def write_placements(path: Path, problem, result, config) -> None:
                 "coverage": round(p.coverage, 6), "mean_uncertainty_m2": float(p.mean_uncertainty)}
 
     doc = {"mesh": problem.name, "regions": f"{len(problem.regions)} ({problem.route})",
+           "frame_id": problem.alignment.input_frame if problem.alignment else problem.mesh.frame_id,
            "camera": config.camera.name, "fitness": round(result.fitness, 6), "coverage": round(result.coverage, 6),
            "mean_uncertainty_m2": float(result.mean_uncertainty), "upper_bound": float(result.upper_bound),
            "evaluations": int(result.evaluations), "seconds": round(result.seconds, 3),

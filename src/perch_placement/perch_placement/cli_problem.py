@@ -11,11 +11,13 @@ import numpy as np
 
 from perch_common.config import load_node_config
 from perch_common.conventions import DEFAULT_CLASS_ANGLE_DEG, surface_class
+from perch_common.frames import Alignment
 from perch_common.mesh import Mesh, load_mesh
 from perch_common.polygons import faces_outline
 from perch_common.target import TargetVolume
 from perch_common.transforms import parse_up_axis
 from perch_common.types import PerchRegion, Surface, SurfaceClass
+from perch_common.up_axis import add_up_argument, up_for_file
 from perch_placement.config import PlacementConfig
 
 
@@ -28,14 +30,17 @@ class Problem:
     regions: list
     target: TargetVolume
     route: str   # how the regions were found
+    # mesh, regions and target are gravity-aligned; this takes them to the mesh file's own frame
+    alignment: Alignment | None = None
 
 
 def add_problem_arguments(parser: argparse.ArgumentParser, mesh_positional: bool) -> None:
     """Add the mesh/scene, target, regions-route and parameter-file options to a parser."""
     if mesh_positional:
-        parser.add_argument("mesh", nargs="?", help="environment mesh (PLY/OBJ/GLB/STL), z up")
+        parser.add_argument("mesh", nargs="?", help="environment mesh (PLY/OBJ/GLB/STL), any orientation (--up)")
     else:
-        parser.add_argument("--mesh", help="environment mesh (PLY/OBJ/GLB/STL), z up")
+        parser.add_argument("--mesh", help="environment mesh (PLY/OBJ/GLB/STL), any orientation (--up)")
+    add_up_argument(parser, "the mesh file and the target given with it")
     parser.add_argument("--target", "--target-mesh", dest="target_mesh",
                         help="target footprint mesh, extruded upwards by --target-height")
     parser.add_argument("--target-height", type=float, default=1.2, help="footprint extrusion (m)")
@@ -67,19 +72,27 @@ def load_problem(args: argparse.Namespace, up=(0.0, 0.0, 1.0)) -> Problem:
     if not args.mesh:
         raise ValueError("give a mesh file or --scene SEED")
     mesh = load_mesh(args.mesh)
-    target = _target(args)
+    # Placement works gravity-aligned (the target footprint is extruded along up); placements are
+    # written back in the file's frame (Problem.alignment).
+    choice = up_for_file(getattr(args, "up", "+z"), mesh, args.mesh)
+    alignment = Alignment(mesh.frame_id, choice.estimate.aligned_rotation(choice.up))
+    mesh = mesh.transformed(alignment.to_aligned())
+    target = _target(args, alignment)
     if target is None:
         raise ValueError("give the target: --target FOOTPRINT_MESH [--target-height H] or --target-box ...")
-    regions = regions_for(mesh, target, None, up, args.regions)
-    return Problem(str(args.mesh), mesh, regions, target, args.regions)
+    regions = regions_for(mesh, target, None, np.array([0.0, 0.0, 1.0]), args.regions)
+    return Problem(str(args.mesh), mesh, regions, target, args.regions, alignment)
 
 
-def _target(args) -> TargetVolume | None:
+def _target(args, alignment: Alignment | None = None) -> TargetVolume | None:
+    """The target from the arguments, in the gravity-aligned frame when an alignment is given."""
+    to_aligned = np.eye(4) if alignment is None else alignment.to_aligned()
     if args.target_mesh:
-        return TargetVolume.from_footprint_mesh(load_mesh(args.target_mesh), args.target_height)
+        footprint = load_mesh(args.target_mesh).transformed(to_aligned)
+        return TargetVolume.from_footprint_mesh(footprint, args.target_height)
     if args.target_box:
         c, s = np.array(args.target_box[:3]), np.array(args.target_box[3:])
-        return TargetVolume(center=c, size=s)
+        return TargetVolume(center=to_aligned[:3, :3] @ c, size=s, rotation=to_aligned[:3, :3])
     return None
 
 

@@ -8,7 +8,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from perch_common.mesh import Mesh, MeshError, validate_mesh
-from perch_common.transforms import rotation_between
 from perch_common.up_axis import UpEstimate, estimate_mesh_up
 from perch_reconstruction.config import ReconstructionConfig
 from perch_reconstruction.mesh_ops import cluster_vertices, remove_small_pieces, weld_vertices
@@ -114,18 +113,20 @@ def _up_rotation(mesh: Mesh, gravity: np.ndarray | None, config: ReconstructionC
     z = np.array([0.0, 0.0, 1.0])
     estimate = estimate_mesh_up(mesh, down_hint, gravity)
     report.up_estimate, report.up_confidence = estimate, estimate.confidence
+    # Up onto +z and the walls onto +-x/+-y (perch_common.frames): the same room in any orientation
+    # is cleaned into the same frame.
     if estimate.source == "gravity":
         report.up_source = "gravity"
-        return rotation_between(estimate.up, z)
+        return estimate.aligned_rotation()
     if estimate.confidence >= config.min_up_confidence:
         report.up_source = "planes"
-        return rotation_between(estimate.up, z)
+        return estimate.aligned_rotation()
     if estimate.axis_confidence >= config.min_up_confidence:
         # The vertical is clear but not which end is up: keep the end nearer the mesh's own +z.
         report.up_source = "planes, sign kept"
         report.warnings.append(f"up axis found but its sign is uncertain (confidence {estimate.sign_confidence:.2f}); "
                                "kept the end nearer the mesh's +z. Pass the gravity direction if it is wrong")
-        return rotation_between(estimate.toward(z), z)
+        return estimate.aligned_rotation(estimate.toward(z))
     report.warnings.append(f"no clear up axis (confidence {estimate.confidence:.2f} < {config.min_up_confidence}); "
                            "mesh left in its own orientation. " + "; ".join(estimate.notes))
     return None

@@ -9,6 +9,7 @@ import numpy as np
 
 from perch_common.errors import PerchError
 from perch_common.outputs import atomic_path, refuse_overwriting_inputs
+from perch_common.up_axis import add_up_argument, up_for_file
 from perch_reconstruction.bag_write import BagTopics
 from perch_reconstruction.config import ReconstructionConfig
 
@@ -129,8 +130,9 @@ def register_clean(sub) -> None:
     parser = sub.add_parser("clean", help="clean a mesh: merge, drop small pieces, decimate, gravity-align")
     parser.add_argument("mesh")
     parser.add_argument("-o", "--output", required=True)
+    add_up_argument(parser)
     parser.add_argument("--gravity", nargs=3, type=float, metavar=("X", "Y", "Z"),
-                        help="gravity direction in the mesh frame (default: estimate from floor/ceiling)")
+                        help="gravity direction in the mesh frame (overrides --up)")
     parser.add_argument("--target-faces", type=int, help="decimation target (0: none)")
     parser.add_argument("--min-piece", type=float, help="remove pieces smaller than this diameter (m)")
     parser.add_argument("--no-align", action="store_true", help="keep the orientation")
@@ -147,14 +149,23 @@ def _clean(args) -> int:
     refuse_overwriting_inputs([args.output], [args.mesh, args.config])
     config = _config_with(args.config, target_faces=args.target_faces, min_piece_diameter=args.min_piece,
                           gravity_align=False if args.no_align else None)
-    mesh, report = clean_mesh_with_report(load_mesh(args.mesh, scale=args.scale),
-                                          np.array(args.gravity) if args.gravity else None, config)
+    mesh = load_mesh(args.mesh, scale=args.scale)
+    up = {}
+    if args.gravity:
+        gravity = np.array(args.gravity)
+    else:  # the up axis as perch plan would take it (a contradicted --up stops here)
+        choice = up_for_file(args.up, mesh, args.mesh)
+        gravity = -choice.up
+        up = {"up": choice.up.round(6).tolist(), "up_from": choice.source,
+              "up_estimate_confidence": round(choice.estimate.confidence, 3), "up_evidence": choice.estimate.evidence()}
+    mesh, report = clean_mesh_with_report(mesh, gravity, config)
     with atomic_path(args.output) as partial:
         save_mesh(partial, mesh)
     print(json.dumps({"output": args.output, "faces_in": report.faces_in, "faces_out": report.faces_out,
                       "small_piece_faces_removed": report.pieces_removed_faces, "up_source": report.up_source,
-                      "up_confidence": round(report.up_confidence, 3), "seconds": round(report.seconds, 3),
-                      "warnings": report.warnings}, indent=2))
+                      "up_confidence": round(report.up_confidence, 3), **up,
+                      "rotation": np.round(report.rotation, 9).tolist(),  # output = rotation @ input
+                      "seconds": round(report.seconds, 3), "warnings": report.warnings}, indent=2))
     return 0
 
 

@@ -50,7 +50,14 @@ def _cells(points: np.ndarray, cell: float) -> tuple[np.ndarray, int]:
     span = key.max(axis=0) + 1
     linear = (key[:, 0] * span[1] + key[:, 1]) * span[2] + key[:, 2]
     unique, inverse = np.unique(linear, return_inverse=True)
-    return inverse.ravel(), len(unique)
+    inverse = inverse.ravel()
+    # Number the cells by their first point, not by position: the output keeps the input's order,
+    # so the same mesh in another orientation (other cell keys) comes out in the same order.
+    first = np.full(len(unique), len(points), np.int64)
+    np.minimum.at(first, inverse, np.arange(len(points)))
+    rank = np.empty(len(unique), np.int64)
+    rank[np.argsort(first)] = np.arange(len(unique))
+    return rank[inverse], len(unique)
 
 
 def weld_vertices(mesh: Mesh, distance: float) -> Mesh:

@@ -199,7 +199,8 @@ class ReconstructionNode(Node):
         response.up_source, response.up_confidence = alignment.up_source, float(alignment.up_confidence)
         if report is not None and report.up_estimate is not None:
             response.up_evidence = report.up_estimate.evidence()
-        self.static_transforms.send(response.alignment)
+        if response.alignment.child_frame_id != response.alignment.header.frame_id:
+            self.static_transforms.send(response.alignment)
 
     def destroy_node(self):
         self.ingest.stop()

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from perch_common.config import ConfigError, default_config_path, from_parameters, node_parameters
 from perch_common.mesh import load_mesh
+from perch_common.up_axis import add_up_argument
 
 
 def register(sub) -> None:
@@ -22,6 +23,7 @@ def register(sub) -> None:
     parser.add_argument("--config", type=Path, default=None, help="parameter file (default: config/perch.yaml)")
     parser.add_argument("-p", "--param", action="append", default=[], metavar="NAME:=VALUE",
                         help="override a parameter, e.g. -p use_color:=false (repeatable)")
+    add_up_argument(parser)
     parser.add_argument("--png", type=Path, default=None, help="also render the coloured result to this PNG")
     parser.add_argument("--scale", type=float, default=1.0,
                         help="multiply the mesh coordinates by this (0.001 for a mesh in millimetres)")
@@ -71,6 +73,14 @@ def run(args: argparse.Namespace) -> int:
         raise PerchError(f"-o {args.output}: is an existing file; give a .yaml/.json file or a folder")
     config = load_config(args.config, args.param)
     mesh = load_mesh(args.mesh, scale=args.scale)
+    if not any(p.split(":=")[0].strip() == "up_axis" for p in args.param):
+        # Segmentation takes any up direction: the surfaces stay in the mesh's own frame.
+        from dataclasses import replace
+
+        from perch_common.up_axis import up_for_file
+
+        up = up_for_file(args.up, mesh, args.mesh).up
+        config = replace(config, up_axis=" ".join(f"{c:.9f}" for c in up))
     started = time.perf_counter()
     result = segment_mesh(mesh, config)
     seconds = time.perf_counter() - started

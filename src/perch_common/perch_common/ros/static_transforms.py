@@ -71,10 +71,16 @@ class StaticTransformPublisher:
 
 
 def alignment_to_msg(alignment: Alignment, stamp=None) -> TransformStamped:
-    """The alignment as a transform: the gravity-aligned frame (child) in the input frame (parent)."""
-    if alignment.aligned_frame == alignment.input_frame:
-        raise ValueError(f"input frame '{alignment.input_frame}' is already named as a gravity-aligned frame")
-    return transform_msg(alignment.input_frame, alignment.aligned_frame, alignment.to_input(), stamp)
+    """The alignment as a transform: the gravity-aligned frame (child) in the input frame (parent).
+
+    An input already in a gravity-aligned frame (a mission cleans its mesh after aligning it) gives
+    the same name twice: a correction within that frame, never sent on /tf_static.
+    """
+    if alignment.aligned_frame != alignment.input_frame:
+        return transform_msg(alignment.input_frame, alignment.aligned_frame, alignment.to_input(), stamp)
+    msg = transform_msg(alignment.input_frame, alignment.input_frame + "_", alignment.to_input(), stamp)
+    msg.child_frame_id = alignment.input_frame
+    return msg
 
 
 def alignment_from_msg(msg: TransformStamped, up_source: str = "given", up_confidence: float = 1.0) -> Alignment:
