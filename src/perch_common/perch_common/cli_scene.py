@@ -21,7 +21,8 @@ def register(sub) -> None:
     g.add_argument("--holes", type=int, default=0, help="number of holes cut into walls")
     g.add_argument("--no-ceiling", action="store_true")
     g.add_argument("--no-furniture", action="store_true")
-    g.add_argument("--resolution", type=float, default=0.1, help="grid size (m)")
+    g.add_argument("--resolution", type=float, default=None, help="grid size (m; default 0.1, building 0.042)")
+    g.add_argument("--clutter", type=int, default=0, help="small boxes scattered on the floors")
     g.add_argument("-o", "--output", required=True, help="mesh file (.ply, .obj, .glb, .stl)")
     g.set_defaults(func=_generate)
     p.set_defaults(func=lambda args: p.print_help() or 2)
@@ -37,6 +38,8 @@ def write_scene(scene, output: Path) -> dict:
         "mesh": str(output), "labels": str(labels), "kind": scene.kind, "seed": scene.seed,
         "faces": scene.mesh.num_faces, "planes": len(scene.planes), "furniture": len(scene.furniture),
         "target": {"center": scene.target.center.round(4).tolist(), "size": scene.target.size.round(4).tolist()},
+        "targets": [{"center": v.center.round(4).tolist(), "size": v.size.round(4).tolist()}
+                    for v in scene.target.volumes()],
         "plane_table": [{"id": p.id, "class": p.semantic_class.name.lower(), "area": round(p.area, 4),
                          "normal": p.normal.round(4).tolist()} for p in scene.planes],
     }
@@ -47,7 +50,7 @@ def write_scene(scene, output: Path) -> dict:
 def _generate(args) -> int:
     scene = generate_scene(args.seed, args.kind, noise=args.noise, holes=args.holes,
                            ceiling=not args.no_ceiling, furniture=not args.no_furniture,
-                           resolution=args.resolution)
+                           resolution=args.resolution, clutter=args.clutter)
     s = write_scene(scene, Path(args.output))
     print(f"{s['mesh']}: {s['kind']} seed {s['seed']}, {s['faces']} faces, {s['planes']} planes, "
           f"{s['furniture']} furniture items; labels in {s['labels']}")

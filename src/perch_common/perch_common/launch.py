@@ -89,16 +89,21 @@ def domain_ports(domain: int) -> range:
 
 
 def domains_in_use() -> set[int]:
-    """Domains that some process on this host takes part in (a bound RTPS port), from /proc/net/udp."""
+    """Domains some process on this host takes part in, from /proc/net/udp.
+
+    A participant binds its domain's SPDP multicast port (7400 + 250 d) unless multicast is off,
+    and the first participant of a domain on a host binds 7400 + 250 d + 10 (participant 0's
+    discovery unicast port). Only these exact ports count: random sending ports may fall anywhere
+    in a higher domain's range.
+    """
     import psutil
 
     used = set()
     for conn in psutil.net_connections(kind="udp"):
         port = conn.laddr.port if conn.laddr else 0
-        if port >= _PORT_BASE:
-            domain, offset = divmod(port - _PORT_BASE, _DOMAIN_GAIN)
-            if offset < _DOMAIN_GAIN:
-                used.add(domain)
+        domain, offset = divmod(port - _PORT_BASE, _DOMAIN_GAIN)
+        if port >= _PORT_BASE and offset in (0, 10):
+            used.add(domain)
     return used
 
 

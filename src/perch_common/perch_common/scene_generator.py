@@ -20,7 +20,8 @@ from perch_common.scene_layout import Layout, make_layout
 from perch_common.target import TargetVolume
 from perch_common.types import PlaneFrame, Surface, SurfaceClass
 
-KINDS = ("room", "l_shaped", "two_rooms", "apartment")
+KINDS = ("room", "l_shaped", "two_rooms", "apartment", "building")
+DEFAULT_RESOLUTION = {"building": 0.042}   # m; others 0.1. A building floor is 2-3 M faces at 0.042 m
 
 
 class SemanticClass(IntEnum):
@@ -123,14 +124,22 @@ class GeneratedScene:
 
 def generate_scene(seed: int, kind: str = "room", *, noise: float = 0.0, holes: int = 0,
                    ceiling: bool = True, furniture: bool = True, openings: bool = True,
-                   resolution: float = 0.1) -> GeneratedScene:
-    """A seeded scene of the given kind ("room", "l_shaped", "two_rooms", "apartment")."""
+                   resolution: float | None = None, clutter: int = 0) -> GeneratedScene:
+    """A seeded scene of the given kind ("room", "l_shaped", "two_rooms", "apartment", "building").
+
+    A building is one floor of 8-12 rooms off two crossing corridors (400-800 m^2), with a doorway
+    from every room, furniture in every room, and a target of three volumes: the corridor junction
+    and two rooms. `clutter` adds that many small boxes on the floors (class furniture).
+    """
     if kind not in KINDS:
         raise ValueError(f"unknown scene kind '{kind}' (use one of {', '.join(KINDS)})")
+    resolution = DEFAULT_RESOLUTION.get(kind, 0.1) if resolution is None else resolution
     if not 0.02 <= resolution <= 0.5:
         raise ValueError(f"resolution {resolution} m out of range 0.02-0.5")
+    if clutter < 0:
+        raise ValueError(f"clutter {clutter}: give a count of 0 or more")
     rng = np.random.default_rng(seed)
-    layout = make_layout(kind, rng, resolution, furniture)
+    layout = make_layout(kind, rng, resolution, furniture, clutter)
     faces_abc = _boundary_faces(layout.solid)
     lattice, faces, normal_axis, normal_sign, solid_label = faces_abc
     face_class = _classify(normal_axis, normal_sign, solid_label)
@@ -158,14 +167,22 @@ def generate_scene(seed: int, kind: str = "room", *, noise: float = 0.0, holes: 
     grid = VoxelGrid(np.zeros(3), resolution, layout.solid != 0, world)
     boxes = [FurnitureBox(f.kind, world[:3, :3] @ (f.center * resolution) + world[:3, 3],
                           f.size * resolution, world[:3, :3]) for f in layout.furniture]
-    main = layout.rooms[0]
-    center = np.array([(main[0] + main[3]) / 2, (main[1] + main[4]) / 2, layout.floor_z + 0.7 / resolution])
-    target = TargetVolume(center=world[:3, :3] @ (center * resolution) + world[:3, 3],
-                          size=[0.5 * (main[3] - main[0]) * resolution, 0.5 * (main[4] - main[1]) * resolution, 1.2],
-                          rotation=world[:3, :3])
+    if layout.targets:   # each named volume in full, 0.1-1.3 m above the floor
+        target = TargetVolume.union([_box_target(box, world, resolution, layout.floor_z, 1.0)
+                                     for box in layout.targets])
+    else:                # the middle half of the main room
+        target = _box_target(layout.rooms[0], world, resolution, layout.floor_z, 0.5)
     scene = GeneratedScene(mesh, face_plane, face_class, [], grid, boxes, target, world, kind, seed)
     scene.planes = _plane_table(mesh, face_plane, face_class)
     return scene
+
+
+def _box_target(box, world: np.ndarray, resolution: float, floor_z: int, share: float) -> TargetVolume:
+    """A target box over the middle `share` of a free box's floor, 1.2 m high from 0.1 m (world frame)."""
+    center = np.array([(box[0] + box[3]) / 2, (box[1] + box[4]) / 2, floor_z + 0.7 / resolution])
+    return TargetVolume(center=world[:3, :3] @ (center * resolution) + world[:3, 3],
+                        size=[share * (box[3] - box[0]) * resolution, share * (box[4] - box[1]) * resolution, 1.2],
+                        rotation=world[:3, :3])
 
 
 def _boundary_faces(solid: np.ndarray):
@@ -224,11 +241,13 @@ def _plane_keys(faces, lattice, axis, sign, cls, behind) -> np.ndarray:
 def _label_planes(lattice, faces, axis, key) -> np.ndarray:
     """Connected components of same-key faces (edge-adjacent in their plane)."""
     groups, group_of = np.unique(key, return_inverse=True)
+    order = np.argsort(group_of, kind="stable")   # faces grouped by key, each group in face order
+    bounds = np.searchsorted(group_of[order], np.arange(len(groups) + 1))
     plane = np.zeros(len(faces), np.int64)
     centre = lattice[faces].mean(axis=1)
     next_id = 0
     for g in range(len(groups)):
-        members = np.flatnonzero(group_of == g)
+        members = order[bounds[g]:bounds[g + 1]]
         a = axis[members[0]]
         uv = np.floor(centre[members][:, [(a + 1) % 3, (a + 2) % 3]]).astype(np.int64)
         uv -= uv.min(axis=0)
@@ -305,13 +324,12 @@ def _plane_table(mesh: Mesh, face_plane, face_class) -> list[GroundTruthPlane]:
     centroids = mesh.face_centroids()
     n = int(face_plane.max()) + 1 if len(face_plane) else 0
     area = np.bincount(face_plane, areas, n)
-    planes = []
-    for pid in range(n):
-        sel = face_plane == pid
-        w = areas[sel]
-        normal = (normals[sel] * w[:, None]).sum(axis=0)
-        normal /= np.linalg.norm(normal)
-        centroid = np.average(centroids[sel], axis=0, weights=w)
-        planes.append(GroundTruthPlane(pid, SemanticClass(int(face_class[sel][0])), normal,
-                                       float(normal @ centroid), float(area[pid]), centroid))
-    return planes
+    # Area-weighted sums per plane in one pass each (a loop over planes is quadratic on a building).
+    normal = np.stack([np.bincount(face_plane, normals[:, k] * areas, n) for k in range(3)], 1)
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    centroid = np.stack([np.bincount(face_plane, centroids[:, k] * areas, n) for k in range(3)], 1) / area[:, None]
+    first = np.full(n, len(face_plane))
+    np.minimum.at(first, face_plane, np.arange(len(face_plane)))
+    return [GroundTruthPlane(pid, SemanticClass(int(face_class[first[pid]])), normal[pid],
+                             float(normal[pid] @ centroid[pid]), float(area[pid]), centroid[pid])
+            for pid in range(n)]

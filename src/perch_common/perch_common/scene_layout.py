@@ -24,13 +24,19 @@ class Layout:
     rooms: list[tuple[int, ...]]      # free boxes (x0, y0, z0, x1, y1, z1), main room first
     floor_z: int
     furniture: list[FurnitureItem] = field(default_factory=list)
+    targets: list[tuple[int, ...]] = field(default_factory=list)   # free boxes to observe (default: main room)
 
 
-def make_layout(kind: str, rng: np.random.Generator, res: float, with_furniture: bool) -> Layout:
+def make_layout(kind: str, rng: np.random.Generator, res: float, with_furniture: bool, clutter: int = 0) -> Layout:
+    """The voxel layout of a scene kind: rooms carved from solid, doorways, furniture, clutter."""
     m = lambda metres: int(round(metres / res))  # noqa: E731 - metres to voxels
     height = m(rng.uniform(2.4, 3.2))
     wall = max(1, m(0.2))
-    if kind == "room":
+    targets: list[tuple[int, int, int, int]] = []
+    furnished = 2
+    if kind == "building":
+        boxes, doorways, targets, furnished = _building_plan(rng, m, wall)
+    elif kind == "room":
         w = rng.uniform(4.5, 7.5)
         boxes = [(0, 0, m(w), m(rng.uniform(20, 60) / w))]
         doorways = []
@@ -61,18 +67,81 @@ def make_layout(kind: str, rng: np.random.Generator, res: float, with_furniture:
     for x0, y0, x1, y1 in doorways:
         solid[x0 + MARGIN:x1 + MARGIN, y0 + MARGIN:y1 + MARGIN, z0:z0 + m(2.1)] = 0
     layout = Layout(res, solid, rooms, z0)
+    layout.targets = [(x0 + MARGIN, y0 + MARGIN, z0, x1 + MARGIN, y1 + MARGIN, z0 + height)
+                      for x0, y0, x1, y1 in targets]
+    blocked = _doorway_mask(shape, doorways, m(0.8))
     if with_furniture:
-        blocked = _doorway_mask(shape, doorways, m(0.8))
-        for room in rooms[:2]:
+        for room in rooms[:furnished]:
             _furnish(rng, layout, room, blocked, m)
+    if clutter:
+        _scatter_clutter(rng, layout, blocked, clutter, m)
     return layout
+
+
+def _building_plan(rng, m, wall: int):
+    """A floor of 8-12 rooms off two crossing corridors (voxels): room and corridor boxes (rooms
+    first, corridors last), a doorway from every room into the corridor it faces, the targets
+    (corridor junction and two rooms) and how many boxes get furniture (the rooms)."""
+    corridor = m(rng.uniform(1.8, 2.4))
+    depth = {side: m(rng.uniform(6.0, 8.0)) for side in ("south", "north")}
+    per_quadrant = {q: int(rng.integers(2, 4)) for q in ("sw", "se", "nw", "ne")}
+    widths = {q: [m(rng.uniform(4.5, 6.5)) for _ in range(n)] for q, n in per_quadrant.items()}
+    span = {q: sum(w) + wall * (len(w) - 1) for q, w in widths.items()}
+    west = max(span["sw"], span["nw"])
+    east = max(span["se"], span["ne"])
+    x_corridor, y_corridor = west + wall, depth["south"] + wall
+    x_max = x_corridor + corridor + wall + east
+    y_max = y_corridor + corridor + wall + depth["north"]
+    rooms, doorways = [], []
+    door = m(0.9)
+    for quadrant, room_widths in widths.items():
+        x = 0 if quadrant[1] == "w" else x_corridor + corridor + wall
+        width_total = west if quadrant[1] == "w" else east
+        y0, y1 = (0, depth["south"]) if quadrant[0] == "s" else (y_corridor + corridor + wall, y_max)
+        for i, w in enumerate(room_widths):
+            if i == len(room_widths) - 1:   # the last room fills the quadrant up to the corridor wall
+                w = (0 if quadrant[1] == "w" else x_corridor + corridor + wall) + width_total - x
+            rooms.append((x, y0, x + w, y1))
+            start = x + int(rng.integers(m(0.4), max(m(0.4) + 1, w - door - m(0.4))))
+            wall_y = (depth["south"], y_corridor) if quadrant[0] == "s" else (y_corridor + corridor, y0)
+            doorways.append((start, wall_y[0], start + door, wall_y[1]))
+            x += w + wall
+    corridors = [(0, y_corridor, x_max, y_corridor + corridor), (x_corridor, 0, x_corridor + corridor, y_max)]
+    junction = (x_corridor, y_corridor, x_corridor + corridor, y_corridor + corridor)
+    chosen = rng.choice(len(rooms), size=2, replace=False)
+    targets = [junction, *(rooms[int(i)] for i in sorted(chosen))]
+    return rooms + corridors, doorways, targets, len(rooms)
+
+
+def _scatter_clutter(rng, layout: Layout, blocked: np.ndarray, count: int, m) -> None:
+    """`count` small boxes (0.2-0.5 m) on the floors, clear of doorways and other items (furniture class)."""
+    footprint = blocked | np.any(layout.solid[:, :, layout.floor_z:layout.floor_z + 1] > 0, axis=2)
+    for _ in range(count):
+        room = layout.rooms[int(rng.integers(len(layout.rooms)))]
+        x0, y0, z0, x1, y1, _ = room
+        size = [max(1, m(rng.uniform(0.2, 0.5))) for _ in range(3)]
+        for _ in range(20):
+            bx = int(rng.integers(x0 + 1, max(x0 + 2, x1 - size[0] - 1)))
+            by = int(rng.integers(y0 + 1, max(y0 + 2, y1 - size[1] - 1)))
+            if footprint[bx - 1:bx + size[0] + 1, by - 1:by + size[1] + 1].any():
+                continue
+            label = STRUCTURE + 1 + len(layout.furniture)
+            layout.solid[bx:bx + size[0], by:by + size[1], z0:z0 + size[2]] = label
+            footprint[bx - 1:bx + size[0] + 1, by - 1:by + size[1] + 1] = True
+            layout.furniture.append(FurnitureItem(
+                "clutter", np.array([bx + size[0] / 2, by + size[1] / 2, z0 + size[2] / 2]),
+                np.array(size, np.float64)))
+            break
 
 
 def _doorway_mask(shape, doorways, clearance: int) -> np.ndarray:
     """Floor cells that must stay free so doorways remain passable."""
     mask = np.zeros(shape[:2], bool)
     for x0, y0, x1, y1 in doorways:
-        mask[max(0, x0 + MARGIN - clearance):x1 + MARGIN + clearance, y0 + MARGIN:y1 + MARGIN] = True
+        if x1 - x0 <= y1 - y0:   # the door passes through a wall across x: keep clear in front along x
+            mask[max(0, x0 + MARGIN - clearance):x1 + MARGIN + clearance, y0 + MARGIN:y1 + MARGIN] = True
+        else:
+            mask[x0 + MARGIN:x1 + MARGIN, max(0, y0 + MARGIN - clearance):y1 + MARGIN + clearance] = True
     return mask
 
 

@@ -1,8 +1,14 @@
-"""The target volume the cameras observe: an oriented box or an extruded footprint (z up)."""
+"""The target volume the cameras observe: an oriented box or an extruded footprint (z up), or the
+union of several boxes (a corridor junction and two rooms).
+
+Several volumes are weighted equally: each gets the same share of the sample points (so of the
+coverage and uncertainty scores) whatever its size, so a small junction counts as much as a large
+room; within one volume the points are uniform.
+"""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -22,6 +28,7 @@ class TargetVolume:
     footprint: np.ndarray | None = None
     base: float = 0.0
     height: float = 0.0
+    parts: list["TargetVolume"] = field(default_factory=list)   # further volumes of a union (boxes)
 
     def __post_init__(self) -> None:
         if self.footprint is None:
@@ -39,7 +46,25 @@ class TargetVolume:
 
     @property
     def is_box(self) -> bool:
+        """An oriented box (the first volume of a union)."""
         return self.footprint is None
+
+    @staticmethod
+    def union(volumes: list["TargetVolume"]) -> "TargetVolume":
+        """Several volumes as one target, each weighted equally; a union of one is that volume."""
+        if not volumes:
+            raise ValueError("a target union needs at least one volume")
+        first, *rest = volumes
+        flat = [v for volume in rest for v in volume.volumes()]
+        return TargetVolume(first.center, first.size, first.rotation, first.footprint, first.base, first.height,
+                            [*first.parts, *flat])
+
+    def volumes(self) -> list["TargetVolume"]:
+        """Each volume of this target (one, unless it is a union)."""
+        if not self.parts:
+            return [self]
+        single = TargetVolume(self.center, self.size, self.rotation, self.footprint, self.base, self.height)
+        return [single, *self.parts]
 
     @staticmethod
     def from_footprint_mesh(mesh: Mesh, height: float) -> "TargetVolume":
@@ -61,12 +86,14 @@ class TargetVolume:
         return TargetVolume(footprint=outline, base=float(mesh.vertices[:, 2].min()), height=float(height))
 
     def bounds(self) -> np.ndarray:
-        """(2,3) axis-aligned bounds."""
+        """(2,3) axis-aligned bounds (of every volume)."""
         c = self.corners()
         return np.stack([c.min(axis=0), c.max(axis=0)])
 
     def corners(self) -> np.ndarray:
-        """Box: its 8 corners. Footprint: outline at base then at top (2K points)."""
+        """Box: its 8 corners. Footprint: outline at base then at top (2K points). Union: all of them."""
+        if self.parts:
+            return np.vstack([v.corners() for v in self.volumes()])
         if self.is_box:
             signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], np.float64)
             return self.center + (signs * self.size / 2) @ self.rotation.T
@@ -75,7 +102,9 @@ class TargetVolume:
         return np.vstack([low, low + [0, 0, self.height]])
 
     def edges(self) -> np.ndarray:
-        """(E,2,3) line segments outlining the volume, for drawing."""
+        """(E,2,3) line segments outlining the volume(s), for drawing."""
+        if self.parts:
+            return np.concatenate([v.edges() for v in self.volumes()])
         c = self.corners()
         if self.is_box:
             pairs = [(a, b) for a in range(8) for b in range(a + 1, 8) if bin(a ^ b).count("1") == 1]
@@ -86,6 +115,9 @@ class TargetVolume:
         return np.array([[c[a], c[b]] for a, b in pairs])
 
     def centroid(self) -> np.ndarray:
+        """Centre of the volume (of a union: the mean of its volumes' centres, equally weighted)."""
+        if self.parts:
+            return np.mean([v.centroid() for v in self.volumes()], axis=0)
         if self.is_box:
             return self.center.copy()
         import shapely
@@ -94,6 +126,9 @@ class TargetVolume:
         return np.array([c.x, c.y, self.base + self.height / 2])
 
     def volume(self) -> float:
+        """Cubic metres (of a union: the sum; the volumes should not overlap)."""
+        if self.parts:
+            return float(sum(v.volume() for v in self.volumes()))
         if self.is_box:
             return float(np.prod(self.size))
         import shapely
@@ -101,7 +136,10 @@ class TargetVolume:
         return float(shapely.Polygon(self.footprint).area * self.height)
 
     def contains(self, points: np.ndarray) -> np.ndarray:
+        """Which points lie in the volume (in any volume of a union)."""
         points = np.asarray(points, np.float64).reshape(-1, 3)
+        if self.parts:
+            return np.logical_or.reduce([v.contains(points) for v in self.volumes()])
         if self.is_box:
             local = (points - self.center) @ self.rotation
             return np.all(np.abs(local) <= self.size / 2 + 1e-9, axis=1)
@@ -114,8 +152,15 @@ class TargetVolume:
     def sample(self, count: int | None = None, seed: int = 0, density: float | None = None) -> np.ndarray:
         """Stratified, seeded samples: one jittered point per cell of a grid over the volume.
 
-        Give `count` (points) or `density` (points per m^3).
+        Give `count` (points) or `density` (points per m^3). A union gives each volume an equal
+        share of `count` (with `density`, each volume its own count).
         """
+        if self.parts:
+            volumes = self.volumes()
+            if count is None:
+                return np.vstack([v.sample(None, seed + i, density) for i, v in enumerate(volumes)])
+            shares = np.full(len(volumes), count // len(volumes)) + (np.arange(len(volumes)) < count % len(volumes))
+            return np.vstack([v.sample(int(n), seed + i) for i, (v, n) in enumerate(zip(volumes, shares)) if n])
         if count is None:
             if density is None:
                 raise ValueError("give count or density")

@@ -35,6 +35,23 @@ def test_domain_ports_follow_the_rtps_port_mapping():
     assert domain_ports(0)[0] == 7400 and domain_ports(1)[0] == 7650 and len(domain_ports(5)) == 250
 
 
+@pytest.mark.ros
+def test_a_running_participant_marks_its_domain_in_use_and_a_free_one_is_found(tmp_path):
+    from perch_common.launch import domains_in_use, free_domain
+    from perch_common.ros.testing import isolated_ros_env
+
+    config = tmp_path / "p.yaml"
+    config.write_text(MESH_TOOLS_CONFIG)
+    env = isolated_ros_env()
+    domain = int(env["ROS_DOMAIN_ID"])
+    graph = GraphProcesses(config, ["perch_mesh_tools"], log_dir=tmp_path / "logs", env=env)
+    with graph:
+        _wait_for_log(tmp_path / "logs" / "perch_mesh_tools.log", "serving /perch/inspect_mesh")
+        assert domain in domains_in_use()
+        other = free_domain()
+        assert other is not None and other != domain and other not in domains_in_use()
+
+
 def test_local_profile_whitelists_loopback_and_network_opens_it():
     local = use_perch_dds({}, network=False)
     assert local["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "SYSTEM_DEFAULT"   # LOCALHOST would replace the transports

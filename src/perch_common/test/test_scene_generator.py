@@ -6,10 +6,13 @@ import trimesh
 
 from perch_common.scene_generator import KINDS, SemanticClass, generate_scene
 
+FLOOR_M2 = {"building": (400, 800)}   # floor plus furniture footprint; others 20-62 m^2
+
 
 @pytest.fixture(scope="module", params=KINDS)
 def scene(request):
-    return generate_scene(7, request.param)
+    # The building at 0.1 m (not its default 0.042 m): the same layout at a tenth of the faces.
+    return generate_scene(7, request.param, resolution=0.1 if request.param == "building" else None)
 
 
 def test_watertight_with_normals_into_free_space(scene):
@@ -39,7 +42,8 @@ def test_realistic_scale(scene):
     areas = scene.mesh.face_areas()
     floor = areas[scene.face_class == SemanticClass.FLOOR].sum()
     furniture_footprint = sum(b.size[0] * b.size[1] for b in scene.furniture)
-    assert 20 <= floor + furniture_footprint <= 62
+    low, high = FLOOR_M2.get(scene.kind, (20, 62))
+    assert low <= floor + furniture_footprint <= high
     ceiling_z = scene.mesh.face_centroids()[scene.face_class == SemanticClass.CEILING][:, 2]
     assert 2.4 - 1e-6 <= np.median(ceiling_z) <= 3.2 + 1e-6
     assert scene.mesh.vertices[:, 2].min() == pytest.approx(0.0)
@@ -96,3 +100,38 @@ def test_target_inside_main_room():
 def test_unknown_kind_rejected():
     with pytest.raises(ValueError, match="unknown scene kind 'castle'"):
         generate_scene(0, "castle")
+
+
+def test_building_floor_at_default_resolution():
+    """8-12 rooms off corridors, 2-3 M faces, every room reachable through its doorway, three targets."""
+    from scipy import ndimage
+
+    from perch_common.scene_generator import DEFAULT_RESOLUTION
+
+    scene = generate_scene(1, "building")
+    assert 2_000_000 <= scene.mesh.num_faces <= 3_000_000
+    grid = scene.free_space
+    assert grid.voxel_size == DEFAULT_RESOLUTION["building"]
+    level = int(round(1.0 / grid.voxel_size)) + 2          # 1 m above the floor (2 voxels of margin)
+    free = ~grid.occupied[:, :, level]
+    _, components = ndimage.label(free)
+    assert components == 1, f"{components} separate free regions at 1 m: a room without a doorway"
+    doorway_level = ~grid.occupied[:, :, int(round(2.3 / grid.voxel_size)) + 2]   # above the 2.1 m doorways
+    _, pieces = ndimage.label(doorway_level)
+    assert 8 + 1 <= pieces <= 12 + 1, pieces   # the rooms, and the two crossing corridors as one piece
+    assert len(scene.furniture) >= 8
+    volumes = scene.target.volumes()
+    assert len(volumes) == 3
+    points = scene.target.sample(300, seed=2)
+    assert len(points) == 300 and scene.target.contains(points).all()
+    for volume in volumes:   # equal weighting: each volume gets a third of the points
+        assert volume.contains(points).sum() == pytest.approx(100, abs=2)
+    assert scene.free_space.is_free(points).mean() > 0.9
+
+
+def test_building_clutter_adds_small_furniture():
+    bare = generate_scene(2, "building", resolution=0.1)
+    cluttered = generate_scene(2, "building", resolution=0.1, clutter=30)
+    added = [f for f in cluttered.furniture if f.kind == "clutter"]
+    assert 20 <= len(added) <= 30 and len(cluttered.furniture) == len(bare.furniture) + len(added)
+    assert all(np.all(f.size <= 0.5 + 1e-9) for f in added)

@@ -25,8 +25,8 @@ def register_plan(sub) -> None:
     p.add_argument("--kind", default="apartment", help="generated scene kind (room, l_shaped, two_rooms, apartment)")
     p.add_argument("--target", default=None, metavar="SPEC",
                    help="floor (the cropped floor area, default for --mesh/--bag) | "
-                        "box:CX,CY,CZ,SX,SY,SZ[,YAW_DEG] | FOOTPRINT_MESH[:HEIGHT] (extruded, default 1.2 m); "
-                        "--scene defaults to the scene's own target")
+                        "box:CX,CY,CZ,SX,SY,SZ[,YAW_DEG] | several boxes joined by '+' (each weighted equally) | "
+                        "FOOTPRINT_MESH[:HEIGHT] (extruded, default 1.2 m); --scene defaults to the scene's own target")
     p.add_argument("--cameras", type=non_negative_int, default=0,
                    help="number of cameras (0: the placement node's default)")
     p.add_argument("--scale", type=positive_float, default=1.0,
@@ -94,6 +94,23 @@ def _common(p) -> None:
     add_graph_arguments(p, "one-process")
 
 
+def _box_target(part: str, spec: str):
+    """One `box:CX,CY,CZ,SX,SY,SZ[,YAW_DEG]` of a --target spec."""
+    from perch_common.target import TargetVolume
+
+    if not part.startswith("box:"):
+        raise ValueError(f"--target {spec}: several volumes are joined with '+' and each is a box:... ({part!r})")
+    try:
+        values = [float(v) for v in part[4:].split(",")]
+    except ValueError:
+        raise ValueError(f"--target {spec}: numbers expected after box:") from None
+    if len(values) not in (6, 7):
+        raise ValueError(f"--target {spec}: give CX,CY,CZ,SX,SY,SZ and optionally YAW_DEG per box")
+    yaw = math.radians(values[6]) if len(values) == 7 else 0.0
+    rotation = np.array([[math.cos(yaw), -math.sin(yaw), 0], [math.sin(yaw), math.cos(yaw), 0], [0, 0, 1]])
+    return TargetVolume(center=values[:3], size=values[3:6], rotation=rotation)
+
+
 def parse_target(spec: str | None):
     """The TargetVolume message for --target (None: the scene's / crop's default)."""
     from perch_common.mesh import load_mesh
@@ -104,15 +121,8 @@ def parse_target(spec: str | None):
     if spec is None or spec == "floor":
         return pm.TargetVolume(kind=pm.TargetVolume.KIND_DEFAULT)
     if spec.startswith("box:"):
-        try:
-            values = [float(v) for v in spec[4:].split(",")]
-        except ValueError:
-            raise ValueError(f"--target {spec}: numbers expected after box:") from None
-        if len(values) not in (6, 7):
-            raise ValueError(f"--target {spec}: give CX,CY,CZ,SX,SY,SZ and optionally YAW_DEG")
-        yaw = math.radians(values[6]) if len(values) == 7 else 0.0
-        rotation = np.array([[math.cos(yaw), -math.sin(yaw), 0], [math.sin(yaw), math.cos(yaw), 0], [0, 0, 1]])
-        return target_to_msg(TargetVolume(center=values[:3], size=values[3:6], rotation=rotation))
+        boxes = [_box_target(part, spec) for part in spec.split("+")]
+        return target_to_msg(TargetVolume.union(boxes))
     path, height = spec, 1.2
     head, sep, tail = spec.rpartition(":")
     if sep and tail.replace(".", "", 1).isdigit():

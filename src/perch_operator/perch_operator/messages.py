@@ -75,7 +75,7 @@ def target_to_aligned(target: pm.TargetVolume, alignment: Alignment) -> pm.Targe
         return target
     out = pm.TargetVolume(kind=target.kind, height=target.height)
     if target.kind == pm.TargetVolume.KIND_BOX:
-        out.box = boxes_to_aligned([target.box], alignment)[0]
+        out.box, *out.more_boxes = boxes_to_aligned([target.box, *target.more_boxes], alignment)
     elif target.kind == pm.TargetVolume.KIND_EXTRUDED_FOOTPRINT:
         footprint = mesh_from_msg(target.footprint, "target footprint").transformed(alignment.to_aligned())
         footprint.frame_id = alignment.aligned_frame

@@ -229,8 +229,20 @@ def removal_from_msg(msg: pm.FilterRemoval) -> FilterRemoval:
 
 # --- target, placements ------------------------------------------------------------------------
 
+def _box_msg(target: TargetVolume) -> pm.OrientedBox:
+    pose = np.eye(4)
+    pose[:3, :3], pose[:3, 3] = target.rotation, target.center
+    return pm.OrientedBox(pose=pose_msg(pose), size=vector_msg(target.size))
+
+
 def target_to_msg(target: TargetVolume) -> pm.TargetVolume:
+    """The target as its message; a union of boxes is `box` plus `more_boxes`."""
     msg = pm.TargetVolume()
+    if target.parts:
+        if not all(v.is_box for v in target.volumes()):
+            raise ValueError("a target of several volumes travels as boxes only; give every volume as a box")
+        first, *rest = target.volumes()
+        return pm.TargetVolume(kind=pm.TargetVolume.KIND_BOX, box=_box_msg(first), more_boxes=[_box_msg(v) for v in rest])
     if target.is_box:
         msg.kind = pm.TargetVolume.KIND_BOX
         pose = np.eye(4)
@@ -261,8 +273,8 @@ def target_from_msg(msg: pm.TargetVolume) -> TargetVolume | None:
     if msg.kind == pm.TargetVolume.KIND_DEFAULT:
         return None
     if msg.kind == pm.TargetVolume.KIND_BOX:
-        center, size, rotation = box_from_msg(msg.box)
-        return TargetVolume(center=center, size=size, rotation=rotation)
+        boxes = [box_from_msg(b) for b in [msg.box, *msg.more_boxes]]
+        return TargetVolume.union([TargetVolume(center=c, size=s, rotation=r) for c, s, r in boxes])
     if msg.kind == pm.TargetVolume.KIND_EXTRUDED_FOOTPRINT:
         return TargetVolume.from_footprint_mesh(mesh_from_msg(msg.footprint, "target footprint"), msg.height)
     raise ValueError(f"target volume: unknown kind {msg.kind}")
