@@ -146,11 +146,12 @@ def _raster_filters(surface: Surface, mesh: Mesh, samples, index: SampleIndex, u
         return _Work(surface, None, None, removal)
     spacing = samples.spacing
     roughness = _roughness(surface, mesh)
-    depth_tol = config.plane_tolerance + 2.0 * roughness
+    # Other geometry beyond plane_tolerance is not the perch surface (support asks the same of the
+    # window), however rough the whole surface is: it blocks the approach and the fall.
     lookahead = config.lookahead
     margin = max(prism_half, lookahead) + spacing + 2 * config.cell
-    near = geometry_in_front(samples, index, raster, surface.face_indices, up, depth_tol, lookahead + spacing,
-                             margin)
+    near = geometry_in_front(samples, index, raster, surface.face_indices, up, config.plane_tolerance,
+                             lookahead + spacing, margin)
     fall = free_fall(raster, near, up, floor_height, lookahead, config.drone_radius, spacing,
                      surface.surface_class)
     fall_ok = fall >= config.min_recovery_height

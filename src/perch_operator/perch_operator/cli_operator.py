@@ -121,8 +121,16 @@ def _proposal_line(p) -> str:
 
     pos = p.placement.drone_pose.position
     return (f"proposal {p.id:>4}  drone {p.placement.drone_index}  {Status(p.status).name.lower():<8} "
-            f"at ({pos.x:.2f}, {pos.y:.2f}, {pos.z:.2f}) m  gain {p.placement.marginal_gain:.4f}"
-            + (f"  ({p.reason})" if p.reason else ""))
+            f"at ({pos.x:.2f}, {pos.y:.2f}, {pos.z:.2f}) m  gain {p.placement.marginal_gain:.4f}  "
+            f"{evidence_text(p.evidence)}" + (f"  ({p.reason})" if p.reason else ""))
+
+
+def evidence_text(e) -> str:
+    """'approach >= 1.00 m, fall >= 0.80 m, support 93 %, flat 1.2 cm' (the region's worst values)."""
+    if e.support_share < 0:
+        return "evidence not measured"
+    return (f"approach {e.approach_clearance:.2f} m, fall {e.free_fall:.2f} m, "
+            f"support {100 * e.support_share:.0f} %, flat {100 * e.flatness_rms:.1f} cm")
 
 
 def _list(args) -> int:

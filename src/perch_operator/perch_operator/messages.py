@@ -10,8 +10,17 @@ from __future__ import annotations
 from geometry_msgs.msg import PoseArray, PoseStamped
 
 from perch_common.frames import Alignment
-from perch_common.ros.conversions import box_from_msg, mesh_from_msg, mesh_to_msg, placement_to_msg, point_msg, pose_msg
+from perch_common.ros.conversions import (
+    box_from_msg,
+    evidence_to_msg,
+    mesh_from_msg,
+    mesh_to_msg,
+    placement_to_msg,
+    point_msg,
+    pose_msg,
+)
 from perch_common.transforms import pose_to_matrix
+from perch_common.types import PerchEvidence
 from perch_interfaces import msg as pm
 from perch_operator.crop import Box
 from perch_operator.proposals import Proposal, approach_point
@@ -25,10 +34,13 @@ def box_from_ros(msg: pm.OrientedBox, what: str) -> Box:
         raise ValueError(f"{what}: {exc}") from None
 
 
-def proposal_msg(proposal: Proposal, alignment: Alignment) -> pm.Proposal:
-    """A proposal as published, its placement in the input frame."""
+def proposal_msg(proposal: Proposal, alignment: Alignment, regions=()) -> pm.Proposal:
+    """A proposal as published, its placement in the input frame, with the safety evidence of its
+    perch region (one of `regions`, PerchRegion messages; -1 values when it is not among them)."""
+    region = next((r for r in regions if r.id == proposal.placement.region_id), None)
     return pm.Proposal(id=proposal.id, status=int(proposal.status), reason=proposal.reason,
-                       placement=placement_msg(proposal, alignment))
+                       placement=placement_msg(proposal, alignment),
+                       evidence=region.evidence if region is not None else evidence_to_msg(PerchEvidence()))
 
 
 def placement_msg(proposal: Proposal, alignment: Alignment) -> pm.CameraPlacement:

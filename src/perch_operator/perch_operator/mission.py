@@ -125,6 +125,8 @@ class Mission:
         optimised = self._call("optimise", request)
         if not optimised.placements:
             raise ValueError(f"optimise placed no camera: {optimised.message}")
+        if not optimised.message.startswith("placed "):  # the reply opens with its shortfall sentence
+            self.notes.append(optimised.message.split(". placed ")[0])
         operator = Operator(ProposalBook(self.options.exclusion_radius, self.first_proposal_id), request,
                             self.options.auto_accept or goal.auto_accept, self.alignment,
                             (optimised.fitness, optimised.coverage, optimised.mean_uncertainty))

@@ -199,7 +199,7 @@ class OperatorNode(Node):
                     if operator.auto_accept:
                         replacement = operator.book.decide(replacement.id, Decision.ACCEPT, "auto_accept policy")
                         self._publish_proposal(replacement)
-                    response.replacement = proposal_msg(replacement, operator.alignment)
+                    response.replacement = proposal_msg(replacement, operator.alignment, operator.optimise_request.regions)
                     response.message += (f"; replacement proposal {replacement.id} for drone {replacement.slot} "
                                          f"in {operator.replan_seconds[-1]:.2f} s")
         except (ProposalError, ValueError) as exc:
@@ -224,7 +224,7 @@ class OperatorNode(Node):
     def _publish_proposal(self, proposal: Proposal) -> None:
         # Proposals exist only once optimise has run, so the mission's operator (and its alignment) is set.
         alignment = self.operator.alignment
-        self.proposals_pub.publish(proposal_msg(proposal, alignment))
+        self.proposals_pub.publish(proposal_msg(proposal, alignment, self.operator.optimise_request.regions))
         if proposal.status == Status.ACCEPTED:
             self.waypoints_pub.publish(self._waypoint(proposal))
             stamp = self.get_clock().now().to_msg()

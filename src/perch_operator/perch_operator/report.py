@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from perch_common.conventions import FILTER_COLOURS, FILTER_NAMES
 from perch_operator.mission_data import MissionData, latest_waypoints
 
 STYLE = """
@@ -34,7 +35,66 @@ def summary_rows(data: MissionData) -> list[tuple[str, str]]:
         rows.insert(0, ("mesh faces", f"{data.mesh.num_faces:,}"))
     if data.target is not None:
         rows.append(("target volume", f"{data.target.volume():.2f} m³"))
+    if s.get("message"):
+        rows.append(("answer", str(s["message"])))  # with the shortfall sentence when cameras are missing
     return rows
+
+
+LARGEST_SURFACES = 8
+
+
+def removal_rows(data: MissionData, count: int = LARGEST_SURFACES) -> list[tuple]:
+    """Per largest surface: class, area, the area each filter removed and the area kept (m²)."""
+    removal = {r.surface_id: r for r in data.removals}
+    rows = []
+    for s in sorted(data.surfaces, key=lambda s: -s.area)[:count]:
+        r = removal.get(s.id)
+        if r is not None:
+            rows.append((str(s.id), s.surface_class.name.lower(), f"{r.area_total:.2f}",
+                         *(f"{getattr(r, n):.2f}" for n in FILTER_NAMES), f"{r.area_kept:.2f}"))
+    return rows
+
+
+def removal_picture(data: MissionData, count: int = LARGEST_SURFACES) -> np.ndarray:
+    """Stacked bars (BGR image), one per largest surface: its area coloured by the filter that removed
+    it (FILTER_COLOURS) and green for the area kept."""
+    import cv2
+
+    removal = {r.surface_id: r for r in data.removals}
+    bars = [(s, removal[s.id]) for s in sorted(data.surfaces, key=lambda s: -s.area)[:count] if s.id in removal]
+    width, bar, gap, left = 1000, 26, 10, 150
+    legend = 30
+    image = np.full((legend + len(bars) * (bar + gap) + gap, width, 3), 255, np.uint8)
+    scale = (width - left - 20) / max([r.area_total for _, r in bars] + [1e-9])
+    x = 10
+    for name, colour in [*zip(FILTER_NAMES, FILTER_COLOURS), ("kept", KEPT_COLOUR)]:
+        cv2.rectangle(image, (x, 8), (x + 14, 22), colour[::-1], -1)
+        cv2.putText(image, name, (x + 18, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
+        x += 24 + 8 * len(name)
+    for k, (s, r) in enumerate(bars):
+        y = legend + gap + k * (bar + gap)
+        cv2.putText(image, f"{s.id} {s.surface_class.name.lower()} {r.area_total:.1f} m2", (8, y + 18),
+                    cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+        x0 = float(left)
+        for value, colour in [*((getattr(r, n), c) for n, c in zip(FILTER_NAMES, FILTER_COLOURS)),
+                              (r.area_kept, KEPT_COLOUR)]:
+            x1 = x0 + value * scale
+            if x1 - x0 >= 0.5:
+                cv2.rectangle(image, (int(round(x0)), y), (int(round(x1)), y + bar), colour[::-1], -1)
+            x0 = x1
+    return image
+
+
+KEPT_COLOUR = (60, 180, 75)
+
+
+def _evidence_cells(data: MissionData, p) -> tuple:
+    """The safety evidence of a placement's perch region (its worst cell's values)."""
+    region = next((r for r in data.regions if r.id == p.region_id), None)
+    e = region.evidence if region is not None else None
+    if e is None or e.support_share < 0:
+        return ("–",) * 4
+    return (f"{e.approach_clearance:.2f}", f"{e.free_fall:.2f}", _pct(e.support_share), f"{100 * e.flatness_rms:.1f}")
 
 
 def _pct(value) -> str:
@@ -74,8 +134,17 @@ def write_report(data: MissionData, out_dir: str | Path, title: str = "Perch mis
               "their viewing direction; red: rejected perches with their exclusion radius.</p>",
               "<img src='report_files/overview.png' alt='overview from above'>",
               "<h2>Cameras</h2>", _table(
-                  ["drone", "region", "x (m)", "y (m)", "z (m)", "pan (°)", "tilt (°)", "gain", "coverage"],
-                  [_camera_row(p) for p in data.placements])]
+                  ["drone", "region", "x (m)", "y (m)", "z (m)", "pan (°)", "tilt (°)", "gain", "coverage",
+                   "approach (m)", "free fall (m)", "support", "flatness (cm)"],
+                  [(*_camera_row(p), *_evidence_cells(data, p)) for p in data.placements]),
+              "<p>Safety evidence: the worst values over the perch's region. Approach: free depth of the approach "
+              "prism; free fall below the window; support: share of the window on scanned surface; flatness: RMS "
+              "distance of that surface to the perch plane. Distances saturate at twice the required values.</p>"]
+    if data.removals:
+        cv2.imwrite(str(files / "removed_by_filter.png"), removal_picture(data))
+        parts += ["<h2>Area removed by each filter (largest surfaces, m²)</h2>", _table(
+            ["surface", "class", "area", *FILTER_NAMES, "kept"], removal_rows(data)),
+            "<img src='report_files/removed_by_filter.png' alt='area removed by each filter'>"]
     if views:
         parts.append("<div class='views'>")
         for i, p in enumerate(data.placements[:len(views)]):

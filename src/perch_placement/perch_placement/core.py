@@ -22,6 +22,7 @@ from perch_common.types import CameraPlacement, ExclusionZone, PerchRegion
 from perch_placement.cache import PlacementCache, mesh_digest
 from perch_placement.config import PlacementConfig
 from perch_placement.fitness import Evaluator, placement_cameras
+from perch_placement.shortfall import shortfall_sentence
 from perch_placement.perches import Perch, Perches
 from perch_placement.search import METHODS, SearchContext
 
@@ -93,7 +94,9 @@ def optimise(mesh: Mesh, regions: list[PerchRegion], target: TargetVolume, num_c
     seconds = time.perf_counter() - start
     return PlacementResult(placements, float(score.fitness), float(score.coverage),
                            float(score.mean_uncertainty), bound, evaluator.evaluations, seconds,
-                           _message(method, num_cameras, placements, score, bound, reason),
+                           _message(method, num_cameras, placements, score, bound,
+                                    shortfall_sentence(regions, num_cameras, len(placements),
+                                                       cfg.drone.min_spacing, reason) or reason),
                            evaluator.ray_tests, evaluator.candidate_evaluations, points,
                            time.process_time() - cpu_start)
 
@@ -134,10 +137,10 @@ def _matrix(rotation: np.ndarray, position: np.ndarray) -> np.ndarray:
     return m
 
 
-def _message(method: str, asked: int, placements: list, score, bound: float, reason: str) -> str:
-    text = f"placed {len(placements)} of {asked} camera(s) with {method}"
-    if reason:
-        text += f": {reason}"
+def _message(method: str, asked: int, placements: list, score, bound: float, shortfall: str) -> str:
+    """The reply's message: the shortfall sentence first when cameras are missing, then the scores."""
+    text = f"{shortfall}. " if shortfall and len(placements) < asked else ""
+    text += f"placed {len(placements)} of {asked} camera(s) with {method}"
     text += f"; fitness {float(score.fitness):.4f}, coverage {100 * float(score.coverage):.1f} %"
     if np.isfinite(bound) and bound > 0:
         text += (f"; greedy online bound {bound:.4f} on the candidate set: fitness is "
