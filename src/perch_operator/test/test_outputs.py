@@ -104,3 +104,46 @@ def test_target_spec_parsing(tmp_path):
     assert box.box.pose.orientation.z == pytest.approx(np.sqrt(0.5))
     with pytest.raises(ValueError, match="CX,CY,CZ,SX,SY,SZ"):
         parse_target("box:1,2,3")
+
+
+def test_report_explains_removals_evidence_and_shortfall(mission, tmp_path):
+    from perch_common.conventions import FILTER_COLOURS, FILTER_NAMES
+    from perch_common.types import FilterRemoval, PerchEvidence, PerchRegion, PlaneFrame, Surface, SurfaceClass
+    from perch_operator.report import removal_picture, write_report
+
+    frame = PlaneFrame.from_normal(np.array([2.0, 1.5, 2.5]), np.array([0, 0, -1.0]), np.array([0, 0, 1.0]))
+    mission.surfaces = [Surface(id=k, surface_class=SurfaceClass.CEILING if k == 0 else SurfaceClass.WALL,
+                                frame=frame, area=a, rms_distance=0.01, mean_color=np.zeros(3),
+                                face_indices=np.zeros(0, np.int64), boundary=[])
+                        for k, a in enumerate([12.0, 8.0])]
+    mission.removals = [FilterRemoval(0, 12.0, recovery_height=4.0, support=6.0, area_kept=2.0),
+                        FilterRemoval(1, 8.0, obstacle_clearance=8.0)]
+    mission.regions = [PerchRegion(0, 0, SurfaceClass.CEILING, frame, [], mission.mesh, 2.0,
+                                   PerchEvidence(0.83, 0.61, 0.925, 0.0123))]
+    mission.summary["message"] = "2 perch(es) accepted; 2 of 5 cameras: the only perch region, 2.00 m^2, holds 2 drone(s)"
+    text = write_report(mission, tmp_path).read_text()
+    assert "2 of 5 cameras: the only perch region, 2.00 m^2" in text
+    # Evidence of each camera's region: approach, free fall, support, flatness.
+    assert "<td>0.83</td><td>0.61</td><td>92.5 %</td><td>1.2</td>" in text
+    # The removal table, largest surface first, in filter order.
+    row = "<tr><td class='l'>0</td><td>ceiling</td><td>12.00</td>" + "".join(
+        f"<td>{ {'recovery_height': 4.0, 'support': 6.0}.get(n, 0.0):.2f}</td>" for n in FILTER_NAMES) + "<td>2.00</td>"
+    assert row in text
+    # The picture: the wall's bar is all obstacle_clearance colour, the ceiling's shows support's colour.
+    image = removal_picture(mission)
+    assert (tmp_path / "report_files" / "removed_by_filter.png").stat().st_size > 1000
+    for name in ("support", "recovery_height", "obstacle_clearance"):
+        colour = np.array(FILTER_COLOURS[FILTER_NAMES.index(name)][::-1], np.uint8)
+        assert (image == colour).all(axis=-1).sum() > 500, name
+
+
+def test_operator_list_line_shows_the_safety_evidence():
+    from perch_interfaces.msg import PerchEvidence, Proposal
+    from perch_operator.cli_operator import _proposal_line
+
+    p = Proposal(id=7, evidence=PerchEvidence(approach_clearance=1.0, free_fall=0.62, support_share=0.94,
+                                              flatness_rms=0.011))
+    line = _proposal_line(p)
+    assert "approach 1.00 m, fall 0.62 m, support 94 %, flat 1.1 cm" in line
+    assert "evidence not measured" in _proposal_line(Proposal(id=8, evidence=PerchEvidence(
+        approach_clearance=-1.0, free_fall=-1.0, support_share=-1.0, flatness_rms=-1.0)))

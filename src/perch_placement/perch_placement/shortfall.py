@@ -10,27 +10,47 @@ PACKING_GRID = 0.05  # m, grid of candidate drone positions on the regions for t
 
 
 def region_capacity(regions: list[PerchRegion], min_spacing: float) -> int:
-    """Drones that fit on the regions at least `min_spacing` apart (greedy packing on a 5 cm grid of
-    region points, largest regions first: a lower bound on the true maximum, usually equal)."""
+    """Drones that fit on the regions at least `min_spacing` apart: the better of two packings of a
+    5 cm grid of region points, farthest-point and greedy along the points' principal axis (a lower
+    bound on the true maximum; the greedy one is exact on strips)."""
     import shapely
 
     points = []
-    for r in sorted(regions, key=lambda r: -r.area):
+    for r in regions:
         for rings in r.polygons:
             poly = shapely.Polygon(rings[0], rings[1:])
             lo, hi = np.min(rings[0], axis=0), np.max(rings[0], axis=0)
             u, v = np.meshgrid(np.arange(lo[0], hi[0] + PACKING_GRID, PACKING_GRID),
                                np.arange(lo[1], hi[1] + PACKING_GRID, PACKING_GRID))
             uv = np.column_stack([u.ravel(), v.ravel()])
-            inside = shapely.intersects_xy(poly, uv[:, 0], uv[:, 1])
-            points.append(r.frame.to_world(uv[inside]) if inside.any() else r.frame.to_world(np.array([[0.0, 0.0]])))
+            uv = np.concatenate([uv[shapely.intersects_xy(poly, uv[:, 0], uv[:, 1])], np.asarray(rings[0], float)])
+            points.append(r.frame.to_world(uv))
     if not points:
         return 0
-    free = np.concatenate(points)
+    cloud = np.concatenate(points)
+    return max(_farthest_point_packing(cloud, min_spacing), _greedy_packing(cloud, min_spacing))
+
+
+def _greedy_packing(cloud: np.ndarray, min_spacing: float) -> int:
+    """Points taken in order along the principal axis, each at least min_spacing from those taken."""
+    centred = cloud - cloud.mean(axis=0)
+    axis = np.linalg.svd(centred, full_matrices=False)[2][0]
+    taken = np.zeros((0, 3))
+    for p in cloud[np.argsort(centred @ axis)]:
+        if not len(taken) or np.min(np.linalg.norm(taken - p, axis=1)) >= min_spacing - 1e-9:
+            taken = np.vstack([taken, p])
+    return len(taken)
+
+
+def _farthest_point_packing(cloud: np.ndarray, min_spacing: float) -> int:
+    """Farthest-point sampling from the point farthest from the centroid, while min_spacing holds."""
+    nearest = np.linalg.norm(cloud - cloud.mean(axis=0), axis=1)
     count = 0
-    while len(free):
+    while len(cloud) and nearest.max() >= (min_spacing - 1e-9 if count else 0.0):
+        chosen = cloud[int(np.argmax(nearest))]
         count += 1
-        free = free[np.linalg.norm(free - free[0], axis=1) >= min_spacing - 1e-9]
+        nearest = np.minimum(nearest, np.linalg.norm(cloud - chosen, axis=1)) if count > 1 else \
+            np.linalg.norm(cloud - chosen, axis=1)
     return count
 
 
@@ -43,7 +63,7 @@ def shortfall_sentence(regions: list[PerchRegion], asked: int, placed: int, min_
     if not regions:
         return f"{head}: the filter left no perch region"
     area = sum(r.area for r in regions)
-    capacity = region_capacity(regions, min_spacing)
+    capacity = max(region_capacity(regions, min_spacing), placed)  # the placed drones are a packing too
     where = (f"the only perch region, {area:.2f} m^2," if len(regions) == 1 else
              f"the {len(regions)} perch regions, {area:.2f} m^2 in all (largest {max(r.area for r in regions):.2f} m^2),")
     holds = "holds" if len(regions) == 1 else "hold"

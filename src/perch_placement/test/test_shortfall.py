@@ -1,0 +1,38 @@
+"""The shortfall sentence: why fewer cameras than asked, with the region area and its capacity."""
+
+import numpy as np
+import pytest
+
+from perch_common.mesh import Mesh
+from perch_common.types import PerchRegion, PlaneFrame, SurfaceClass
+from perch_placement.shortfall import region_capacity, shortfall_sentence
+
+
+def ceiling_strip(length: float, width: float, x0: float = 0.0) -> PerchRegion:
+    """A length x width ceiling region at 2.5 m."""
+    frame = PlaneFrame.from_normal(np.array([x0, 0.0, 2.5]), np.array([0, 0, -1.0]), np.array([0, 0, 1.0]))
+    ring = np.array([[0, 0], [length, 0], [length, width], [0, width]], float)
+    return PerchRegion(0, 0, SurfaceClass.CEILING, frame, [[ring]], Mesh(np.eye(3), np.array([[0, 1, 2]])),
+                       length * width)
+
+
+@pytest.mark.parametrize("length,drones", [(0.5, 1), (0.95, 1), (0.99, 2), (1.0, 2), (1.5, 2), (2.0, 3), (3.05, 4)])
+def test_capacity_of_a_strip(length, drones):
+    """A 0.2 m wide strip: drones 1 m apart along it (its diagonal counts: 0.99 x 0.2 m holds two)."""
+    assert region_capacity([ceiling_strip(length, 0.2)], 1.0) == drones
+
+
+def test_capacity_of_a_square_and_of_two_regions():
+    assert region_capacity([ceiling_strip(2.0, 2.0)], 1.0) == 9  # a 3 x 3 lattice, corners included
+    assert region_capacity([ceiling_strip(0.3, 0.3), ceiling_strip(0.3, 0.3, x0=5.0)], 1.0) == 2
+
+
+def test_sentence_names_area_capacity_and_spacing():
+    one = ceiling_strip(2.05, 0.4)
+    assert shortfall_sentence([one], 5, 3, 1.0) == "3 of 5 cameras: the only perch region, 0.82 m^2, holds 3 drone(s) 1 m apart"
+    two = [ceiling_strip(4.0, 0.5), ceiling_strip(0.5, 0.5, x0=9.0)]
+    text = shortfall_sentence(two, 5, 2, 1.0, "no feasible perch adds fitness")
+    assert text.startswith("2 of 5 cameras: the 2 perch regions, 2.25 m^2 in all (largest 2.00 m^2), hold 6 drones 1 m apart")
+    assert text.endswith("but no further perch adds fitness (no feasible perch adds fitness)")
+    assert shortfall_sentence([one], 3, 3, 1.0) == ""
+    assert shortfall_sentence([], 2, 0, 1.0) == "0 of 2 cameras: the filter left no perch region"
