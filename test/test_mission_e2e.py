@@ -106,6 +106,32 @@ def test_recording_holds_every_stage_call_and_replays_clean(graph, recorded):
     assert all(o.ok for o in outcomes), out.getvalue()
 
 
+def test_recording_decodes_with_rosbags_and_foxglove_and_keeps_rosbag2_metadata(graph, recorded):
+    import yaml
+    from mcap.reader import make_reader
+    from rosbags.rosbag2.metadata import parse_qos
+
+    from perch_common.bag_check import DecoderUnavailable, foxglove_counts, rosbags_counts
+    from perch_operator.runfile import channel_counts
+
+    counts = channel_counts(recorded.mcap)
+    assert any(t.endswith("/_service_event") for t in counts) and "/perch/plan_perches/_action/feedback" in counts
+    # Every message, service events and action feedback included, decodes from the file's own schemas.
+    assert rosbags_counts(recorded.mcap) == {t: (n, n) for t, n in counts.items()}
+    with open(recorded.mcap, "rb") as f:
+        reader = make_reader(f)
+        described = yaml.safe_load({r.name: r.metadata for r in reader.iter_metadata()}["rosbag2"]["serialized_metadata"])
+        qos = {c.topic: parse_qos(c.metadata["offered_qos_profiles"]) for c in reader.get_summary().channels.values()}
+    assert described["version"] == 9 and described["message_count"] == sum(counts.values())
+    assert {t["topic_metadata"]["name"]: t["message_count"] for t in described["topics_with_message_count"]} == counts
+    # `ros2 bag play` re-offers the waypoints transient local, as the operator publishes them.
+    assert {q.durability.name for q in qos["/perch/waypoints"]} == {"TRANSIENT_LOCAL"}
+    try:
+        assert foxglove_counts(recorded.mcap) == {t: (n, n) for t, n in counts.items()}
+    except DecoderUnavailable as exc:
+        pytest.skip(f"Foxglove's decoders not run: {exc} (rosbags decoded every message)")
+
+
 def test_replay_check_fails_after_a_parameter_change(graph, recorded, restart_with):
     from perch_operator.replay import replay
 

@@ -1,10 +1,11 @@
 """Record a mission to one MCAP file: every /perch topic, /tf_static and the stage services' introspection events.
 
-Messages are written as received (serialized CDR, no re-encoding) with ros2msg schemas, so
-standard MCAP tools list and decode them. The recorder lives in the client's process and
-subscribes before the goal is sent and waits until the coordinator's topics and the stage event
-topics are matched (`wait_matched`); it records what is published from then on. Outputs do not
-depend on it: they come from the mission result.
+Messages are written as received (serialized CDR, no re-encoding) with ros2msg schemas generated
+by rosbags, each channel with its publishers' QoS (`offered_qos_profiles`) and the file with
+rosbag2's metadata record, so rosbag2, rosbags and Foxglove list, decode and replay them. The
+recorder lives in the client's process and subscribes before the goal is sent and waits until the
+coordinator's topics and the stage event topics are matched (`wait_matched`); it records what is
+published from then on. Outputs do not depend on it: they come from the mission result.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from pathlib import Path
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from perch_common.conventions import CONFIRM_SERVICE
+from perch_common.ros import bag_format
 from perch_common.ros.msgdefs import full_definition, message_class
 from perch_common.ros.static_transforms import TF_STATIC_TOPIC
 from perch_operator.stages import STAGES
@@ -61,6 +63,10 @@ class MissionRecorder:
         self._schemas: dict[str, int] = {}
         self._subs: dict[str, object] = {}
         self.counts: dict[str, int] = {}
+        self._types: dict[str, str] = {}
+        self._profiles: dict[str, list] = {}
+        self._first_ns: int | None = None
+        self._last_ns = 0
         self._closed = False
 
     def refresh(self) -> None:
@@ -83,6 +89,10 @@ class MissionRecorder:
         self._subs[topic] = self.node.create_subscription(
             msg_class, topic, lambda data, t=topic, n=type_name: self._write(t, n, data), qos, raw=True)
 
+    def _offered_profiles(self, topic: str) -> list:
+        """The QoS of the topic's publishers now, as rosbags profiles (for `ros2 bag play`)."""
+        return [qos_from_rclpy(i.qos_profile) for i in self.node.get_publishers_info_by_topic(topic)]
+
     def _reliability(self, topic: str) -> ReliabilityPolicy:
         """Reliable unless a publisher is best-effort (a reliable reader would not match it)."""
         infos = self.node.get_publishers_info_by_topic(topic)
@@ -97,9 +107,14 @@ class MissionRecorder:
             if type_name not in self._schemas:
                 self._schemas[type_name] = self._writer.register_schema(
                     name=type_name, encoding="ros2msg", data=full_definition(type_name).encode())
+            self._profiles[topic] = self._offered_profiles(topic)
+            self._types[topic] = type_name
             self._channels[topic] = self._writer.register_channel(
-                topic=topic, message_encoding="cdr", schema_id=self._schemas[type_name])
+                topic=topic, message_encoding="cdr", schema_id=self._schemas[type_name],
+                metadata=bag_format.channel_metadata(self._profiles[topic]))
         now = time.time_ns()
+        self._first_ns = now if self._first_ns is None else self._first_ns
+        self._last_ns = now
         self._writer.add_message(channel_id=self._channels[topic], log_time=now, publish_time=now,
                                  data=bytes(data), sequence=self.counts.get(topic, 0))
         self.counts[topic] = self.counts.get(topic, 0) + 1
@@ -128,8 +143,25 @@ class MissionRecorder:
         if not self._closed:
             self._closed = True
             self._writer.add_metadata(GRAPH_METADATA, {"namespace": self.namespace})
+            bag_format.add_rosbag2_metadata(
+                self._writer, [bag_format.TopicRecord(topic, self._types[topic], self._profiles[topic], count)
+                               for topic, count in self.counts.items()],
+                self._first_ns or 0, self._last_ns, self.path.name)
             for sub in self._subs.values():
                 self.node.destroy_subscription(sub)
             self._writer.finish()
             self._file.close()
         return self.path
+
+
+def qos_from_rclpy(profile):
+    """An rclpy QoSProfile as a rosbags Qos (the enums share rmw's numbering)."""
+    from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
+
+    def span(duration) -> QosTime:
+        return QosTime(*divmod(int(duration.nanoseconds), 1_000_000_000))
+
+    return Qos(QosHistory(int(profile.history)), int(profile.depth), QosReliability(int(profile.reliability)),
+               QosDurability(int(profile.durability)), span(profile.deadline), span(profile.lifespan),
+               QosLiveliness(int(profile.liveliness)), span(profile.liveliness_lease_duration),
+               bool(profile.avoid_ros_namespace_conventions))

@@ -77,16 +77,54 @@ def test_topic_schemas_decode_with_mcap_ros2(type_name):
         assert decoded.placement.drone_pose.position.z == 2.5
 
 
-def test_event_schema_lists_request_response_and_dependencies_once():
-    text = full_definition("perch_interfaces/srv/Optimise_Event")
-    lines = text.splitlines()
+PRIMITIVES = {"bool", "byte", "char", "float32", "float64", "int8", "uint8", "int16", "uint16", "int32",
+              "uint32", "int64", "uint64", "string", "wstring"}
+
+
+def _blocks_and_references(text: str) -> tuple[list[str], set[str]]:
+    """MSG: block names of a ros2msg schema, and every non-primitive field type it refers to."""
+    blocks, references = [], set()
+    for line in text.splitlines():
+        if line.startswith("MSG: "):
+            blocks.append(line[5:])
+            continue
+        fields = line.split("#", 1)[0].split()
+        if len(fields) >= 2 and "=" not in fields[1]:  # a field, not a constant or a separator
+            base = fields[0].split("[")[0].split("<=")[0]
+            if base not in PRIMITIVES:
+                references.add(base)
+    return blocks, references
+
+
+@pytest.mark.parametrize("type_name", ["perch_interfaces/srv/Optimise_Event", "perch_interfaces/srv/Confirm_Event",
+                                       "perch_interfaces/action/PlanPerches_FeedbackMessage",
+                                       "sensor_msgs/msg/CameraInfo", "visualization_msgs/msg/MarkerArray"])
+def test_schema_blocks_are_named_as_their_fields_refer_to_them(type_name):
+    """Each dependency once, headed exactly as the fields name it (rosbag2's layout: `MSG: std_msgs/Header`)."""
+    blocks, references = _blocks_and_references(full_definition(type_name))
+    assert len(blocks) == len(set(blocks))
+    assert set(blocks) == references
+    assert all("/msg/" not in name for name in blocks)
+
+
+def test_event_and_feedback_schemas_keep_their_parts_namespaced():
+    lines = full_definition("perch_interfaces/srv/Optimise_Event").splitlines()
     assert lines[:3] == ["service_msgs/ServiceEventInfo info",
-                         "perch_interfaces/Optimise_Request[<=1] request",
-                         "perch_interfaces/Optimise_Response[<=1] response"]
-    sections = [line for line in lines if line.startswith("MSG: ")]
-    assert len(sections) == len(set(sections))
+                         "perch_interfaces/srv/Optimise_Request[<=1] request",
+                         "perch_interfaces/srv/Optimise_Response[<=1] response"]
+    blocks, _ = _blocks_and_references("\n".join(lines))
     for needed in ("perch_interfaces/srv/Optimise_Request", "perch_interfaces/srv/Optimise_Response",
-                   "perch_interfaces/msg/CameraPlacement", "geometry_msgs/msg/Pose", "std_msgs/msg/Header",
-                   "builtin_interfaces/msg/Time", "service_msgs/msg/ServiceEventInfo"):
-        assert f"MSG: {needed}" in sections
+                   "perch_interfaces/CameraPlacement", "geometry_msgs/Pose", "std_msgs/Header",
+                   "builtin_interfaces/Time", "service_msgs/ServiceEventInfo"):
+        assert needed in blocks
     assert message_class("perch_interfaces/srv/Optimise_Event") is srv.Optimise.Event
+    feedback = full_definition("perch_interfaces/action/PlanPerches_FeedbackMessage").splitlines()
+    assert feedback[:2] == ["unique_identifier_msgs/UUID goal_id", "perch_interfaces/action/PlanPerches_Feedback feedback"]
+    assert "MSG: perch_interfaces/action/PlanPerches_Feedback" in feedback
+
+
+def test_unknown_type_is_a_clear_error():
+    with pytest.raises(ValueError, match="no message definition for perch_interfaces/msg/NoSuchThing"):
+        full_definition("perch_interfaces/msg/NoSuchThing")
+    with pytest.raises(ValueError, match="not a ROS type name"):
+        full_definition("not a type")

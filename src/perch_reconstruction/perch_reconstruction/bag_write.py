@@ -10,6 +10,7 @@ import numpy as np
 
 from perch_common.errors import PerchError
 from perch_common.outputs import atomic_path
+from perch_common.ros import bag_format
 from perch_reconstruction import images, msgdefs
 from perch_reconstruction.frames import Intrinsics, RGBDFrame
 
@@ -55,6 +56,8 @@ def _write_bag(path: Path, final: Path, frames, intrinsics, gravity, topics, com
     channels = {topics.color: image_type, topics.depth: image_type,
                 topics.camera_info: msgdefs.CAMERA_INFO, topics.pose: pose_msg_type}
     counts = {t: 0 for t in channels}
+    # A camera driver's sensor topics: reliable, volatile, depth 10 (what `ros2 bag play` re-offers).
+    profiles = [bag_format.qos_profile(reliable=True, transient_local=False, depth=10)]
     first_ns = last_ns = None
     with open(path, "wb") as stream:
         writer = Writer(stream, compression=CompressionType.ZSTD)
@@ -68,7 +71,7 @@ def _write_bag(path: Path, final: Path, frames, intrinsics, gravity, topics, com
         def put(topic: str, fields: dict, stamp: int) -> None:
             if topic not in ids:  # channels appear with their first message (no empty pose topic)
                 ids[topic] = writer.register_channel(topic, MessageEncoding.CDR, schemas[channels[topic]],
-                                                     msgdefs.channel_metadata())
+                                                     bag_format.channel_metadata(profiles))
             writer.add_message(ids[topic], log_time=stamp, data=encoders[channels[topic]](fields), publish_time=stamp,
                                sequence=counts[topic])
             counts[topic] += 1
@@ -94,23 +97,9 @@ def _write_bag(path: Path, final: Path, frames, intrinsics, gravity, topics, com
         if gravity is not None:
             writer.add_metadata(PERCH_METADATA, {"gravity": " ".join(f"{v:.9g}" for v in np.ravel(gravity)),
                                                  "world_frame": world_frame})
-        writer.add_metadata("rosbag2", {"serialized_metadata": _rosbag2_metadata({t: channels[t] for t in ids}, counts, first_ns,
-                                                                                 last_ns)})
+        bag_format.add_rosbag2_metadata(
+            writer, [bag_format.TopicRecord(topic, channels[topic], profiles, counts[topic]) for topic in ids],
+            first_ns, last_ns, final.name)
         writer.finish()
     return {"path": str(final), "messages": {t: n for t, n in counts.items() if n}, "duration_s": (last_ns - first_ns) / 1e9}
 
-
-def _rosbag2_metadata(channels: dict, counts: dict, first_ns: int, last_ns: int) -> str:
-    """The bag description rosbag2's MCAP plugin stores in its 'rosbag2' metadata record."""
-    lines = ["rosbag2_bagfile_information:", "  version: 9", "  storage_identifier: mcap",
-             f"  duration:\n    nanoseconds: {last_ns - first_ns}",
-             f"  starting_time:\n    nanoseconds_since_epoch: {first_ns}",
-             f"  message_count: {sum(counts.values())}", "  topics_with_message_count:"]
-    for topic, type_name in channels.items():
-        lines += ["    - topic_metadata:", f"        name: {topic}", f"        type: {type_name}",
-                  "        serialization_format: cdr",
-                  "        offered_qos_profiles: \"\"", "        type_description_hash: \"\"",
-                  f"      message_count: {counts[topic]}"]
-    lines += ["  compression_format: \"\"", "  compression_mode: \"\"", "  relative_file_paths: []",
-              "  files: []", "  custom_data: ~", "  ros_distro: jazzy"]
-    return "\n".join(lines) + "\n"

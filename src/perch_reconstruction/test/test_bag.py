@@ -116,3 +116,60 @@ def test_bag_without_messages(tmp_path):
     assert bag_info(path)["messages"] == 0
     with pytest.raises(PerchError, match=r"empty.mcap: missing topic\(s\) /camera/color/image_raw.*has: none"):
         read_bag_frames(path)
+
+
+def _assert_rosbag2_layout(path, expected_counts: dict[str, int]) -> None:
+    """rosbag2's metadata record (version at the top) and every channel's QoS, as rosbag2 reads them."""
+    import yaml
+    from mcap.reader import make_reader
+    from rosbags.rosbag2.metadata import parse_qos
+
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        records = {r.name: r.metadata for r in reader.iter_metadata()}
+        channels = reader.get_summary().channels.values()
+        for channel in channels:
+            [qos] = parse_qos(channel.metadata["offered_qos_profiles"])
+            assert (qos.reliability.name, qos.durability.name, qos.depth) == ("RELIABLE", "VOLATILE", 10)
+    described = yaml.safe_load(records["rosbag2"]["serialized_metadata"])
+    assert described["version"] == 9 and described["storage_identifier"] == "mcap"
+    assert described["message_count"] == sum(expected_counts.values())
+    listed = {t["topic_metadata"]["name"]: t["message_count"] for t in described["topics_with_message_count"]}
+    assert listed == expected_counts
+    for topic in described["topics_with_message_count"]:
+        assert parse_qos(topic["topic_metadata"]["offered_qos_profiles"])[0].depth == 10
+
+
+def _assert_every_message_decodes(path, expected_counts: dict[str, int]) -> None:
+    """rosbags (its AnyReader, from the file's own schemas) and Foxglove's decoders read all of them."""
+    from perch_common.bag_check import DecoderUnavailable, foxglove_counts, rosbags_counts
+
+    assert rosbags_counts(path) == {t: (n, n) for t, n in expected_counts.items()}
+    try:
+        assert foxglove_counts(path) == {t: (n, n) for t, n in expected_counts.items()}
+    except DecoderUnavailable as exc:
+        pytest.skip(f"Foxglove's decoders not run: {exc} (rosbags decoded every message)")
+
+
+@pytest.mark.parametrize("compressed, pose_type", [(False, "pose"), (True, "odometry")])
+def test_written_bag_has_rosbag2_layout_and_decodes_everywhere(synthetic, tmp_path, compressed, pose_type):
+    _, frames, intrinsics = synthetic
+    path = tmp_path / "written.mcap"
+    result = write_bag(path, frames[:4], intrinsics, compressed=compressed, pose_type=pose_type)
+    _assert_rosbag2_layout(path, result["messages"])
+    _assert_every_message_decodes(path, result["messages"])
+
+
+def test_from_frames_bag_of_the_real_kitchen_decodes_everywhere(kitchen_dir, tmp_path):
+    import json
+    import subprocess
+    import sys
+
+    path = tmp_path / "kitchen.mcap"
+    done = subprocess.run([sys.executable, "-m", "perch_common.cli", "bag", "from-frames", str(kitchen_dir),
+                           "-o", str(path), "--limit", "20"], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    counts = json.loads(done.stdout)["messages"]
+    assert counts == {t: 20 for t in (BagTopics.color, BagTopics.depth, BagTopics.camera_info, BagTopics.pose)}
+    _assert_rosbag2_layout(path, counts)
+    _assert_every_message_decodes(path, counts)
