@@ -32,7 +32,8 @@ setup(
             "dispatch = perch_operator.cli_operator:register_dispatch",
             "record = perch_operator.cli_operator:register_record",
         ],
-        "perch.benchmarks": ["mission = perch_operator.bench:register"],
+        "perch.benchmarks": ["mission = perch_operator.bench:register", "soak = perch_operator.soak:register",
+                             "memory = perch_operator.bench_memory:register"],
         "perch.nodes": [f"{PACKAGE} = {PACKAGE}.node:main"],
     },
 )

@@ -62,10 +62,39 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
 
 
 def staging_folder(out_dir: str | Path) -> Path:
-    """A fresh empty folder beside out_dir (same file system, so its files can be renamed into place)."""
+    """A fresh empty folder beside out_dir (same file system, so its files can be renamed into place).
+
+    Its name carries this process id; staging folders left there by processes that no longer run
+    (a client killed mid-mission) are removed first.
+    """
     out_dir = Path(out_dir)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
-    return Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.partial-", dir=out_dir.parent))
+    remove_abandoned_staging(out_dir.parent)
+    return Path(tempfile.mkdtemp(prefix=f".{out_dir.name}{STAGING_MARK}{os.getpid()}-", dir=out_dir.parent))
+
+
+STAGING_MARK = ".partial-"
+
+
+def remove_abandoned_staging(folder: Path) -> list[Path]:
+    """Delete `.NAME.partial-PID-*` folders in `folder` whose process is gone; returns them."""
+    removed = []
+    for path in folder.glob(f".*{STAGING_MARK}*"):
+        pid_text = path.name.rsplit(STAGING_MARK, 1)[-1].split("-", 1)[0]
+        if path.is_dir() and pid_text.isdigit() and not _running(int(pid_text)):
+            shutil.rmtree(path, ignore_errors=True)
+            removed.append(path)
+    return removed
+
+
+def _running(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def replace_outputs(staged: Path, out_dir: Path, names: Iterable[str], stale: Iterable[str]) -> list[Path]:

@@ -45,6 +45,10 @@ def test_replacing_outputs_removes_stale_ones(tmp_path):
         (out / name).write_text("old")
     staged = staging_folder(out)
     assert staged.parent == tmp_path and staged.name.startswith(".run.partial-")
+    abandoned = tmp_path / ".other.partial-999999999-x"   # no such process
+    abandoned.mkdir()
+    staging_folder(out).rmdir()
+    assert not abandoned.exists() and staged.exists()
     (staged / "FAILED").write_text("why")
     (staged / "run.mcap").write_text("new")
     replace_outputs(staged, out, ["FAILED", "run.mcap"], ["waypoints.yaml", "report.html", "run.mcap", "FAILED"])

@@ -205,6 +205,8 @@ def run_plan(goal, args, describe: dict) -> int:
             if launch:
                 graph = start_own_graph(node, args.graph_mode, domain, args.config, args.param, args.out / "logs")
             return _mission_and_outputs(node, goal, args, describe, started)
+        except KeyboardInterrupt:
+            raise PerchError(f"interrupted; see {args.out}/FAILED when the mission had started") from None
         finally:
             if graph is not None:
                 graph.stop()

@@ -27,6 +27,8 @@ from perch_operator.stages import STAGES
 
 @dataclass
 class PlanOutputs:
+    """A mission's result and where its outputs are (or are staged until `write_outputs`)."""
+
     result: PlanPerches.Result
     out_dir: Path
     mcap: Path
@@ -67,6 +69,7 @@ def _interrupt(signum, frame):
 
 
 def offered_services(node) -> set[str]:
+    """Fully qualified names of the services now in the graph."""
     return {name for name, _ in node.get_service_names_and_types()}
 
 
@@ -228,6 +231,7 @@ def ensure_graph(node, config: Path | None = None, overrides=(), log_dir: Path |
 
 
 def spin_for(node, seconds: float) -> None:
+    """Spin `node` for about `seconds`."""
     import rclpy
 
     deadline = time.monotonic() + seconds
@@ -266,13 +270,27 @@ def run_recorded_mission(node, goal: PlanPerches.Goal, out_dir: Path, progress: 
     outputs = PlanOutputs(PlanPerches.Result(), out_dir, staged / "run.mcap", staged=staged, goal=goal)
     try:
         outputs.result = run_mission(node, goal, timeout=timeout, on_feedback=printer)
+        result = outputs.result
+        _drain(node, recorder)
+        outputs.mission_seconds = time.monotonic() - started
+        recorder.add_metadata("perch_mission", {
+            "success": result.success, "message": result.message, "stage_names": list(result.stage_names),
+            "stage_seconds": list(result.stage_seconds), "fitness": result.fitness, "coverage": result.coverage,
+            "mean_uncertainty": result.mean_uncertainty, "cameras": len(result.placements),
+            "mission_seconds": outputs.mission_seconds, **(describe or {})})
     except GoalRejected:
         recorder.close()
         shutil.rmtree(staged, ignore_errors=True)
         raise
     except (KeyboardInterrupt, TimeoutError) as exc:
         recorder.close()
-        reason = f"mission {'interrupted' if isinstance(exc, KeyboardInterrupt) else str(exc)}; cancelled"
+        finished = outputs.result.message
+        if isinstance(exc, TimeoutError):
+            reason = f"mission {exc}; cancelled"
+        elif finished:
+            reason = f"interrupted (SIGINT) before the outputs were written; the mission itself ended: {finished}"
+        else:
+            reason = "mission interrupted (SIGINT); cancelled"
         outputs.result = PlanPerches.Result(success=False, message=reason)
         fail_outputs(outputs, reason)
         raise PerchError(f"{reason}; the recording so far is in {outputs.mcap}") from None
@@ -283,14 +301,6 @@ def run_recorded_mission(node, goal: PlanPerches.Goal, out_dir: Path, progress: 
     finally:
         if printer:
             printer.close()
-    result = outputs.result
-    _drain(node, recorder)
-    outputs.mission_seconds = time.monotonic() - started
-    recorder.add_metadata("perch_mission", {
-        "success": result.success, "message": result.message, "stage_names": list(result.stage_names),
-        "stage_seconds": list(result.stage_seconds), "fitness": result.fitness, "coverage": result.coverage,
-        "mean_uncertainty": result.mean_uncertainty, "cameras": len(result.placements),
-        "mission_seconds": outputs.mission_seconds, **(describe or {})})
     recorder.close()
     return outputs
 
@@ -321,6 +331,10 @@ def write_outputs(outputs: PlanOutputs, out=sys.stderr) -> PlanOutputs:
         return outputs
     try:
         _write_success(outputs, out)
+    except KeyboardInterrupt:
+        fail_outputs(outputs, "interrupted (SIGINT) while writing the outputs; the mission itself succeeded: "
+                              f"{outputs.result.message}")
+        raise
     except BaseException as exc:
         fail_outputs(outputs, f"writing the outputs failed: {type(exc).__name__}: {exc}")
         raise
@@ -353,7 +367,7 @@ def _write_success(outputs: PlanOutputs, out) -> None:
 def fail_outputs(outputs: PlanOutputs, reason: str) -> Path:
     """out_dir gets FAILED (the reason) and this mission's recording; earlier outputs are removed."""
     staged = outputs.staged
-    if staged is None:
+    if staged is None or not staged.is_dir():
         staged = staging_folder(outputs.out_dir)
     (staged / FAILED_NAME).write_text(
         f"{reason}\n\nfailed at {time.strftime('%Y-%m-%d %H:%M:%S %Z')}; run.mcap (when present) records "

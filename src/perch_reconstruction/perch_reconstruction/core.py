@@ -13,6 +13,7 @@ from typing import Callable, Iterable
 
 import numpy as np
 
+from perch_common.cancellation import checkpoint
 from perch_common.errors import PerchError
 from perch_common.frames import aligned_frame_name
 from perch_common.mesh import Mesh
@@ -173,6 +174,7 @@ def reconstruct_frames(frames: Iterable[RGBDFrame], intrinsics: Intrinsics, conf
     """Integrate `frames` and finish (extract, clean); the input frame is named `frame_id`."""
     recon = Reconstructor(config, use_poses)
     for i, frame in enumerate(frames):
+        checkpoint(f"frame {i}")
         recon.add_frame(frame, intrinsics)
         if progress and (i + 1) % progress_every == 0:
             progress(recon.stats)

@@ -10,6 +10,7 @@ from typing import Callable
 
 import numpy as np
 
+from perch_common.cancellation import checkpoint
 from perch_placement.config import PsoConfig
 
 
@@ -42,6 +43,7 @@ def local_best_pso(objective: Callable[[np.ndarray], np.ndarray], dims: int, cfg
     k = min(max(cfg.neighbours, 1), n)
     generation = 1
     while generation < cfg.iterations:
+        checkpoint(f"swarm generation {generation}")
         # The k nearest particles (self included) share their best position.
         d2 = ((x[:, None, :] - x[None, :, :]) ** 2).sum(-1)
         hood = np.argpartition(d2, k - 1, axis=1)[:, :k] if k < n else np.tile(np.arange(n), (n, 1))
