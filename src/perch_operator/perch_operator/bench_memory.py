@@ -1,7 +1,7 @@
 """`perch bench memory`: does every stage node give its memory back after a very large request?
 
 Launches the graph, runs one small mission, samples each node's RSS, sends the whole stage chain (crop, clean, segment,
-filter, optimise) a mesh of at least `--faces` faces (the generated apartment, subdivided), and
+filter, optimise) a mesh of at least `--faces` faces (copies of the generated apartment), and
 samples every node's RSS again a moment after its reply. Stage nodes release freed buffers after
 each call (perch_common.memory); the target is RSS back within 20 % of the pre-request level.
 
@@ -20,17 +20,21 @@ TOLERANCE = 0.20      # RSS after / before - 1
 
 
 def big_scene(faces: int):
-    """The generated apartment, subdivided until it has at least `faces` faces, and its target."""
+    """At least `faces` faces: copies of the generated apartment (subdivided once) side by side in a row
+    of buildings 15 m apart, with the first apartment's target."""
+    import numpy as np
     import trimesh
 
     from perch_common.mesh import Mesh
     from perch_common.scene_generator import generate_scene
 
     scene = generate_scene(7, "apartment")
-    vertices, triangles = scene.mesh.vertices, scene.mesh.faces
-    while len(triangles) < faces:
-        vertices, triangles = trimesh.remesh.subdivide(vertices, triangles)
-    return Mesh(vertices, triangles), scene.target
+    vertices, triangles = trimesh.remesh.subdivide(scene.mesh.vertices, scene.mesh.faces)
+    copies = max(1, -(-faces // len(triangles)))
+    offsets = np.arange(copies)[:, None, None] * np.array([15.0, 0.0, 0.0])
+    tiled_vertices = (vertices[None] + offsets).reshape(-1, 3)
+    tiled_faces = (triangles[None] + (np.arange(copies) * len(vertices))[:, None, None]).reshape(-1, 3)
+    return Mesh(tiled_vertices, tiled_faces), scene.target
 
 
 def register(sub) -> None:

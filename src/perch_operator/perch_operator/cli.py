@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import sys
@@ -17,6 +18,7 @@ DEMO_SEED = 7
 
 
 def register_plan(sub) -> None:
+    """Add `perch plan` to the CLI."""
     p = sub.add_parser("plan", help="run one mission: where should the drones perch? (launches what it needs)")
     source = p.add_mutually_exclusive_group(required=True)
     source.add_argument("--mesh", type=Path, help="environment mesh (PLY/OBJ/GLB/glTF/STL), in any orientation (--up)")
@@ -41,6 +43,7 @@ def register_plan(sub) -> None:
 
 
 def register_demo(sub) -> None:
+    """Add `perch demo` to the CLI."""
     p = sub.add_parser("demo", help="the demo: a seeded apartment, auto-accepted, outputs in out/demo/")
     p.add_argument("--seed", type=int, default=DEMO_SEED, help="scene seed")
     p.add_argument("--cameras", type=non_negative_int, default=0,
@@ -218,7 +221,10 @@ def _mission_and_outputs(node, goal, args, describe: dict, started: float) -> in
     outputs = run_recorded_mission(node, goal, args.out, progress=not args.quiet, timeout=args.timeout,
                                    describe=describe)
     result = outputs.result
-    write_outputs(outputs)
+    with deferred_interrupt() as interrupted:  # the mission is over: nothing left to cancel, finish the files
+        write_outputs(outputs)
+    if interrupted:
+        print("perch: interrupted after the mission ended; its outputs were completed first", file=sys.stderr)
     if not result.success:
         raise PerchError(f"mission failed: {result.message} (reason in {args.out}/FAILED, recording {outputs.mcap})")
     print(f"\n{describe.get('source', 'mission')}: {result.message}")
@@ -226,6 +232,23 @@ def _mission_and_outputs(node, goal, args, describe: dict, started: float) -> in
     print(f"outputs in {args.out}/: waypoints.yaml, run.mcap, run.rrd, report.html  "
           f"({time.monotonic() - started:.1f} s in all, mission {outputs.mission_seconds:.1f} s)")
     return 0
+
+
+@contextlib.contextmanager
+def deferred_interrupt():
+    """Hold SIGINT off during the block (yields a list that gets an entry if one arrived)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield []
+        return
+    arrived: list[int] = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: arrived.append(signum))
+    try:
+        yield arrived
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _demo(args) -> int:
