@@ -1,4 +1,5 @@
-"""A short soak (the 50-mission one is `perch bench soak --missions 50`): one of each kind of mission."""
+"""A short soak (the 50-mission one is `perch bench soak --missions 50`): one of each kind of mission,
+against `perch launch` with `perch plan --no-launch` clients."""
 
 from __future__ import annotations
 
@@ -7,15 +8,36 @@ import pytest
 pytestmark = pytest.mark.ros
 
 
-def test_short_soak_with_a_kill_a_cancel_a_bad_goal_and_a_respawn(graph, tmp_path):
-    from perch_operator.soak import Soak
+@pytest.fixture
+def client_node():
+    from perch_common.ros import testing
 
-    soak = Soak(graph.processes, graph.node, tmp_path, seed=0)
-    report = soak.run(5, kinds=["complete", "kill", "cancel", "bad_goal", "complete"])
+    testing.use_isolated_ros_env()
+    import rclpy
+
+    rclpy.init()
+    node = rclpy.create_node("soak_client")
+    try:
+        yield node
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def test_short_soak_with_a_kill_a_cancel_a_bad_goal_and_a_respawn(client_node, tmp_path):
+    from perch_operator.soak import Soak, launched
+
+    graph = launched(tmp_path, client_node)
+    try:
+        report = Soak(graph, client_node, tmp_path, seed=0).run(5, kinds=["complete", "kill", "cancel", "bad_goal",
+                                                                            "complete"])
+        running = graph.pids()
+    finally:
+        graph.stop()
     summary = report.summary()
     assert not report.problems, summary
     assert report.completed >= 2 and report.failed_with_reason >= 1, summary
-    assert report.bad_requests == 1 and "back in" in report.respawn, summary
+    assert report.bad_requests == 1 and "respawned by perch launch" in report.respawn, summary
     # The coordinator was free again soon after the killed client vanished (lease 3 s + client_grace 5 s).
     assert all(s < 20 for s in report.free_after_kill_s), summary
-    assert all(graph.processes.alive().values())
+    assert {"perch_operator", "perch_segmentation", "perch_placement"} <= set(running)

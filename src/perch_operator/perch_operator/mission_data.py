@@ -51,18 +51,22 @@ def load_mission(path: str | Path) -> MissionData:
     from perch_common.ros.static_transforms import TF_STATIC_TOPIC, alignment_from_msg
     from perch_operator.runfile import iter_messages, metadata, stage_calls
 
+    def recorded_mesh(msg):
+        # A mesh sent by content id only (its arrays went in an earlier mission) is not in this file.
+        return mesh_from_msg(msg) if len(msg.triangles) else None
+
     data = MissionData()
     for call in stage_calls(path):
         reply = call.response
         if reply is None or not reply.success:
             continue
         if call.stage in ("clean", "reconstruct"):
-            data.mesh = mesh_from_msg(reply.mesh)
+            data.mesh = recorded_mesh(reply.mesh)
         elif call.stage == "crop":
-            data.cropped = mesh_from_msg(reply.mesh)
+            data.cropped = recorded_mesh(reply.mesh)
             data.target = target_from_msg(reply.target)
             if data.mesh is None and call.request is not None:
-                data.mesh = mesh_from_msg(call.request.mesh)
+                data.mesh = recorded_mesh(call.request.mesh)
         elif call.stage == "segment" and not data.surfaces:
             data.surfaces = [surface_from_msg(s) for s in reply.surfaces]
         elif call.stage == "filter":
@@ -70,7 +74,7 @@ def load_mission(path: str | Path) -> MissionData:
             data.regions = [region_from_msg(r) for r in reply.regions]
             data.removals = [removal_from_msg(r) for r in reply.removals]
         elif call.stage == "optimise" and data.mesh is None and call.request is not None:
-            data.mesh = mesh_from_msg(call.request.mesh)
+            data.mesh = recorded_mesh(call.request.mesh)
     latest: dict[int, object] = {}
     tf_static = "/" + TF_STATIC_TOPIC  # iter_messages names topics relative to the recorded namespace
     for topic, msg, _ in iter_messages(path, ["/perch/proposals", "/perch/waypoints", tf_static]):

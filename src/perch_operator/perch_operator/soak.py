@@ -1,6 +1,7 @@
 """`perch bench soak`: many missions on one launched graph, as a dispatcher beside it would see them.
 
-Each mission is a real `perch plan --no-launch` client process. Mixed in, chosen by a seeded
+The graph is `perch launch` (a child process; it respawns a node that dies); each mission is a
+real `perch plan --no-launch` client process. Mixed in, chosen by a seeded
 random generator: clients killed (SIGKILL) or interrupted (SIGINT, which cancels) mid-mission,
 goals the coordinator must refuse with a clear reason, bad service requests between missions, and
 one node killed and started again half-way. Every completed mission must have complete outputs
@@ -23,6 +24,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import yaml
+
+from perch_common.conventions import NODE_SERVICES
 
 CAMERAS = 2
 SCENE_SEEDS = (1, 3)          # generated rooms: each a few seconds per mission on two cores
@@ -75,15 +78,49 @@ def plan_command(out: Path, scene: int, extra: tuple[str, ...] = ()) -> list[str
             "--cameras", str(CAMERAS), "--auto-accept", "--no-launch", "--overwrite", "-o", str(out), *extra]
 
 
-class Soak:
-    """Runs the missions against `graph` (GraphProcesses) with the client node `node`."""
+class LaunchedGraph:
+    """`perch launch` as a child process (every node its own process, respawned when it dies)."""
 
-    def __init__(self, graph, node, work: Path, seed: int = 0, respawn=None, log=sys.stderr):
+    def __init__(self, work: Path, env: dict | None = None):
+        self.log_path = Path(work) / "launch.log"
+        with open(self.log_path, "w") as stream:
+            self.proc = subprocess.Popen([sys.executable, "-m", "perch_common.cli", "launch", "--log-dir",
+                                          str(Path(work) / "logs")], stdout=stream, stderr=subprocess.STDOUT,
+                                         env=dict(os.environ if env is None else env))
+
+    def pids(self) -> dict[str, int]:
+        """Node name -> process id of the launcher's node processes now running."""
+        import psutil
+
+        found = {}
+        for child in psutil.Process(self.proc.pid).children():
+            try:
+                cmd = child.cmdline()
+            except psutil.NoSuchProcess:
+                continue
+            if "-m" in cmd and child.status() != psutil.STATUS_ZOMBIE:
+                found[cmd[cmd.index("-m") + 1].split(".")[0]] = child.pid
+        return found
+
+    def alive(self) -> dict[str, bool]:
+        """The launcher and each node it runs: still running?"""
+        return {"perch launch": self.proc.poll() is None, **{name: True for name in self.pids()}}
+
+    def stop(self) -> None:
+        """Ctrl-C to the launcher (it stops its nodes)."""
+        from perch_common.processes import stop_process
+
+        stop_process(self.proc, 30)
+
+
+class Soak:
+    """Runs the missions against a LaunchedGraph with the client node `node`."""
+
+    def __init__(self, graph: LaunchedGraph, node, work: Path, seed: int = 0, log=sys.stderr):
         self.graph = graph
         self.node = node
         self.work = Path(work)
         self.rng = random.Random(seed)
-        self.respawn = respawn       # callable(name) that brings a killed node back; None: restart it here
         self.log = log
         self.reference: dict[int, list[dict]] = {}
 
@@ -112,9 +149,10 @@ class Soak:
             if i + 1 == missions // 2 + 10 and i + 1 < missions:
                 self._sample_rss(report, "10_after_respawn", [RESPAWNED_NODE])
         self._sample_rss(report, "end")
-        dead = [n for n, ok in self.graph.alive().items() if not ok]
-        if dead:
-            report.problems.append(f"nodes dead at the end: {dead}")
+        running = self.graph.pids()
+        missing = [n for n in NODE_SERVICES if n not in running]
+        if missing or not self.graph.alive()["perch launch"]:
+            report.problems.append(f"not running at the end: {missing or ['perch launch']}")
         for name, growth in report.rss_growth_after_10th().items():
             if missions >= 20 and growth >= 0.10:
                 report.problems.append(f"{name}: RSS grew {100 * growth:.1f} % after the 10th mission")
@@ -199,6 +237,8 @@ class Soak:
         if not failed.exists():
             return f"failed (exit {code}) without a FAILED reason; output: {output[-300:]}"
         reason = failed.read_text()
+        if kind == "complete":
+            return f"an ordinary mission failed: {reason.splitlines()[0]}"
         wanted = {"cancel": "interrupt", "bad_goal": "must be a finite number"}.get(kind, "")
         if wanted not in reason.lower():
             return f"FAILED does not say {wanted!r}: {reason[:200]}"
@@ -251,34 +291,37 @@ class Soak:
             report.bad_requests += 1
 
     def _kill_and_respawn(self, report: SoakReport) -> None:
-        from perch_operator.runner import NODE_SERVICES
+        import psutil
 
-        proc = self.graph.processes[RESPAWNED_NODE]
-        proc.kill()
-        proc.wait()
+        pid = self.graph.pids()[RESPAWNED_NODE]
+        psutil.Process(pid).kill()
         started = time.monotonic()
-        if self.respawn is not None:
-            self.respawn(RESPAWNED_NODE)
-            how = "the launcher's respawn"
-        else:
-            time.sleep(4.0)   # let the graph forget the dead process (lease 3 s)
-            self.graph.start_node(RESPAWNED_NODE)
-            how = "restarted by the soak (GraphProcesses.start_node)"
-        missing = self.graph.wait_for_services(
-            self.node, [self.node.resolve_service_name(NODE_SERVICES[RESPAWNED_NODE][0])], 120)
-        if missing:
-            report.problems.append(f"{RESPAWNED_NODE} did not come back: {missing}")
-        report.respawn = f"{RESPAWNED_NODE} SIGKILLed, back in {time.monotonic() - started:.1f} s ({how})"
+        service = self.node.resolve_service_name(NODE_SERVICES[RESPAWNED_NODE][0])
+        back, new_since = None, None
+        while time.monotonic() - started < 120:
+            now = self.graph.pids().get(RESPAWNED_NODE)
+            if now is not None and now != pid:
+                new_since = new_since or time.monotonic()
+                # The dead process's service lingers for the DDS lease (3 s): wait past it.
+                offered = service in {n for n, _ in self.node.get_service_names_and_types()}
+                if offered and time.monotonic() - new_since > 4.0:
+                    back = time.monotonic() - started
+                    break
+            time.sleep(0.2)
+        if back is None:
+            report.problems.append(f"{RESPAWNED_NODE} was not respawned within 120 s")
+            return
+        report.respawn = f"{RESPAWNED_NODE} SIGKILLed, respawned by perch launch and serving again in {back:.1f} s"
         self.say(report.respawn)
 
     def _sample_rss(self, report: SoakReport, when: str, only: list[str] | None = None) -> None:
         import psutil
 
-        for name, proc in self.graph.processes.items():
+        for name, pid in self.graph.pids().items():
             if only is not None and name not in only:
                 continue
             try:
-                rss = psutil.Process(proc.pid).memory_info().rss / 2**20
+                rss = psutil.Process(pid).memory_info().rss / 2**20
             except psutil.NoSuchProcess:
                 continue
             report.rss_mb.setdefault(name, {})[when] = round(rss, 1)
@@ -325,29 +368,40 @@ def register(sub) -> None:
     p.set_defaults(func=_run)
 
 
+def launched(work: Path, node, timeout: float = 180.0) -> LaunchedGraph:
+    """Start `perch launch` and wait until every stage service is offered."""
+    graph = LaunchedGraph(work)
+    wanted = [node.resolve_service_name(s[0]) for s in NODE_SERVICES.values()]
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        offered = {n for n, _ in node.get_service_names_and_types()}
+        if set(wanted) <= offered:
+            return graph
+        if graph.proc.poll() is not None:
+            break
+        time.sleep(0.5)
+    graph.stop()
+    raise RuntimeError(f"perch launch did not offer {wanted} within {timeout:.0f} s; see {graph.log_path}")
+
+
 def _run(args) -> int:
     import rclpy
 
     from perch_common.bench import emit
-    from perch_common.launch import GraphProcesses
     from perch_common.ros.testing import use_isolated_ros_env
-    from perch_operator.runner import NODE_SERVICES, client_context
+    from perch_operator.runner import client_context
 
     if "ROS_DOMAIN_ID" not in os.environ:
         use_isolated_ros_env()
-    else:
-        os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-        from perch_common.launch import use_fast_liveliness
-
-        use_fast_liveliness()
     work = args.work or Path(tempfile.mkdtemp(prefix="perch_soak_"))
     work.mkdir(parents=True, exist_ok=True)
-    with client_context(), GraphProcesses(None, list(NODE_SERVICES), log_dir=work / "logs") as graph:
+    with client_context():
         node = rclpy.create_node("perch_soak")
-        missing = graph.wait_for_services(node, [node.resolve_service_name(s[0]) for s in NODE_SERVICES.values()], 180)
-        if missing:
-            raise RuntimeError(f"services missing: {missing}; logs in {work / 'logs'}")
-        report = Soak(graph, node, work, args.seed).run(args.missions)
+        graph = launched(work, node)
+        try:
+            report = Soak(graph, node, work, args.seed).run(args.missions)
+        finally:
+            graph.stop()
         summary = report.summary()
         summary["work"] = str(work)
         emit(summary)
