@@ -1,12 +1,15 @@
 """ROS-parameter YAML (`node_name: ros__parameters: ...`) into typed config dataclasses.
 
-A dataclass field may carry `metadata={"description": ..., "unit": ...}`; the node adapters
-(perch_common.ros.params) declare one ROS parameter per field from it.
+Fields are made with `param()`: a description, a unit, an inclusive range and the allowed choices.
+`from_parameters` rejects values outside them (naming the parameter and what it accepts), and the
+node adapters (perch_common.ros.params) declare one ROS parameter per field with the same range in
+its descriptor, so a file, the command line and a running node are checked alike.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 from pathlib import Path
 from typing import Any, TypeVar
@@ -22,12 +25,58 @@ class ConfigError(ValueError):
     """A configuration file or value that cannot be used."""
 
 
-def param(default: Any, description: str, unit: str | None = None) -> Any:
-    """A config dataclass field whose description (and unit) become the ROS parameter's."""
-    metadata = {"description": description, **({"unit": unit} if unit else {})}
+def param(default: Any, description: str, unit: str | None = None, *, low: float | None = None,
+          high: float | None = None, choices: tuple | list | None = None) -> Any:
+    """A config dataclass field: description and unit, the inclusive range [low, high] of a number
+    (either end may be left open) and the values a string may take; all become the ROS parameter's."""
+    metadata: dict[str, Any] = {"description": description}
+    if unit:
+        metadata["unit"] = unit
+    if low is not None or high is not None:
+        metadata["range"] = (-math.inf if low is None else low, math.inf if high is None else high)
+    if choices is not None:
+        metadata["choices"] = tuple(choices)
     if isinstance(default, (list, dict)):
         return dataclasses.field(default_factory=lambda: type(default)(default), metadata=metadata)
     return dataclasses.field(default=default, metadata=metadata)
+
+
+def field_specs(cls: type, prefix: str = "") -> dict[str, dict]:
+    """Flat parameter name -> the field's metadata (description, unit, range, choices) of a config class."""
+    out: dict[str, dict] = {}
+    for f in dataclasses.fields(cls):
+        default = _default_of(f)
+        if dataclasses.is_dataclass(default):
+            out.update(field_specs(type(default), prefix + f.name + "."))
+        else:
+            out[prefix + f.name] = dict(f.metadata)
+    return out
+
+
+def check_value(name: str, value: Any, spec: dict) -> None:
+    """Raise ConfigError when `value` is outside the field's range or choices, saying what is allowed."""
+    choices = spec.get("choices")
+    if choices is not None and value not in choices:
+        raise ConfigError(f"parameter {name}={value!r}: use one of {', '.join(map(repr, choices))}")
+    bounds = spec.get("range")
+    if bounds is not None and not isinstance(value, bool) and isinstance(value, (int, float)):
+        low, high = bounds
+        if not (low <= value <= high):  # NaN fails too
+            raise ConfigError(f"parameter {name}={value!r}: must be in {describe_range(low, high)}")
+
+
+def describe_range(low: float, high: float) -> str:
+    """'[0, 10]', '>= 0' or '<= 5' for an inclusive range."""
+    if math.isinf(low):
+        return f"<= {high:g}"
+    if math.isinf(high):
+        return f">= {low:g}"
+    return f"[{low:g}, {high:g}]"
+
+
+def base_config(config: Any, cls: type[T]) -> T:
+    """The `cls` part of a node config that extends it with node-only parameters."""
+    return cls(**{f.name: getattr(config, f.name) for f in dataclasses.fields(cls)})
 
 
 def default_config_path() -> Path:
@@ -43,6 +92,7 @@ def default_config_path() -> Path:
 
 
 def load_yaml(path: str | Path) -> dict:
+    """The mapping in a YAML parameter file (raises ConfigError naming the file)."""
     path = Path(path)
     try:
         data = yaml.safe_load(path.read_text()) or {}
@@ -87,6 +137,7 @@ def load_node_config(cls: type[T], node_name: str, path: str | Path | None = Non
 
 
 def flatten(mapping: dict, prefix: str = "") -> dict[str, Any]:
+    """Nested mappings as one flat mapping with dotted keys (as ROS names nested parameters)."""
     out: dict[str, Any] = {}
     for key, value in mapping.items():
         name = f"{prefix}{key}"
@@ -100,7 +151,8 @@ def flatten(mapping: dict, prefix: str = "") -> dict[str, Any]:
 def from_parameters(cls: type[T], params: dict[str, Any], prefix: str = "", strict: bool = False) -> T:
     """Build dataclass `cls` from flat parameters; nested dataclass fields use `field.` prefixes.
 
-    Values are coerced to the field's default type; `strict` rejects unknown keys under `prefix`.
+    Values are coerced to the field's default type and checked against its range and choices
+    (ConfigError); `strict` rejects unknown keys under `prefix`.
     """
     kwargs: dict[str, Any] = {}
     known: set[str] = set()
@@ -114,6 +166,7 @@ def from_parameters(cls: type[T], params: dict[str, Any], prefix: str = "", stri
         known.add(key)
         if key in params:
             kwargs[f.name] = _coerce(params[key], default, key)
+            check_value(key, kwargs[f.name], f.metadata)
     if strict:
         unknown = [k for k in params if k.startswith(prefix) and k not in known]
         if unknown:

@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from rclpy.node import Node
 
+from perch_common.config import param
 from perch_common.mesh import inspect_mesh
 from perch_common.ros.conversions import mesh_from_msg, point_msg, vector_msg
 from perch_common.ros.node_main import run_node
@@ -18,7 +19,9 @@ from perch_interfaces.srv import InspectMesh
 
 @dataclass
 class MeshToolsConfig:
-    service_name: str = field(default="perch/inspect_mesh", metadata={"description": "service to offer"})
+    """The perch_mesh_tools node's parameters."""
+
+    service_name: str = param("perch/inspect_mesh", "service to offer")
 
 
 class MeshToolsNode(Node):

@@ -5,7 +5,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from perch_common.config import param
+from perch_common.config import base_config, param
+from perch_common.transforms import parse_up_axis
 
 
 @dataclass
@@ -16,34 +17,36 @@ class FilterConfig:
     allow_ceiling: bool = param(True, "perch on ceilings")
     allow_floor: bool = param(False, "land on floors (and other upward-facing surfaces)")
     allow_intermediate: bool = param(False, "perch on surfaces between the class angles")
-    class_angle_deg: float = param(15.0, "tolerance of the floor / wall / ceiling classes", "deg")
-    min_recovery_height: float = param(0.5, "free fall needed below a perch to recover", "m")
+    class_angle_deg: float = param(15.0, "tolerance of the floor / wall / ceiling classes", "deg", low=0.0, high=45.0)
+    min_recovery_height: float = param(0.5, "free fall needed below a perch to recover", "m", low=0.0, high=10.0)
     approach_distance: float = param(0.5, "approach prism depth: the window swept this far along the normal "
-                                     "(the waypoint's approach point) must be free of geometry", "m")
-    approach_margin: float = param(0.1, "lateral margin added around the window for the approach prism", "m")
-    window_width: float = param(0.5, "perch window, horizontal side on walls", "m")
-    window_height: float = param(0.5, "perch window, vertical side on walls (along gravity)", "m")
+                                     "(the waypoint's approach point) must be free of geometry", "m", low=0.0, high=10.0)
+    approach_margin: float = param(0.1, "lateral margin added around the window for the approach prism", "m", low=0.0, high=10.0)
+    window_width: float = param(0.5, "perch window, horizontal side on walls", "m", low=0.0, high=10.0)
+    window_height: float = param(0.5, "perch window, vertical side on walls (along gravity)", "m", low=0.0, high=10.0)
     window_ellipse: bool = param(False, "elliptic perch window instead of a rectangle")
-    raster_density: float = param(50.0, "raster resolution of each surface", "px/m")
-    drone_radius: float = param(0.35, "drone radius for flight clearance and the fall corridor", "m")
-    standoff: float = param(0.5, "point in front of a perch (along its normal) that must be reachable", "m")
-    voxel_size: float = param(0.05, "voxel size of the flight-reachability occupancy grid", "m")
+    raster_density: float = param(50.0, "raster resolution of each surface", "px/m", low=0.0, high=1000.0)
+    drone_radius: float = param(0.35, "drone radius for flight clearance and the fall corridor", "m", low=0.0, high=5.0)
+    standoff: float = param(0.5, "point in front of a perch (along its normal) that must be reachable", "m", low=0.0, high=10.0)
+    voxel_size: float = param(0.05, "voxel size of the flight-reachability occupancy grid", "m", low=0.0, high=1.0)
     min_support: float = param(0.9, "share of the window that must have scanned surface within plane_tolerance "
-                               "of the perch plane")
+                               "of the perch plane", low=0.0, high=1.0)
     max_support_rms: float = param(0.02, "largest RMS distance of the scanned surface under the window to the "
-                                   "perch plane", "m")
-    min_visible_share: float = param(0.2, "share of the target's sample points a perch must see")
-    visibility_points: int = param(64, "target sample points for the visibility share (seeded by seed)")
+                                   "perch plane", "m", low=0.0, high=1.0)
+    min_visible_share: float = param(0.2, "share of the target's sample points a perch must see", low=0.0, high=1.0)
+    visibility_points: int = param(64, "target sample points for the visibility share (seeded by seed)", low=1, high=100000)
     visibility_spacing: float = param(0.06, "grid on which visibility shares are ray cast and then "
-                                      "interpolated bilinearly", "m")
-    los_offset: float = param(0.02, "line-of-sight rays start this far in front of the surface", "m")
-    plane_tolerance: float = param(0.03, "geometry closer to a surface's plane than this is the surface itself", "m")
-    floor_merge_tolerance: float = param(0.1, "floor pieces within this height of the lowest are one floor", "m")
-    min_floor_area: float = param(1.0, "smallest horizontal surface that may be the floor", "m^2")
-    min_region_area: float = param(0.005, "regions smaller than this are dropped", "m^2")
-    max_cells_per_surface: int = param(4_000_000, "refuse rasters larger than this (absurd density)")
-    max_voxels: int = param(60_000_000, "refuse occupancy grids larger than this (absurd voxel size)")
-    seed: int = param(0, "seed of the random samples used to orient surfaces and of the target points")
+                                      "interpolated bilinearly", "m", low=0.001, high=10.0)
+    los_offset: float = param(0.02, "line-of-sight rays start this far in front of the surface", "m", low=0.0, high=1.0)
+    plane_tolerance: float = param(0.03, "geometry closer to a surface's plane than this is the surface itself", "m",
+                                   low=0.0, high=1.0)
+    floor_merge_tolerance: float = param(0.1, "floor pieces within this height of the lowest are one floor", "m",
+                                         low=0.0, high=10.0)
+    min_floor_area: float = param(1.0, "smallest horizontal surface that may be the floor", "m^2", low=0.0)
+    min_region_area: float = param(0.005, "regions smaller than this are dropped", "m^2", low=0.0)
+    max_cells_per_surface: int = param(4_000_000, "refuse rasters larger than this (absurd density)", low=1)
+    max_voxels: int = param(60_000_000, "refuse occupancy grids larger than this (absurd voxel size)", low=1)
+    seed: int = param(0, "seed of the random samples used to orient surfaces and of the target points", low=0)
 
     @property
     def cell(self) -> float:
@@ -89,4 +92,22 @@ class FilterConfig:
                             "(the drone's centre hovers there)")
         if problems:
             raise ValueError("filter configuration: " + "; ".join(problems))
+        return self
+
+
+@dataclass
+class FilterNodeConfig(FilterConfig):
+    """The perch_filtering node's parameters: the filter settings plus the node's own."""
+
+    up_axis: str = param("+z", "up axis when a request leaves `up` zero")
+    introspection: bool = param(True, "publish service events (recorder)")
+
+    def filter_config(self) -> FilterConfig:
+        """The filter settings alone."""
+        return base_config(self, FilterConfig)
+
+    def validate(self) -> "FilterNodeConfig":
+        """Raise ValueError naming every absurd value, the up axis included."""
+        self.filter_config().validate()
+        parse_up_axis(self.up_axis)
         return self

@@ -99,7 +99,8 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
     centre = target.centroid()
     clock.lap("ray_scene")
     orientations = orient(winding_votes(mesh, surfaces),
-                          visibility_scores(mesh, surfaces, grid, scene, centre, config.seed))
+                          visibility_scores(mesh, surfaces, grid, scene, centre, config.seed,
+                                            config.los_offset))
     oriented = [oriented_copy(s, o.sign, up, config.class_angle_deg) for s, o in zip(surfaces, orientations)]
     floor_height, floor_ids = find_floor(oriented, mesh, up, config)
     clock.lap("orientation")

@@ -5,7 +5,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import sys
-from dataclasses import dataclass, field
 
 import numpy as np
 from rclpy.node import Node
@@ -24,18 +23,9 @@ from perch_common.ros.node_main import run_node
 from perch_common.ros.params import declare_config, read_config
 from perch_common.ros.service import answering, create_stage_service
 from perch_common.transforms import parse_up_axis
-from perch_filtering.config import FilterConfig
+from perch_filtering.config import FilterConfig, FilterNodeConfig
 from perch_filtering.core import filter_surfaces
 from perch_interfaces import srv
-
-
-@dataclass
-class FilterNodeConfig(FilterConfig):
-    up_axis: str = field(default="+z", metadata={"description": "up axis when a request leaves `up` zero"})
-    introspection: bool = field(default=True, metadata={"description": "publish service events (recorder)"})
-
-    def filter_config(self) -> FilterConfig:
-        return FilterConfig(**{f.name: getattr(self, f.name) for f in dataclasses.fields(FilterConfig)})
 
 
 def config_from_spec(spec, base: FilterConfig) -> FilterConfig:
@@ -56,9 +46,7 @@ def config_from_spec(spec, base: FilterConfig) -> FilterConfig:
 class FilterNode(Node):
     def __init__(self) -> None:
         super().__init__("perch_filtering")
-        config = declare_config(self, FilterNodeConfig)
-        config.filter_config().validate()  # fail at start-up on a broken configuration
-        parse_up_axis(config.up_axis)
+        config = declare_config(self, FilterNodeConfig, check=FilterNodeConfig.validate)
         self._warm_up()
         self.service = create_stage_service(self, srv.Filter, STAGE_SERVICES["filter"], self._filter, config.introspection)
         self.get_logger().info(f"ready: {STAGE_SERVICES['filter']}")

@@ -44,9 +44,10 @@ def winding_votes(mesh: Mesh, surfaces: list[Surface]) -> np.ndarray:
 
 
 def visibility_scores(mesh: Mesh, surfaces: list[Surface], grid: FlightGrid, scene: RayScene,
-                      target_centre: np.ndarray, seed: int) -> np.ndarray:
+                      target_centre: np.ndarray, seed: int, los_offset: float = 0.02) -> np.ndarray:
     """Per surface, score(front side) - score(back side), each side scored in [0, 2] as the share of
-    sample points whose offset lies in open space connected to the target, plus the share that see it."""
+    sample points whose offset lies in open space connected to the target, plus the share that see it
+    (sight lines start `los_offset` off the surface, as the line-of-sight filter's do)."""
     if not surfaces:
         return np.zeros(0)
     rng = np.random.default_rng(seed)
@@ -68,7 +69,7 @@ def visibility_scores(mesh: Mesh, surfaces: list[Surface], grid: FlightGrid, sce
     score = np.zeros(len(surfaces))
     for side in (1.0, -1.0):
         open_side = grid.lookup(grid.open_space, p + side * offset * n)
-        start = p + side * 0.02 * n
+        start = p + side * los_offset * n
         facing = np.einsum("ij,ij->i", target_centre - p, side * n) > 0
         sees = facing & ~scene.occluded(start, np.repeat(target_centre[None], len(p), axis=0))
         per_point = open_side.astype(float) + sees

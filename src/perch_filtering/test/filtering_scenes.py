@@ -88,7 +88,8 @@ class Builder:
             n = len(vertices)
             mids = np.concatenate([(vertices[a] + vertices[b]) / 2, (vertices[b] + vertices[c]) / 2,
                                    (vertices[c] + vertices[a]) / 2])
-            ab, bc, ca = n + np.arange(len(faces)), n + len(faces) + np.arange(len(faces)), n + 2 * len(faces) + np.arange(len(faces))
+            count = np.arange(len(faces))
+            ab, bc, ca = n + count, n + len(faces) + count, n + 2 * len(faces) + count
             vertices = np.concatenate([vertices, mids])
             faces = np.stack([np.stack([a, ab, ca], 1), np.stack([ab, b, bc], 1), np.stack([ca, bc, c], 1),
                               np.stack([ab, bc, ca], 1)], axis=1).reshape(-1, 3)

@@ -12,24 +12,7 @@ import numpy as np
 
 from perch_common.mesh import Mesh, MeshError
 from perch_common.target import TargetVolume
-
-
-@dataclass
-class CropConfig:
-    """How the default target (the cropped environment's floor area) is found."""
-
-    target_height: float = field(default=1.2, metadata={
-        "description": "default target: height of the volume above the floor", "unit": "m"})
-    floor_angle: float = field(default=0.35, metadata={
-        "description": "faces within this angle of up count as floor candidates", "unit": "rad"})
-    floor_band: float = field(default=0.5, metadata={
-        "description": "floor candidates lie within this height above the lowest upward face", "unit": "m"})
-    floor_tolerance: float = field(default=0.08, metadata={
-        "description": "faces within this height of the floor level form the floor", "unit": "m"})
-    grid_resolution: float = field(default=0.05, metadata={
-        "description": "cell size of the raster used to outline the floor", "unit": "m"})
-    close_radius: float = field(default=0.15, metadata={
-        "description": "gaps in the floor (e.g. under furniture legs) up to this size are closed", "unit": "m"})
+from perch_operator.config import CropConfig
 
 
 @dataclass

@@ -29,7 +29,7 @@ from perch_common.up_axis import choose_up, file_convention
 from perch_interfaces import srv
 from perch_interfaces.action import PlanPerches
 from perch_operator.messages import boxes_to_aligned, placement_msg, target_to_aligned
-from perch_operator.proposals import Decision, Proposal, ProposalBook
+from perch_operator.proposals import Decision, Proposal, ProposalBook, ProposalError, Status
 from perch_operator.stages import MissionCancelled, StageCaller, StageError
 
 # Rough share of a mission's time per stage, for the feedback fraction.
@@ -270,3 +270,35 @@ def replan_slot(caller: StageCaller, operator: Operator, slot: int) -> Proposal 
     operator.scores = (reply.fitness, reply.coverage, reply.mean_uncertainty)
     return operator.book.propose(slot, placement_from_msg(reply.placements[0]))
 
+
+@dataclass
+class DecisionOutcome:
+    """A recorded operator decision and, for a rejected or failed perch, its replacement."""
+
+    decided: Proposal
+    replacement: Proposal | None
+    message: str
+
+
+def decide(caller: StageCaller, operator: Operator | None, proposal_id: int, decision: Decision, reason: str,
+           publish: Callable[[Proposal], None]) -> DecisionOutcome:
+    """Record a decision on a proposal; a rejected or failed perch is re-planned at once, and the
+    replacement accepted when the mission runs under the auto_accept policy. Every changed proposal
+    goes to `publish`. Raises ProposalError for an unknown or already decided proposal."""
+    if operator is None:
+        raise ProposalError("no mission has proposed anything yet")
+    decided = operator.book.decide(proposal_id, decision, reason)
+    publish(decided)
+    message = f"proposal {decided.id} {decided.status.name.lower()}"
+    if decided.status == Status.ACCEPTED:
+        return DecisionOutcome(decided, None, message)
+    replacement = replan_slot(caller, operator, decided.slot)
+    if replacement is None:
+        return DecisionOutcome(decided, None, message + "; no alternative perch found, the slot stays empty")
+    publish(replacement)
+    if operator.auto_accept:
+        replacement = operator.book.decide(replacement.id, Decision.ACCEPT, "auto_accept policy")
+        publish(replacement)
+    message += (f"; replacement proposal {replacement.id} for drone {replacement.slot} "
+                f"in {operator.replan_seconds[-1]:.2f} s")
+    return DecisionOutcome(decided, replacement, message)

@@ -105,7 +105,6 @@ def mission_data_from_result(path: str | Path, result, goal=None) -> MissionData
     """The views' data for a finished mission: placements, waypoints and scores from the PlanPerches
     result; mesh, surfaces, regions and target from the recorded stage replies, else from the goal."""
     from perch_common.ros.conversions import mesh_from_msg, placement_from_msg, target_from_msg
-
     from perch_common.ros.static_transforms import alignment_from_msg
     from perch_operator.messages import target_to_aligned
 

@@ -40,7 +40,7 @@ from perch_operator.config import OperatorConfig
 from perch_operator.crop import crop_mesh
 from perch_operator.goal_watch import GoalWatch
 from perch_operator.messages import box_from_ros, pose_array_msg, proposal_msg, waypoint_msg
-from perch_operator.mission import Mission, MissionOptions, Operator, replan_slot
+from perch_operator.mission import Mission, MissionOptions, Operator, decide
 from perch_operator.proposals import Decision, Proposal, ProposalError, Status
 from perch_operator.review import ReviewDesk, ReviewError
 from perch_operator.stages import MissionCancelled, StageCaller, StageError
@@ -55,9 +55,7 @@ LATCHED_LAST = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=
 class OperatorNode(Node):
     def __init__(self) -> None:
         super().__init__("perch_operator")
-        self.config = declare_config(self, OperatorConfig)
-        self.declare_parameter("up_axis", "+z")
-        self.declare_parameter("frame_id", "map")
+        self.config = declare_config(self, OperatorConfig, check=OperatorConfig.validate)
         self.static_transforms = StaticTransformPublisher(self)
         group = ReentrantCallbackGroup()
         self.stages = StageCaller(self, group, self.config.service_wait, self.config.stage_timeout,
@@ -125,7 +123,7 @@ class OperatorNode(Node):
             auto_accept=config.auto_accept, exclusion_radius=config.exclusion_radius,
             clean_given_mesh=config.clean_given_mesh, optimise_on_full_mesh=config.optimise_on_full_mesh,
             confirm_timeout=config.confirm_timeout, frame_id=self._frame_id(),
-            up=parse_up_axis(self.get_parameter("up_axis").value), input_up=config.input_up_axis)
+            up=parse_up_axis(config.up_axis), input_up=config.input_up_axis)
 
         def feedback(stage: str, fraction: float, message: str) -> None:
             goal_handle.publish_feedback(PlanPerches.Feedback(stage=stage, fraction=fraction, message=message))
@@ -182,26 +180,13 @@ class OperatorNode(Node):
     # --- operator -----------------------------------------------------------------------------
 
     def _confirm(self, request: srv.Confirm.Request, response: srv.Confirm.Response) -> srv.Confirm.Response:
-        operator = self.operator
         try:
-            if operator is None:
-                raise ProposalError("no mission has proposed anything yet")
-            decided = operator.book.decide(request.proposal_id, Decision(request.decision), request.reason)
-            self._publish_proposal(decided)
-            response.success = True
-            response.message = f"proposal {decided.id} {decided.status.name.lower()}"
-            if decided.status != Status.ACCEPTED:
-                replacement = replan_slot(self.stages, operator, decided.slot)
-                if replacement is None:
-                    response.message += "; no alternative perch found, the slot stays empty"
-                else:
-                    self._publish_proposal(replacement)
-                    if operator.auto_accept:
-                        replacement = operator.book.decide(replacement.id, Decision.ACCEPT, "auto_accept policy")
-                        self._publish_proposal(replacement)
-                    response.replacement = proposal_msg(replacement, operator.alignment, operator.optimise_request.regions)
-                    response.message += (f"; replacement proposal {replacement.id} for drone {replacement.slot} "
-                                         f"in {operator.replan_seconds[-1]:.2f} s")
+            outcome = decide(self.stages, self.operator, request.proposal_id, Decision(request.decision),
+                             request.reason, self._publish_proposal)
+            response.success, response.message = True, outcome.message
+            if outcome.replacement is not None:
+                response.replacement = proposal_msg(outcome.replacement, self.operator.alignment,
+                                                    self.operator.optimise_request.regions)
         except (ProposalError, ValueError) as exc:
             response.success, response.message = False, str(exc)
         except (StageError, PerchError, TimeoutError) as exc:
@@ -236,7 +221,7 @@ class OperatorNode(Node):
                             self.get_clock().now().to_msg())
 
     def _frame_id(self) -> str:
-        return str(self.get_parameter("frame_id").value)
+        return read_config(self, OperatorConfig).frame_id
 
 
 COMPONENT = OperatorNode  # what a one-process graph (perch_common.ros.container) hosts

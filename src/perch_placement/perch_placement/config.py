@@ -8,7 +8,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, replace
 
-from perch_common.config import param
+from perch_common.config import base_config, param
+from perch_common.transforms import parse_up_axis
+
+# The search methods (perch_placement.search.METHODS holds one function for each).
+METHOD_NAMES = ("pso", "celf", "random", "grid", "naive")
 
 # Intel RealSense D435 depth stream: 1280 x 720 px, 87 x 58 degrees field of view.
 D435_FX = 640.0 / math.tan(math.radians(87.0 / 2))
@@ -20,20 +24,20 @@ class CameraSpec:
     """A stereo depth camera: pinhole intrinsics, Brown-Conrady distortion and stereo error model."""
 
     name: str = param("d435", "camera profile name")
-    width: int = param(1280, "image width", "px")
-    height: int = param(720, "image height", "px")
-    fx: float = param(D435_FX, "focal length along x (87 deg horizontal FOV)", "px")
-    fy: float = param(D435_FY, "focal length along y (58 deg vertical FOV)", "px")
+    width: int = param(1280, "image width", "px", low=1)
+    height: int = param(720, "image height", "px", low=1)
+    fx: float = param(D435_FX, "focal length along x (87 deg horizontal FOV)", "px", low=1e-6)
+    fy: float = param(D435_FY, "focal length along y (58 deg vertical FOV)", "px", low=1e-6)
     cx: float = param(640.0, "principal point x", "px")
     cy: float = param(360.0, "principal point y", "px")
     distortion: tuple = param((0.0, 0.0, 0.0, 0.0, 0.0), "Brown-Conrady coefficients, OpenCV order k1 k2 p1 p2 k3")
-    baseline: float = param(0.05, "stereo baseline", "m")
-    subpixel_error: float = param(0.08, "disparity (sub-pixel) error", "px")
-    min_range: float = param(0.2, "closest usable depth (r_min)", "m")
-    max_range: float = param(10.0, "farthest depth before the feature-size cap", "m")
-    min_feature_size: float = param(0.05, "smallest feature to track (L_min)", "m")
-    min_feature_pixels: float = param(10.0, "pixels that feature must span (p_min)", "px")
-    max_zoom: float = param(1.0, "largest optical zoom factor (1 = no zoom)")
+    baseline: float = param(0.05, "stereo baseline", "m", low=1e-6)
+    subpixel_error: float = param(0.08, "disparity (sub-pixel) error", "px", low=1e-6)
+    min_range: float = param(0.2, "closest usable depth (r_min)", "m", low=0.0)
+    max_range: float = param(10.0, "farthest depth before the feature-size cap", "m", low=1e-6)
+    min_feature_size: float = param(0.05, "smallest feature to track (L_min)", "m", low=1e-6)
+    min_feature_pixels: float = param(10.0, "pixels that feature must span (p_min)", "px", low=1e-6)
+    max_zoom: float = param(1.0, "largest optical zoom factor (1 = no zoom)", low=1.0, high=100.0)
 
     @property
     def focal(self) -> float:
@@ -46,6 +50,7 @@ class CameraSpec:
         return min(self.max_range, self.focal * zoom * self.min_feature_size / self.min_feature_pixels)
 
     def validate(self) -> "CameraSpec":
+        """Raise ValueError naming every unusable value; the camera itself otherwise."""
         problems = []
         if self.width <= 0 or self.height <= 0:
             problems.append(f"image size {self.width}x{self.height} must be positive")
@@ -66,6 +71,7 @@ class CameraSpec:
 
 
 def camera_from_fov(name: str, width: int, height: int, hfov_deg: float, vfov_deg: float, **kw) -> CameraSpec:
+    """A centred pinhole camera with the given fields of view (degrees)."""
     return CameraSpec(name=name, width=width, height=height,
                       fx=width / 2 / math.tan(math.radians(hfov_deg) / 2),
                       fy=height / 2 / math.tan(math.radians(vfov_deg) / 2),
@@ -86,61 +92,62 @@ CAMERA_PROFILES = {
 class DroneSpec:
     """A perching drone carrying the camera on a pan/tilt gimbal."""
 
-    radius: float = param(0.25, "drone radius for flight clearance", "m")
-    camera_offset: float = param(0.1, "camera distance from the perch surface", "m")
-    pan_range_deg: float = param(90.0, "full gimbal pan range about the drone's forward axis", "deg")
-    tilt_range_deg: float = param(90.0, "full gimbal tilt range", "deg")
+    radius: float = param(0.25, "drone radius for flight clearance", "m", low=0.0, high=5.0)
+    camera_offset: float = param(0.1, "camera distance from the perch surface", "m", low=0.0, high=2.0)
+    pan_range_deg: float = param(90.0, "full gimbal pan range about the drone's forward axis", "deg", low=0.0, high=360.0)
+    tilt_range_deg: float = param(90.0, "full gimbal tilt range", "deg", low=0.0, high=180.0)
     gimbal_limited_targeting: bool = param(True,
         "restrict pan/tilt to a window around the direction to the target centre")
     target_deviation_deg: float = param(40.0,
-        "half-width of the targeting window", "deg")
-    min_spacing: float = param(1.0, "minimum distance between perched drones", "m")
+        "half-width of the targeting window", "deg", low=0.0, high=180.0)
+    min_spacing: float = param(1.0, "minimum distance between perched drones", "m", low=0.0, high=100.0)
 
 
 @dataclass
 class PsoConfig:
     """Local-best particle swarm (numpy; one batched evaluation per generation)."""
 
-    particles: int = param(50, "swarm size")
-    iterations: int = param(40, "maximum generations")
-    inertia: float = param(0.7, "velocity inertia weight")
-    cognitive: float = param(0.5, "pull towards a particle's own best")
-    social: float = param(0.4, "pull towards the neighbourhood best")
-    neighbours: int = param(5, "neighbourhood size (nearest particles, self included)")
-    tolerance: float = param(0.001, "convergence: least best-fitness gain ...")
-    patience: int = param(5, "... over this many generations")
+    particles: int = param(50, "swarm size", low=2, high=100000)
+    iterations: int = param(40, "maximum generations", low=1, high=100000)
+    inertia: float = param(0.7, "velocity inertia weight", low=0.0, high=2.0)
+    cognitive: float = param(0.5, "pull towards a particle's own best", low=0.0, high=4.0)
+    social: float = param(0.4, "pull towards the neighbourhood best", low=0.0, high=4.0)
+    neighbours: int = param(5, "neighbourhood size (nearest particles, self included)", low=1, high=100000)
+    tolerance: float = param(0.001, "convergence: least best-fitness gain ...", low=0.0)
+    patience: int = param(5, "... over this many generations", low=1, high=100000)
     seeded: int = param(25,
         "particles started at the best candidates of the discrete candidate set (0: all uniform random,"
-        " as the original)")
-    polish_rounds: int = param(6, "hill-climbing rounds polishing each camera's swarm best (0: none)")
-    polish_samples: int = param(32, "batched samples per hill-climbing round (polish and CELF refinement)")
-    polish_step: float = param(0.05, "first hill-climbing step (standard deviation in [0,1] coordinates)")
-    initial_speed: float = param(0.1, "initial particle velocities are uniform in +-this")
-    seeded_speed: float = param(0.2, "velocity factor of seeded particles (they search near their start first)")
+        " as the original)", low=0, high=100000)
+    polish_rounds: int = param(6, "hill-climbing rounds polishing each camera's swarm best (0: none)", low=0, high=1000)
+    polish_samples: int = param(32, "batched samples per hill-climbing round (polish and CELF refinement)", low=1, high=100000)
+    polish_step: float = param(0.05, "first hill-climbing step (standard deviation in [0,1] coordinates)", low=1e-6, high=1.0)
+    initial_speed: float = param(0.1, "initial particle velocities are uniform in +-this", low=0.0, high=1.0)
+    seeded_speed: float = param(0.2, "velocity factor of seeded particles (they search near their start first)",
+                                low=0.0, high=1.0)
 
 
 @dataclass
 class PlacementConfig:
     """Everything the placement search needs besides the scene."""
 
-    num_cameras: int = param(5, "cameras to add")
-    method: str = param("pso", "search: pso | celf | random | grid | naive")
+    num_cameras: int = param(5, "cameras to add", low=0, high=100)
+    method: str = param("pso", "search: pso | celf | random | grid | naive", choices=METHOD_NAMES)
     encoding: str = param("plane",
-        "position encoding: plane (in-plane coordinates) | mesh (area-weighted face selector)")
-    target_points: int = param(100, "target points sampled in the target volume (N)")
-    seed: int = param(0, "seed of the target samples and of the search")
+        "position encoding: plane (in-plane coordinates) | mesh (area-weighted face selector)", choices=("plane", "mesh"))
+    target_points: int = param(100, "target points sampled in the target volume (N)", low=1, high=100000)
+    seed: int = param(0, "seed of the target samples and of the search", low=0)
     up_axis: str = param("+z", "gravity up direction")
-    occlusion_epsilon: float = param(1e-3, "ignored length at both ends of a sight line", "m")
+    occlusion_epsilon: float = param(1e-3, "ignored length at both ends of a sight line", "m", low=0.0, high=0.1)
     candidate_spacing: float = param(0.15,
-        "candidate grid spacing on the regions (CELF and the optimality bound)", "m")
-    candidate_angles: int = param(7, "candidate pan and tilt steps (each)")
-    refine_rounds: int = param(6, "CELF: hill-climbing rounds refining each chosen camera (0: none)")
-    reference_spacing: float = param(0.05, "exhaustive reference grid spacing", "m")
-    reference_angles: int = param(13, "exhaustive reference pan and tilt steps (each)")
+        "candidate grid spacing on the regions (CELF and the optimality bound)", "m", low=0.01, high=10.0)
+    candidate_angles: int = param(7, "candidate pan and tilt steps (each)", low=1, high=64)
+    refine_rounds: int = param(6, "CELF: hill-climbing rounds refining each chosen camera (0: none)", low=0, high=1000)
+    reference_spacing: float = param(0.05, "exhaustive reference grid spacing", "m", low=0.005, high=10.0)
+    reference_angles: int = param(13, "exhaustive reference pan and tilt steps (each)", low=1, high=64)
     compute_bound: bool = param(True, "report the greedy online optimality bound")
     camera_profile: str = param("",
-        "named camera profile (d435, d455, d405, zed2) overriding camera.*; empty: use camera.*")
-    introspection: bool = param(True, "service introspection (requests/replies recorded)")
+        "named camera profile (d435, d455, d405, zed2) overriding camera.*; empty: use camera.*",
+        choices=("",) + tuple(CAMERA_PROFILES))
     camera: CameraSpec = field(default_factory=CameraSpec)
     drone: DroneSpec = field(default_factory=DroneSpec)
     pso: PsoConfig = field(default_factory=PsoConfig)
@@ -160,4 +167,21 @@ class PlacementConfig:
         if cfg.pso.particles < 2 or cfg.pso.iterations < 1:
             raise ValueError("pso needs >= 2 particles and >= 1 iteration")
         cfg.camera.validate()
+        parse_up_axis(cfg.up_axis)
         return cfg
+
+    def validate(self) -> "PlacementConfig":
+        """Raise ValueError naming what is wrong (the profile, the camera, the up axis)."""
+        self.resolved()
+        return self
+
+
+@dataclass
+class PlacementNodeConfig(PlacementConfig):
+    """The perch_placement node's parameters: the placement settings plus the node's own."""
+
+    introspection: bool = param(True, "service introspection (requests/replies recorded)")
+
+    def placement(self) -> PlacementConfig:
+        """The placement settings alone."""
+        return base_config(self, PlacementConfig)

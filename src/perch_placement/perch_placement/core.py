@@ -22,9 +22,9 @@ from perch_common.types import CameraPlacement, ExclusionZone, PerchRegion
 from perch_placement.cache import PlacementCache, mesh_digest
 from perch_placement.config import PlacementConfig
 from perch_placement.fitness import Evaluator, placement_cameras
-from perch_placement.shortfall import shortfall_sentence
 from perch_placement.perches import Perch, Perches
 from perch_placement.search import METHODS, SearchContext
+from perch_placement.shortfall import shortfall_sentence
 
 __all__ = ["PlacementConfig", "PlacementCache", "PlacementResult", "optimise", "scene_for", "METHODS"]
 

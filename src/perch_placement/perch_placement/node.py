@@ -20,7 +20,7 @@ from perch_common.ros.node_main import run_node
 from perch_common.ros.params import declare_config, read_config
 from perch_common.ros.service import answering, create_stage_service
 from perch_interfaces import srv
-from perch_placement.config import CameraSpec, DroneSpec, PlacementConfig
+from perch_placement.config import CameraSpec, DroneSpec, PlacementConfig, PlacementNodeConfig
 from perch_placement.core import PlacementCache, optimise
 
 
@@ -42,15 +42,14 @@ def drone_from_msg(msg) -> DroneSpec:
 class PlacementNode(Node):
     def __init__(self) -> None:
         super().__init__("perch_placement")
-        config = declare_config(self, PlacementConfig)
-        config.resolved()  # fail at start-up on a broken configuration
+        config = declare_config(self, PlacementNodeConfig, check=PlacementNodeConfig.validate)
         self.cache = PlacementCache()  # re-optimising after a rejection reuses the scene and candidates
         self.service = create_stage_service(self, srv.Optimise, STAGE_SERVICES["optimise"], self.optimise,
                                             config.introspection)
         self.get_logger().info(f"ready: {STAGE_SERVICES['optimise']}")
 
     def _request_config(self, request) -> PlacementConfig:
-        config = read_config(self, PlacementConfig).resolved()
+        config = read_config(self, PlacementNodeConfig).placement().resolved()
         if request.camera.specified:
             config.camera = camera_from_msg(request.camera).validate()
         if request.drone.specified:

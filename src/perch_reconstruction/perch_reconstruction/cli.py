@@ -196,7 +196,10 @@ def _reconstruct(args) -> int:
 
     refuse_overwriting_inputs([args.output, args.raw], [args.bag, args.frames, args.config])
     config = _config_with(args.config, voxel_size=args.voxel_size, target_faces=args.target_faces)
-    progress = lambda s: print(f"  {s.frames_integrated}/{s.frames_received} frames integrated", flush=True)
+
+    def progress(s) -> None:
+        print(f"  {s.frames_integrated}/{s.frames_received} frames integrated", flush=True)
+
     if args.bag:
         mesh, stats = reconstruct_bag(args.bag, config, args.use_poses, _topics(args), progress=progress)
     else:

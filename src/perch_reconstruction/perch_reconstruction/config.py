@@ -2,39 +2,44 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
-from perch_common.config import param
+from perch_common.config import base_config, param
 
 
 @dataclass
 class ReconstructionConfig:
+    """The reconstruction settings: TSDF volume, odometry, time synchronisation and cleaning."""
+
     # TSDF volume
-    voxel_size: float = param(0.02, "TSDF voxel edge length", "m")
-    block_resolution: int = param(16, "voxels per block edge of the VoxelBlockGrid")
+    voxel_size: float = param(0.02, "TSDF voxel edge length", "m", low=0.0, high=1.0)
+    block_resolution: int = param(16, "voxels per block edge of the VoxelBlockGrid", choices=(4, 8, 16, 32))
     max_blocks: int = param(15000, "memory bound: at most this many TSDF blocks (~82 kB each); frames that "
-                                "would add more are skipped and counted")
-    depth_min: float = param(0.1, "ignore depth closer than this", "m")
-    depth_max: float = param(4.0, "ignore depth farther than this (sensor noise grows with range)", "m")
-    depth_scale: float = param(0.0, "metres per raw depth unit; 0 = by encoding (16UC1 mm, 32FC1 m)", "m")
-    trunc_voxel_multiplier: float = param(4.0, "TSDF truncation distance in voxels (4 x 2 cm keeps thin furniture)")
-    weight_threshold: float = param(1.0, "extract surface where the TSDF weight reaches this")
+                                "would add more are skipped and counted", low=1)
+    depth_min: float = param(0.1, "ignore depth closer than this", "m", low=0.0)
+    depth_max: float = param(4.0, "ignore depth farther than this (sensor noise grows with range)", "m", low=0.0)
+    depth_scale: float = param(0.0, "metres per raw depth unit; 0 = by encoding (16UC1 mm, 32FC1 m)", "m", low=0.0)
+    trunc_voxel_multiplier: float = param(4.0, "TSDF truncation distance in voxels (4 x 2 cm keeps thin furniture)", low=0.0)
+    weight_threshold: float = param(1.0, "extract surface where the TSDF weight reaches this", low=0.0)
     # Odometry (used when no poses are given)
-    tracking_scale: float = param(0.25, "image scale for odometry (0.25 = 160x120 from 640x480; never below 160 px wide)")
-    tracking_depth_diff: float = param(0.07, "max depth difference of an odometry correspondence", "m")
-    tracking_min_fitness: float = param(0.2, "below this inlier share the frame is not integrated (lost)")
+    tracking_scale: float = param(0.25, "image scale for odometry (0.25 = 160x120 from 640x480; never below 160 px wide)",
+                                  low=0.0, high=1.0)
+    tracking_depth_diff: float = param(0.07, "max depth difference of an odometry correspondence", "m", low=0.0)
+    tracking_min_fitness: float = param(0.2, "below this inlier share the frame is not integrated (lost)", low=0.0, high=1.0)
     # Time synchronisation
-    sync_tolerance: float = param(0.005, "colour and depth stamps pair when this close", "s")
-    pose_tolerance: float = param(0.02, "a pose stamp must lie this close to the frame stamp", "s")
+    sync_tolerance: float = param(0.005, "colour and depth stamps pair when this close", "s", low=0.0)
+    pose_tolerance: float = param(0.02, "a pose stamp must lie this close to the frame stamp", "s", low=0.0)
     # Cleaning (also the /perch/clean_mesh service defaults)
-    merge_distance: float = param(1e-5, "vertices closer than this are merged", "m")
-    min_piece_diameter: float = param(0.3, "connected pieces with a smaller bounding-box diagonal are removed", "m")
-    target_faces: int = param(100_000, "quadric edge-collapse decimation target (0 = no decimation)")
+    merge_distance: float = param(1e-5, "vertices closer than this are merged", "m", low=0.0)
+    min_piece_diameter: float = param(0.3, "connected pieces with a smaller bounding-box diagonal are removed", "m", low=0.0)
+    target_faces: int = param(100_000, "quadric edge-collapse decimation target (0 = no decimation)", low=0)
     gravity_align: bool = param(True, "rotate the mesh so gravity points along -z")
-    min_up_confidence: float = param(0.5, "confidence (0..1, perch_common.up_axis) needed to trust an estimated up axis")
-    seed: int = param(0, "seed of every random choice (metric sampling)")
+    min_up_confidence: float = param(0.5, "confidence (0..1, perch_common.up_axis) needed to trust an estimated up axis",
+                                     low=0.0, high=1.0)
+    seed: int = param(0, "seed of every random choice (metric sampling)", low=0)
 
     def validate(self) -> "ReconstructionConfig":
+        """Raise ValueError naming the first unusable value; the configuration itself otherwise."""
         checks = [
             (self.voxel_size > 0, f"voxel_size must be > 0 m, got {self.voxel_size}"),
             (self.block_resolution in (4, 8, 16, 32), f"block_resolution must be 4, 8, 16 or 32, got {self.block_resolution}"),
@@ -52,31 +57,32 @@ class ReconstructionConfig:
 
 
 @dataclass
-class NodeConfig(ReconstructionConfig):
+class ReconstructionNodeConfig(ReconstructionConfig):
     """The node's parameters: the reconstruction settings plus live-input handling."""
 
     color_topic: str = param("/camera/color/image_raw", "colour images (sensor_msgs/Image rgb8/bgr8/...)")
     depth_topic: str = param("/camera/depth/image_raw", "depth images registered to colour (16UC1 mm or 32FC1 m)")
     camera_info_topic: str = param("/camera/depth/camera_info", "sensor_msgs/CameraInfo of the depth stream")
     pose_topic: str = param("/camera/pose", "world-from-camera poses (geometry_msgs/PoseStamped)")
-    pose_type: str = param("pose", "type on pose_topic: 'pose' (PoseStamped) or 'odometry' (nav_msgs/Odometry)")
+    pose_type: str = param("pose", "type on pose_topic: 'pose' (PoseStamped) or 'odometry' (nav_msgs/Odometry)",
+                           choices=("pose", "odometry"))
     lossless_replay: bool = param(False, "subscribe reliable + transient-local as `perch bag play` publishes "
                                       "(no frame lost); false: best effort, matching camera drivers and "
                                       "`ros2 bag play`")
     compressed_images: bool = param(False, "colour and depth arrive as sensor_msgs/CompressedImage")
     use_poses: bool = param(True, "live input: integrate the poses from pose_topic (false: RGB-D odometry)")
-    gravity: list = field(default_factory=lambda: [0.0, 0.0, 0.0], metadata={
-        "description": "live input: gravity in the pose frame; zeros = estimate from floor/ceiling"})
+    gravity: list = param([0.0, 0.0, 0.0], "live input: gravity in the pose frame; zeros = estimate from floor/ceiling")
     queue_size: int = param(4, "frames waiting for integration; when full the OLDEST waiting frame is dropped "
-                            "(counted) so the reconstruction follows the newest view")
-    camera_info_timeout: float = param(5.0, "report an error when images arrive without camera info this long", "s")
-    pose_wait: float = param(0.5, "how long a frame waits for its pose to arrive", "s")
-    drain_timeout: float = param(60.0, "Reconstruct waits at most this long for queued frames", "s")
-    progress_period: float = param(1.0, "progress message period on /perch/reconstruct/progress", "s")
+                            "(counted) so the reconstruction follows the newest view", low=1, high=10000)
+    camera_info_timeout: float = param(5.0, "report an error when images arrive without camera info this long", "s", low=0.0)
+    pose_wait: float = param(0.5, "how long a frame waits for its pose to arrive", "s", low=0.0)
+    drain_timeout: float = param(60.0, "Reconstruct waits at most this long for queued frames", "s", low=0.0)
+    progress_period: float = param(1.0, "progress message period on /perch/reconstruct/progress", "s", low=0.0)
     frame_id: str = param("map", "frame of the returned mesh")
     introspection: bool = param(True, "publish service requests/replies for the operator's recorder")
 
-    def validate(self) -> "NodeConfig":
+    def validate(self) -> "ReconstructionNodeConfig":
+        """Raise ValueError naming the first unusable value; the configuration itself otherwise."""
         super().validate()
         if self.queue_size < 1:
             raise ValueError(f"reconstruction config: queue_size must be >= 1, got {self.queue_size}")
@@ -88,6 +94,4 @@ class NodeConfig(ReconstructionConfig):
 
     def reconstruction(self) -> ReconstructionConfig:
         """The core settings alone."""
-        from dataclasses import fields
-
-        return ReconstructionConfig(**{f.name: getattr(self, f.name) for f in fields(ReconstructionConfig)})
+        return base_config(self, ReconstructionConfig)

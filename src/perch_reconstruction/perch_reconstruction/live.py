@@ -16,7 +16,7 @@ import numpy as np
 
 from perch_common.errors import PerchError
 from perch_common.mesh import Mesh
-from perch_reconstruction.config import NodeConfig
+from perch_reconstruction.config import ReconstructionNodeConfig
 from perch_reconstruction.core import ReconstructionStats, Reconstructor
 from perch_reconstruction.frames import Intrinsics, RGBDFrame
 from perch_reconstruction.sync import FrameAssembler, PoseBuffer
@@ -26,7 +26,7 @@ MAX_QUIET_WAIT_S = 3.0
 
 
 class LiveIngest:
-    def __init__(self, config: NodeConfig, log: Callable[[str], None] = print):
+    def __init__(self, config: ReconstructionNodeConfig, log: Callable[[str], None] = print):
         self.config = config.validate()
         self.log = log
         self._lock = threading.Lock()          # guards the queue, counters, buffers

@@ -30,7 +30,7 @@ from perch_interfaces import srv
 from perch_reconstruction import images
 from perch_reconstruction.bag_write import BagTopics
 from perch_reconstruction.cleaning import CleanReport, clean_mesh_with_report
-from perch_reconstruction.config import NodeConfig
+from perch_reconstruction.config import ReconstructionNodeConfig
 from perch_reconstruction.core import reconstruct_bag
 from perch_reconstruction.live import LiveIngest
 
@@ -48,7 +48,7 @@ def input_qos(lossless: bool, depth: int) -> QoSProfile:
 class ReconstructionNode(Node):
     def __init__(self) -> None:
         super().__init__("perch_reconstruction")
-        self.config = declare_config(self, NodeConfig).validate()
+        self.config = declare_config(self, ReconstructionNodeConfig, check=ReconstructionNodeConfig.validate)
         c = self.config
         self.ingest = LiveIngest(c, log=self.get_logger().warning)
         inputs = MutuallyExclusiveCallbackGroup()

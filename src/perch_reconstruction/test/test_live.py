@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from perch_common.errors import PerchError
-from perch_reconstruction.config import NodeConfig
+from perch_reconstruction.config import ReconstructionNodeConfig
 from perch_reconstruction.live import LiveIngest
 
 
@@ -23,7 +23,7 @@ def make_ingest():
     made = []
 
     def make(**overrides):
-        ingest = LiveIngest(NodeConfig(**overrides), log=lambda message: None)
+        ingest = LiveIngest(ReconstructionNodeConfig(**overrides), log=lambda message: None)
         made.append(ingest)
         return ingest
 

@@ -22,73 +22,16 @@ from perch_segmentation import stats as st
 from perch_segmentation.adjacency import face_adjacency
 from perch_segmentation.agglomerate import MergeRules, grow_clusters
 from perch_segmentation.color import rgb_to_lab
+from perch_segmentation.config import SegmentationConfig
 from perch_segmentation.fragments import absorb_fragments
 from perch_segmentation.merge_pass import PlaneRules, boundary_plane_groups, merge_coplanar
 from perch_segmentation.surfaces import build_surfaces
 
 
-def _field(default, description: str, unit: str | None = None):
-    meta = {"description": description}
-    if unit:
-        meta["unit"] = unit
-    return field(default=default, metadata=meta)
-
-
-@dataclass
-class SegmentationConfig:
-    """Parameters of the segmentation stage (defaults from the original system)."""
-
-    target_clusters: int = _field(2000, "step 1 stops merging at this many clusters")
-    energy_bound: float = _field(4e-4, "step 1 merges only while the union's mean squared distance to its "
-                                       "best-fit plane stays at or below this (4e-4 = 2 cm RMS)", "m^2")
-    theta_max_deg: float = _field(15.0, "step 2 merges clusters whose normals differ by less than this", "deg")
-    theta_min_deg: float = _field(70.0, "step 2: the line joining two centroids must make at least this angle "
-                                        "with both normals (no stacking of parallel planes)", "deg")
-    d_max: float = _field(0.2, "step 2: each centroid within this distance of the other's plane", "m")
-    use_color: bool = _field(True, "keep differently coloured regions apart (ignored without vertex colours)")
-    color_threshold: float = _field(20.0, "largest CIELAB distance (Delta E 1976) between mean colours "
-                                          "of clusters that merge", "Delta E")
-    min_area: float = _field(0.2, "smallest surface reported", "m^2")
-    normal_guard_area: float = _field(0.01, "step 1: clusters at least this large merge only if their "
-                                            "normals differ by less than theta_max", "m^2")
-    fragment_rms: float = _field(0.1, "pieces smaller than min_area join the adjacent surface whose plane "
-                                       "they fit within this RMS distance (rough scans)", "m")
-    merge_floor_ceiling: bool = _field(True, "unite the disconnected coplanar pieces of the floor and ceiling")
-    up_axis: str = _field("+z", "world up: +x, -x, +y, -y, +z, -z or three numbers")
-    boundary_cell: float = _field(0.02, "grid cell the outlines are traced on (their accuracy)", "m")
-    boundary_simplify: float = _field(0.02, "tolerance of the outline simplification", "m")
-    threads: int = _field(2, "worker threads for independent work (face adjacency, outlines)")
-
-    def validate(self) -> None:
-        """Raise ValueError naming the first absurd parameter."""
-        checks = [
-            (self.target_clusters >= 1, f"target_clusters={self.target_clusters} must be at least 1"),
-            (math.isfinite(self.energy_bound) and self.energy_bound > 0,
-             f"energy_bound={self.energy_bound} must be a positive number of m^2"),
-            (0 < self.theta_max_deg < 90, f"theta_max_deg={self.theta_max_deg} must be in (0, 90)"),
-            (0 <= self.theta_min_deg <= 90, f"theta_min_deg={self.theta_min_deg} must be in [0, 90]"),
-            (math.isfinite(self.d_max) and self.d_max > 0, f"d_max={self.d_max} must be a positive distance (m)"),
-            (math.isfinite(self.color_threshold) and self.color_threshold > 0,
-             f"color_threshold={self.color_threshold} must be a positive CIELAB distance"),
-            (math.isfinite(self.min_area) and self.min_area >= 0, f"min_area={self.min_area} must be >= 0 m^2"),
-            (math.isfinite(self.normal_guard_area) and self.normal_guard_area >= 0,
-             f"normal_guard_area={self.normal_guard_area} must be >= 0 m^2"),
-            (math.isfinite(self.fragment_rms) and self.fragment_rms >= 0,
-             f"fragment_rms={self.fragment_rms} must be >= 0 m"),
-            (math.isfinite(self.boundary_cell) and self.boundary_cell > 0,
-             f"boundary_cell={self.boundary_cell} must be a positive distance (m)"),
-            (math.isfinite(self.boundary_simplify) and self.boundary_simplify >= 0,
-             f"boundary_simplify={self.boundary_simplify} must be >= 0 m"),
-            (1 <= self.threads <= 64, f"threads={self.threads} must be in 1..64"),
-        ]
-        for ok, message in checks:
-            if not ok:
-                raise ValueError(message)
-        parse_up_axis(self.up_axis)
-
-
 @dataclass
 class SegmentationResult:
+    """The surfaces found, each face's surface, and diagnostics."""
+
     surfaces: list[Surface]       # largest first; id = index in this list
     face_labels: np.ndarray       # (F,) int64 index into surfaces, -1 for faces on none
     clusters_step1: int = 0       # clusters after step 1 (diagnostics)

@@ -2,33 +2,22 @@
 
 from __future__ import annotations
 
-import dataclasses
 import sys
-from dataclasses import dataclass, field
 
 import numpy as np
 from rclpy.node import Node
 
 from perch_common.conventions import STAGE_SERVICES
-from perch_common.errors import PerchError
 from perch_common.ros.conversions import mesh_from_request, surface_to_msg, to_array
 from perch_common.ros.node_main import run_node
 from perch_common.ros.params import declare_config, read_config
 from perch_common.ros.service import answering, create_stage_service
 from perch_interfaces import srv
-from perch_segmentation.core import SegmentationConfig, segment_mesh
+from perch_segmentation.config import SegmentationNodeConfig
+from perch_segmentation.core import segment_mesh
 
 NO_SURFACE = np.uint32(0xFFFFFFFF)  # Segment.srv: face_labels entry of a face on no surface
 SERVICE = STAGE_SERVICES["segment"]
-
-
-@dataclass
-class SegmentationNodeConfig(SegmentationConfig):
-    introspection: bool = field(default=True, metadata={
-        "description": "publish service introspection events (requests and replies) of /perch/segment"})
-
-    def segmentation_config(self) -> SegmentationConfig:
-        return SegmentationConfig(**{f.name: getattr(self, f.name) for f in dataclasses.fields(SegmentationConfig)})
 
 
 def face_labels_array(labels: np.ndarray):
@@ -39,21 +28,13 @@ def face_labels_array(labels: np.ndarray):
 class SegmentationNode(Node):
     def __init__(self) -> None:
         super().__init__("perch_segmentation")
-        config = declare_config(self, SegmentationNodeConfig)
-        try:
-            config.segmentation_config().validate()
-        except ValueError as exc:  # keep serving: every request will explain the problem
-            self.get_logger().error(f"parameters: {exc}")
+        config = declare_config(self, SegmentationNodeConfig, check=lambda c: c.segmentation_config().validate())
         self.service = create_stage_service(self, srv.Segment, SERVICE, self._segment, config.introspection)
         self.get_logger().info(f"ready: {SERVICE}")
 
     @answering
     def _segment(self, request: srv.Segment.Request, response: srv.Segment.Response) -> srv.Segment.Response:
-        config = read_config(self, SegmentationNodeConfig).segmentation_config()
-        try:
-            config.validate()
-        except ValueError as exc:
-            raise PerchError(f"parameters of perch_segmentation: {exc}") from exc
+        config = read_config(self, SegmentationNodeConfig).segmentation_config()  # valid: checked when set
         mesh = mesh_from_request(request.mesh, "request mesh")
         result = segment_mesh(mesh, config)
         response.surfaces = [surface_to_msg(s) for s in result.surfaces]

@@ -74,21 +74,20 @@ def _set_parameter(node, name, value):
 
     request = SetParameters.Request(parameters=[Parameter(
         name=name, value=ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=value))])
-    reply = call_service(node, SetParameters, "/perch_segmentation/set_parameters", request, timeout=10)
-    assert reply.results[0].successful
+    return call_service(node, SetParameters, "/perch_segmentation/set_parameters", request, timeout=10).results[0]
 
 
-def test_absurd_parameters_are_reported_per_request(ros_node):
-    """Parameters are read per request: an absurd value is explained, the node keeps serving."""
+def test_absurd_parameters_are_rejected_with_a_reason(ros_node):
+    """A value outside the range, or one the whole configuration forbids, is refused; the node keeps serving."""
     from perch_common.ros.conversions import mesh_to_msg
     from perch_segmentation.testing import box_room
 
     node, proc = ros_node
-    _set_parameter(node, "theta_max_deg", 200.0)
-    try:
-        reply = call(node, mesh_to_msg(box_room()[0]))
-        assert not reply.success and "theta_max_deg=200.0 must be in (0, 90)" in reply.message
-    finally:
-        _set_parameter(node, "theta_max_deg", 15.0)
+    out_of_range = _set_parameter(node, "theta_max_deg", 200.0)
+    assert not out_of_range.successful and "out of range" in out_of_range.reason
+    forbidden = _set_parameter(node, "theta_max_deg", 90.0)  # in [0, 90] but the config needs < 90
+    assert not forbidden.successful and "theta_max_deg=90.0 must be in (0, 90)" in forbidden.reason
+    assert _set_parameter(node, "theta_max_deg", 14.0).successful
+    assert _set_parameter(node, "theta_max_deg", 15.0).successful
     assert proc.poll() is None
     assert call(node, mesh_to_msg(box_room()[0])).success

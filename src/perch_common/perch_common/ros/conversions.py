@@ -11,7 +11,16 @@ from geometry_msgs.msg import Point, Pose, Quaternion, Vector3
 from perch_common.mesh import Mesh, MeshError
 from perch_common.target import TargetVolume
 from perch_common.transforms import pose_to_matrix, quaternion_from_matrix
-from perch_common.types import CameraPlacement, ExclusionZone, FilterRemoval, PerchEvidence, PerchRegion, PlaneFrame, Surface, SurfaceClass
+from perch_common.types import (
+    CameraPlacement,
+    ExclusionZone,
+    FilterRemoval,
+    PerchEvidence,
+    PerchRegion,
+    PlaneFrame,
+    Surface,
+    SurfaceClass,
+)
 from perch_interfaces import msg as pm
 
 _TYPECODES = {np.float32: "f", np.float64: "d", np.uint32: "I", np.uint8: "B", np.int32: "i"}

@@ -10,6 +10,7 @@ import rclpy
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 
+from perch_common.config import ConfigError
 from perch_common.memory import limit_heap_growth
 from perch_common.mesh_cache import PROCESS_CACHE
 
@@ -25,10 +26,17 @@ def ros_context(args: list[str] | None = None) -> Iterator[None]:
 
 
 def run_node(factory: Callable[[], Node], args: list[str] | None = None, threads: int = 2) -> int:
-    """Create the node inside an rclpy context and spin it; returns the process exit code."""
+    """Create the node inside an rclpy context and spin it; returns the process exit code.
+
+    A bad parameter (ConfigError from declare_config) stops the node before it serves anything, with
+    one line on stderr naming the node, the parameter and what it accepts, and exit code 2."""
     limit_heap_growth()  # big request buffers go back to the system once freed
     with ros_context(args if args is not None else sys.argv):
-        node = factory()
+        try:
+            node = factory()
+        except ConfigError as exc:
+            print(f"error: {exc}", file=sys.stderr, flush=True)
+            return 2
         PROCESS_CACHE.hosts.add(node.get_name())   # requests it reads may name this process's meshes by id
         executor = MultiThreadedExecutor(num_threads=threads)
         executor.add_node(node)

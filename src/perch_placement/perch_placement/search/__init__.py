@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Callable
 
+from perch_placement.config import METHOD_NAMES
 from perch_placement.search.baselines import greedy_grid, greedy_random
 from perch_placement.search.celf import celf
 from perch_placement.search.context import SearchContext, SearchOutcome
@@ -18,5 +19,7 @@ METHODS: dict[str, Callable[[SearchContext, int], SearchOutcome]] = {
     "grid": greedy_grid,
     "naive": naive_pso,
 }
+if tuple(METHODS) != METHOD_NAMES:  # the parameter's choices come from METHOD_NAMES
+    raise ImportError("perch_placement: METHODS and config.METHOD_NAMES disagree")
 
 __all__ = ["METHODS", "SearchContext", "SearchOutcome"]
