@@ -89,9 +89,14 @@ def test_launch_file_starts_what_perch_launch_starts():
     launch_file = Path(perch_operator.__file__).parents[1] / "launch" / "perch.launch.py"
     tree = ast.parse(launch_file.read_text())
     assert "generate_launch_description" in {f.name for f in tree.body if isinstance(f, ast.FunctionDef)}
-    # installed to share/perch_operator/{launch,config} by the package's data_files
-    setup_text = (launch_file.parents[1] / "setup.py").read_text()
-    assert '"launch/perch.launch.py"' in setup_text and '"config/perch.yaml"' in setup_text
+    # installed to share/perch_operator/{launch,config} by the package's data_files (setup.cfg)
+    import configparser
+
+    setup_cfg = configparser.ConfigParser()
+    setup_cfg.read(launch_file.parents[1] / "setup.cfg")
+    data_files = setup_cfg["options.data_files"]
+    assert "launch/perch.launch.py" in data_files["share/perch_operator/launch"]
+    assert "config/perch.yaml" in data_files["share/perch_operator/config"]
     assert (launch_file.parents[1] / "config" / "perch.yaml").resolve() == default_config_path().resolve()
 
 

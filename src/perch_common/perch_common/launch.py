@@ -268,11 +268,6 @@ class GraphProcesses:
         if proc is not None:
             stop_process(proc, timeout)
 
-    def restart(self, name: str) -> subprocess.Popen:
-        """Stop process `name` if it runs and start it again."""
-        self.stop_node(name)
-        return self.start_node(name)
-
     def stop(self) -> None:
         """SIGINT to every process, SIGKILL to any still running after 10 s."""
         for proc in self.processes.values():

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import statistics
+import sys
 import time
 from pathlib import Path
 
@@ -115,7 +116,11 @@ def run(args) -> int:
 
         out["png"] = str(render_segmentation(mesh, result.face_labels, args.out / f"{name}.png"))
     if args.baseline != "none":
-        out["baseline"] = _baseline(args.baseline, mesh, scene)
+        try:
+            out["baseline"] = _baseline(args.baseline, mesh, scene)
+        except Exception as exc:  # noqa: BLE001 - Open3D raises bare RuntimeErrors (Qhull); ours stand regardless
+            out["baseline"] = {"method": args.baseline, "error": f"{type(exc).__name__}: {str(exc).splitlines()[0]}"}
+            print(f"baseline {args.baseline} failed: {out['baseline']['error']}", file=sys.stderr)
     return emit(out)
 
 
