@@ -72,7 +72,7 @@ def test_auto_accept_mission_reaches_a_late_dispatcher(graph, recorded):
     dispatcher.create_subscription(PoseArray, "/perch/waypoint_poses", poses.append, LATCHED_LAST)
     deadline = time.monotonic() + 10
     wanted = {w.proposal_id for w in result.waypoints}
-    while time.monotonic() < deadline and not wanted <= {w["proposal_id"] for w in dispatcher.received}:
+    while time.monotonic() < deadline and not (wanted <= {w["proposal_id"] for w in dispatcher.received} and poses):
         spin_for(dispatcher, 0.1)
     got = {w["proposal_id"]: w for w in dispatcher.received}
     assert wanted <= set(got)
@@ -85,6 +85,27 @@ def test_auto_accept_mission_reaches_a_late_dispatcher(graph, recorded):
     dispatcher.destroy_node()
     for name in ("run.mcap", "run.rrd", "report.html", "waypoints.yaml"):
         assert (recorded.out_dir / name).stat().st_size > 0, name
+
+
+def test_late_dispatcher_gets_exactly_the_current_missions_waypoints(graph, scene):
+    from perch_operator.client import run_mission
+    from perch_operator.dispatcher import Dispatcher
+    from perch_operator.mission_data import mission_id_text
+    from perch_operator.runner import spin_for
+
+    results = [run_mission(graph.node, make_goal(scene, cameras=cameras), timeout=300) for cameras in (2, 1)]
+    assert all(r.success for r in results), [r.message for r in results]
+    first, second = ({mission_id_text(w.mission_id) for w in r.waypoints} for r in results)
+    assert len(first) == len(second) == 1 and first != second  # every waypoint names its own mission
+    dispatcher = Dispatcher(name="late_dispatcher_after_two")
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline and not dispatcher.received:
+        spin_for(dispatcher, 0.1)
+    # Only the second mission's one perch: none of the first mission's two.
+    assert dispatcher.mission == next(iter(second))
+    assert [w["proposal_id"] for w in dispatcher.received] == [w.proposal_id for w in results[1].waypoints]
+    assert {w["mission_id"] for w in dispatcher.received} == second
+    dispatcher.destroy_node()
 
 
 def test_recording_holds_every_stage_call_and_replays_clean(graph, recorded):
@@ -112,7 +133,7 @@ def test_recording_decodes_with_rosbags_and_foxglove_and_keeps_rosbag2_metadata(
     from rosbags.rosbag2.metadata import parse_qos
 
     from perch_common.bag_check import DecoderUnavailable, foxglove_counts, rosbags_counts
-    from perch_operator.runfile import channel_counts
+    from perch_operator.runfile import channel_counts, iter_messages
 
     counts = channel_counts(recorded.mcap)
     assert any(t.endswith("/_service_event") for t in counts) and "/perch/plan_perches/_action/feedback" in counts
@@ -126,10 +147,16 @@ def test_recording_decodes_with_rosbags_and_foxglove_and_keeps_rosbag2_metadata(
     assert {t["topic_metadata"]["name"]: t["message_count"] for t in described["topics_with_message_count"]} == counts
     # `ros2 bag play` re-offers the waypoints transient local, as the operator publishes them.
     assert {q.durability.name for q in qos["/perch/waypoints"]} == {"TRANSIENT_LOCAL"}
+    # What a viewer needs: the mission's markers, its accepted waypoint set and the camera frames.
+    assert counts["/perch/markers"] >= 2 * CAMERAS and counts["/perch/mission_waypoints"] >= CAMERAS
+    frames = {tf.child_frame_id for _, msg, _ in iter_messages(recorded.mcap, ["/tf_static"]) for tf in msg.transforms}
+    assert {f"perch_drone_{i}_camera_optical" for i in range(CAMERAS)} <= frames
     try:
-        assert foxglove_counts(recorded.mcap) == {t: (n, n) for t, n in counts.items()}
+        decoded = foxglove_counts(recorded.mcap)
     except DecoderUnavailable as exc:
         pytest.skip(f"Foxglove's decoders not run: {exc} (rosbags decoded every message)")
+    assert decoded == {t: (n, n) for t, n in counts.items()}
+    print("Foxglove decode of run.mcap:", {t: decoded[t] for t in sorted(decoded)})
 
 
 def test_replay_check_fails_after_a_parameter_change(graph, recorded, restart_with):

@@ -8,6 +8,7 @@ comes in with a goal (boxes, target) the other way.
 from __future__ import annotations
 
 from geometry_msgs.msg import PoseArray, PoseStamped
+from unique_identifier_msgs.msg import UUID
 
 from perch_common.frames import Alignment
 from perch_common.ros.conversions import (
@@ -50,15 +51,25 @@ def placement_msg(proposal: Proposal, alignment: Alignment) -> pm.CameraPlacemen
     return msg
 
 
-def waypoint_msg(proposal: Proposal, approach_distance: float, alignment: Alignment, stamp) -> pm.PerchWaypoint:
-    """The waypoint of an accepted proposal, in the input frame (frame_id: alignment.input_frame)."""
+def waypoint_msg(proposal: Proposal, approach_distance: float, alignment: Alignment, stamp,
+                 mission_id: UUID | None = None) -> pm.PerchWaypoint:
+    """The waypoint of an accepted proposal, in the input frame (frame_id: alignment.input_frame), tagged
+    with its mission (the goal id)."""
     p = proposal.placement
     approach = alignment.point_to_input(approach_point(p, approach_distance))
-    msg = pm.PerchWaypoint(approach=point_msg(approach), drone_index=proposal.slot,
+    msg = pm.PerchWaypoint(mission_id=mission_id or UUID(), approach=point_msg(approach), drone_index=proposal.slot,
                            proposal_id=proposal.id, pan=float(p.pan), tilt=float(p.tilt), zoom=float(p.zoom))
     msg.pose = PoseStamped(pose=pose_msg(alignment.pose_to_input(p.drone_pose)))
     msg.pose.header.frame_id = alignment.input_frame
     msg.pose.header.stamp = stamp
+    return msg
+
+
+def waypoint_set_msg(mission_id: UUID, waypoints: list[pm.PerchWaypoint], frame_id: str, stamp) -> pm.PerchWaypointSet:
+    """The current mission's accepted waypoints as one latched message."""
+    msg = pm.PerchWaypointSet(mission_id=mission_id, waypoints=list(waypoints))
+    msg.header.frame_id = frame_id
+    msg.header.stamp = stamp
     return msg
 
 

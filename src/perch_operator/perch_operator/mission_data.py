@@ -126,9 +126,15 @@ def mission_data_from_result(path: str | Path, result, goal=None) -> MissionData
     return data
 
 
+def mission_id_text(mission_id) -> str:
+    """A mission (goal) id (unique_identifier_msgs/UUID) as 32 hex digits, as dispatchers show it."""
+    return bytes(bytearray(mission_id.uuid)).hex()
+
+
 def waypoint_dict(msg) -> dict:
     p, q, a = msg.pose.pose.position, msg.pose.pose.orientation, msg.approach
-    return {"drone_index": int(msg.drone_index), "proposal_id": int(msg.proposal_id),
+    return {"mission_id": mission_id_text(msg.mission_id),
+            "drone_index": int(msg.drone_index), "proposal_id": int(msg.proposal_id),
             "frame_id": msg.pose.header.frame_id,
             "position": [round(float(v), 6) for v in (p.x, p.y, p.z)],
             "orientation_xyzw": [round(float(v), 6) for v in (q.x, q.y, q.z, q.w)],

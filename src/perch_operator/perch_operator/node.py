@@ -16,6 +16,8 @@ from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from unique_identifier_msgs.msg import UUID
+from visualization_msgs.msg import MarkerArray
 
 from perch_common.conventions import CONFIRM_SERVICE, STAGE_SERVICES
 from perch_common.errors import PerchError
@@ -31,16 +33,18 @@ from perch_common.ros.conversions import (
 from perch_common.ros.node_main import run_node
 from perch_common.ros.params import declare_config, read_config
 from perch_common.ros.service import answering, create_stage_service
-from perch_common.ros.static_transforms import StaticTransformPublisher, alignment_to_msg
-from perch_common.transforms import parse_up_axis
+from perch_common.ros.static_transforms import StaticTransformPublisher, alignment_to_msg, transform_msg
+from perch_common.transforms import parse_up_axis, pose_to_matrix
 from perch_interfaces import msg as pm
 from perch_interfaces import srv
 from perch_interfaces.action import PlanPerches
 from perch_operator.config import OperatorConfig
 from perch_operator.crop import crop_mesh
 from perch_operator.goal_watch import GoalWatch
-from perch_operator.messages import box_from_ros, pose_array_msg, proposal_msg, waypoint_msg
+from perch_operator.markers import camera_frame, mission_markers
+from perch_operator.messages import box_from_ros, pose_array_msg, proposal_msg, waypoint_msg, waypoint_set_msg
 from perch_operator.mission import Mission, MissionOptions, Operator, decide
+from perch_operator.mission_data import placement_config
 from perch_operator.proposals import Decision, Proposal, ProposalError, Status
 from perch_operator.review import ReviewDesk, ReviewError
 from perch_operator.stages import MissionCancelled, StageCaller, StageError
@@ -71,6 +75,13 @@ class OperatorNode(Node):
         self.proposals_pub = self.create_publisher(pm.Proposal, "perch/proposals", LATCHED)
         self.waypoints_pub = self.create_publisher(pm.PerchWaypoint, "perch/waypoints", LATCHED)
         self.poses_pub = self.create_publisher(PoseArray, "perch/waypoint_poses", LATCHED_LAST)
+        # Exactly the current mission's accepted waypoints (a late dispatcher never sees older missions').
+        self.waypoint_set_pub = self.create_publisher(pm.PerchWaypointSet, "perch/mission_waypoints", LATCHED_LAST)
+        self._mission_id = UUID()
+        # What an RViz/Foxglove user sees of the mission (latched: a late viewer gets the current picture).
+        self.markers_pub = self.create_publisher(MarkerArray, "perch/markers", LATCHED_LAST)
+        self._shown: dict[int, pm.Proposal] = {}  # the current mission's proposals as last published
+        self._camera = None
         self.action = ActionServer(self, PlanPerches, "perch/plan_perches", self._execute, callback_group=group,
                                    goal_callback=self._on_goal, cancel_callback=lambda _: CancelResponse.ACCEPT)
         self.operator: Operator | None = None
@@ -119,6 +130,10 @@ class OperatorNode(Node):
 
     def _run_mission(self, goal_handle) -> PlanPerches.Result:
         config = read_config(self, OperatorConfig)
+        self._mission_id = UUID(uuid=goal_handle.goal_id.uuid)
+        self._shown, self._camera = {}, None
+        self.waypoint_set_pub.publish(waypoint_set_msg(self._mission_id, [], self._frame_id(),
+                                                       self.get_clock().now().to_msg()))
         options = MissionOptions(
             auto_accept=config.auto_accept, exclusion_radius=config.exclusion_radius,
             clean_given_mesh=config.clean_given_mesh, optimise_on_full_mesh=config.optimise_on_full_mesh,
@@ -209,16 +224,35 @@ class OperatorNode(Node):
     def _publish_proposal(self, proposal: Proposal) -> None:
         # Proposals exist only once optimise has run, so the mission's operator (and its alignment) is set.
         alignment = self.operator.alignment
-        self.proposals_pub.publish(proposal_msg(proposal, alignment, self.operator.optimise_request.regions))
+        published = proposal_msg(proposal, alignment, self.operator.optimise_request.regions)
+        self.proposals_pub.publish(published)
+        self._publish_markers(published)
         if proposal.status == Status.ACCEPTED:
+            # the accepted camera's optical frame (z forward, x right, y down) for tf users and viewers
+            self.static_transforms.send(transform_msg(alignment.input_frame, camera_frame(proposal.slot),
+                                                      pose_to_matrix(published.placement.camera_pose)))
             self.waypoints_pub.publish(self._waypoint(proposal))
             stamp = self.get_clock().now().to_msg()
             self.poses_pub.publish(pose_array_msg(self.operator.book.accepted(), alignment, stamp))
+        if proposal.status != Status.PENDING:  # the accepted set may have gained or lost a perch
+            self.waypoint_set_pub.publish(waypoint_set_msg(
+                self._mission_id, [self._waypoint(p) for p in self.operator.book.accepted()], alignment.input_frame,
+                self.get_clock().now().to_msg()))
+
+    def _publish_markers(self, published: pm.Proposal) -> None:
+        """The whole current picture (regions, target, every proposal with frustum and label)."""
+        request = self.operator.optimise_request
+        if self._camera is None:  # the camera the placement stage used: the request's, else its configuration
+            self._camera = request.camera if request.camera.specified else placement_config().camera
+        self._shown[published.id] = published
+        self.markers_pub.publish(mission_markers(
+            list(self._shown.values()), list(request.regions), request.target, self._camera,
+            self.operator.alignment.to_input(), self.operator.alignment.input_frame, self.get_clock().now().to_msg()))
 
     def _waypoint(self, proposal: Proposal) -> pm.PerchWaypoint:
         config = read_config(self, OperatorConfig)
         return waypoint_msg(proposal, config.approach_distance, self.operator.alignment,
-                            self.get_clock().now().to_msg())
+                            self.get_clock().now().to_msg(), self._mission_id)
 
     def _frame_id(self) -> str:
         return read_config(self, OperatorConfig).frame_id

@@ -30,7 +30,9 @@ SERVICES = {s.service: s.srv_type for s in STAGES.values()}
 MISSION_TOPICS = {"perch/proposals": "perch_interfaces/msg/Proposal",
                   "perch/waypoints": "perch_interfaces/msg/PerchWaypoint",
                   "perch/waypoint_poses": "geometry_msgs/msg/PoseArray",
-                  "perch/surface_review": "perch_interfaces/msg/SurfaceReview"}
+                  "perch/surface_review": "perch_interfaces/msg/SurfaceReview",
+                  "perch/mission_waypoints": "perch_interfaces/msg/PerchWaypointSet",
+                  "perch/markers": "visualization_msgs/msg/MarkerArray"}
 
 
 def event_topics() -> dict[str, str]:

@@ -1,0 +1,152 @@
+"""The mission as RViz/Foxglove markers (visualization_msgs/MarkerArray), all in the input's own frame.
+
+Perch regions coloured by surface class, the target volume, and for each proposal its perch (coloured
+by status), the camera frustum drawn from the CameraSpec, and a label `#id status gain`. Every array
+starts with DELETEALL, so the latched last message is the whole current picture. Built from messages
+and numpy only (no rclpy).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from geometry_msgs.msg import Point, Pose, Quaternion, Vector3
+from std_msgs.msg import ColorRGBA
+from visualization_msgs.msg import Marker, MarkerArray
+
+from perch_common.transforms import pose_to_matrix, quaternion_from_matrix
+from perch_interfaces import msg as pm
+
+STATUS_NAMES = {pm.Proposal.STATUS_PENDING: "pending", pm.Proposal.STATUS_ACCEPTED: "accepted",
+                pm.Proposal.STATUS_REJECTED: "rejected", pm.Proposal.STATUS_FAILED: "failed"}
+STATUS_COLOURS = {pm.Proposal.STATUS_PENDING: (1.0, 0.75, 0.1), pm.Proposal.STATUS_ACCEPTED: (0.1, 0.8, 0.25),
+                  pm.Proposal.STATUS_REJECTED: (0.9, 0.2, 0.2), pm.Proposal.STATUS_FAILED: (0.55, 0.2, 0.7)}
+CLASS_COLOURS = {pm.Surface.CLASS_UNKNOWN: (0.6, 0.6, 0.6), pm.Surface.CLASS_FLOOR: (0.55, 0.4, 0.25),
+                 pm.Surface.CLASS_WALL: (0.25, 0.5, 0.9), pm.Surface.CLASS_CEILING: (0.9, 0.9, 0.55),
+                 pm.Surface.CLASS_INTERMEDIATE: (0.6, 0.3, 0.8)}
+FRUSTUM_DRAW_RANGE = 1.5  # m: frustums are drawn this deep (or to max_range if shorter), not to the full range
+
+
+def camera_frame(slot: int) -> str:
+    """The tf frame of drone `slot`'s camera (optical convention), on tf_static once accepted."""
+    return f"perch_drone_{slot}_camera_optical"
+
+
+def _colour(rgb, alpha: float = 1.0) -> ColorRGBA:
+    return ColorRGBA(r=float(rgb[0]), g=float(rgb[1]), b=float(rgb[2]), a=float(alpha))
+
+
+def _points(xyz: np.ndarray) -> list[Point]:
+    return [Point(x=float(x), y=float(y), z=float(z)) for x, y, z in np.asarray(xyz, np.float64).reshape(-1, 3)]
+
+
+def _homogeneous(matrix: np.ndarray) -> np.ndarray:
+    out = np.eye(4)
+    given = np.asarray(matrix, np.float64)
+    out[:given.shape[0], :given.shape[1]] = given
+    return out
+
+
+def _apply(matrix: np.ndarray, xyz: np.ndarray) -> np.ndarray:
+    m = _homogeneous(matrix)
+    return np.asarray(xyz, np.float64).reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
+
+
+def _marker(kind: int, ns: str, marker_id: int, frame_id: str, stamp, rgb, alpha: float = 1.0) -> Marker:
+    marker = Marker(type=kind, ns=ns, id=marker_id, action=Marker.ADD, color=_colour(rgb, alpha))
+    marker.header.frame_id, marker.header.stamp = frame_id, stamp
+    marker.pose.orientation.w = 1.0
+    marker.scale = Vector3(x=1.0, y=1.0, z=1.0)
+    return marker
+
+
+def frustum_corners(camera: pm.CameraSpec, depth: float) -> np.ndarray:
+    """(4,3) far corners of the camera's view at `depth` in its optical frame (z forward, x right, y down)."""
+    if camera.fx <= 0 or camera.fy <= 0 or camera.width == 0 or camera.height == 0:
+        raise ValueError("camera spec without intrinsics (width, height, fx, fy): cannot draw its frustum")
+    u = np.array([0.0, camera.width, camera.width, 0.0])
+    v = np.array([0.0, 0.0, camera.height, camera.height])
+    return np.stack([(u - camera.cx) / camera.fx * depth, (v - camera.cy) / camera.fy * depth,
+                     np.full(4, depth)], axis=1)
+
+
+def frustum_lines(camera_pose: Pose, camera: pm.CameraSpec, zoom: float = 1.0) -> np.ndarray:
+    """(16,3) LINE_LIST end points: apex to the four far corners, and the far rectangle."""
+    depth = min(FRUSTUM_DRAW_RANGE, camera.max_range) if camera.max_range > 0 else FRUSTUM_DRAW_RANGE
+    corners = frustum_corners(camera, depth)
+    corners[:, :2] /= max(zoom, 1.0)  # zooming in narrows the view
+    world = _apply(pose_to_matrix(camera_pose), np.vstack([np.zeros(3), corners]))
+    apex, far = world[0], world[1:]
+    segments = [(apex, c) for c in far] + [(far[i], far[(i + 1) % 4]) for i in range(4)]
+    return np.array(segments).reshape(-1, 3)
+
+
+def proposal_markers(proposal: pm.Proposal, camera: pm.CameraSpec, frame_id: str, stamp) -> list[Marker]:
+    """The perch (sphere), its camera frustum and its label `#id status gain`, in the input frame."""
+    placement, rgb = proposal.placement, STATUS_COLOURS.get(proposal.status, (0.5, 0.5, 0.5))
+    perch = _marker(Marker.SPHERE, "perch_proposals", proposal.id, frame_id, stamp, rgb)
+    perch.pose = Pose(position=placement.drone_pose.position, orientation=Quaternion(w=1.0))
+    perch.scale = Vector3(x=0.15, y=0.15, z=0.15)
+    frustum = _marker(Marker.LINE_LIST, "camera_frustums", proposal.id, frame_id, stamp, rgb)
+    frustum.scale = Vector3(x=0.01, y=0.0, z=0.0)
+    frustum.points = _points(frustum_lines(placement.camera_pose, camera, placement.zoom))
+    label = _marker(Marker.TEXT_VIEW_FACING, "proposal_labels", proposal.id, frame_id, stamp, (1.0, 1.0, 1.0))
+    label.pose = Pose(position=Point(x=placement.drone_pose.position.x, y=placement.drone_pose.position.y,
+                                     z=placement.drone_pose.position.z + 0.25), orientation=Quaternion(w=1.0))
+    label.scale = Vector3(x=0.0, y=0.0, z=0.12)
+    label.text = (f"#{proposal.id} drone {placement.drone_index} {STATUS_NAMES.get(proposal.status, '?')} "
+                  f"gain {placement.marginal_gain:.3f}")
+    return [perch, frustum, label]
+
+
+def region_marker(region: pm.PerchRegion, to_input: np.ndarray, frame_id: str, stamp) -> Marker | None:
+    """A perch region's triangles (TRIANGLE_LIST), coloured by its surface's class."""
+    vertices = np.asarray(region.mesh.vertices, np.float64).reshape(-1, 3)
+    triangles = np.asarray(region.mesh.triangles, np.int64).reshape(-1)
+    if not len(triangles):
+        return None
+    marker = _marker(Marker.TRIANGLE_LIST, "perch_regions", region.id, frame_id, stamp,
+                     CLASS_COLOURS.get(region.surface_class, CLASS_COLOURS[pm.Surface.CLASS_UNKNOWN]), 0.7)
+    marker.points = _points(_apply(to_input, vertices[triangles]))
+    return marker
+
+
+def target_marker(target: pm.TargetVolume, to_input: np.ndarray, frame_id: str, stamp) -> Marker | None:
+    """The target volume: a translucent box, or the footprint's triangles at the bottom and the top."""
+    rgb = (0.2, 0.9, 0.9)
+    if target.kind == pm.TargetVolume.KIND_BOX:
+        marker = _marker(Marker.CUBE, "target_volume", 0, frame_id, stamp, rgb, 0.25)
+        m = _homogeneous(to_input) @ pose_to_matrix(target.box.pose)
+        q = quaternion_from_matrix(m[:3, :3])
+        marker.pose = Pose(position=Point(x=float(m[0, 3]), y=float(m[1, 3]), z=float(m[2, 3])),
+                           orientation=Quaternion(x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3])))
+        marker.scale = Vector3(x=float(target.box.size.x), y=float(target.box.size.y), z=float(target.box.size.z))
+        return marker
+    if target.kind == pm.TargetVolume.KIND_EXTRUDED_FOOTPRINT:
+        vertices = np.asarray(target.footprint.vertices, np.float64).reshape(-1, 3)
+        triangles = np.asarray(target.footprint.triangles, np.int64).reshape(-1)
+        if not len(triangles):
+            return None
+        bottom = vertices[triangles]
+        top = bottom + np.array([0.0, 0.0, float(target.height)])  # the stages' frame is gravity-aligned
+        marker = _marker(Marker.TRIANGLE_LIST, "target_volume", 0, frame_id, stamp, rgb, 0.25)
+        marker.points = _points(_apply(to_input, np.vstack([bottom, top])))
+        return marker
+    return None
+
+
+def mission_markers(proposals: list[pm.Proposal], regions: list[pm.PerchRegion], target: pm.TargetVolume,
+                    camera: pm.CameraSpec, to_input: np.ndarray, frame_id: str, stamp) -> MarkerArray:
+    """The whole current picture: DELETEALL, then regions, target and every proposal (input frame).
+
+    regions and target are in the stages' gravity-aligned frame (`to_input` takes them to the input
+    frame); proposals are the published ones (already in the input frame).
+    """
+    clear = Marker(action=Marker.DELETEALL)
+    clear.header.frame_id, clear.header.stamp = frame_id, stamp
+    markers = [clear]
+    markers += [m for m in (region_marker(r, to_input, frame_id, stamp) for r in regions) if m is not None]
+    target_msg = target_marker(target, to_input, frame_id, stamp)
+    markers += [target_msg] if target_msg is not None else []
+    for proposal in proposals:
+        markers += proposal_markers(proposal, camera, frame_id, stamp)
+    return MarkerArray(markers=markers)

@@ -1,0 +1,83 @@
+"""Mission markers: frustum geometry from the camera spec, regions and target in the input frame, labels."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from visualization_msgs.msg import Marker
+
+from perch_interfaces import msg as pm
+from perch_operator.markers import frustum_lines, mission_markers
+
+
+def camera(width=1280, height=720, hfov_deg=87.0, vfov_deg=58.0, max_range=10.0) -> pm.CameraSpec:
+    fx = width / 2 / math.tan(math.radians(hfov_deg) / 2)
+    fy = height / 2 / math.tan(math.radians(vfov_deg) / 2)
+    return pm.CameraSpec(specified=True, width=width, height=height, fx=fx, fy=fy, cx=width / 2, cy=height / 2,
+                         max_range=max_range)
+
+
+def proposal(pid=7, status=pm.Proposal.STATUS_ACCEPTED, gain=0.125) -> pm.Proposal:
+    msg = pm.Proposal(id=pid, status=status)
+    msg.placement.drone_index = 2
+    msg.placement.marginal_gain = gain
+    msg.placement.drone_pose.position.x, msg.placement.drone_pose.position.z = 1.0, 2.0
+    msg.placement.drone_pose.orientation.w = 1.0
+    # optical frame looking along world +x: z_cam = +x, x_cam = -y, y_cam = -z
+    rotation = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+    from perch_common.transforms import quaternion_from_matrix
+
+    q = quaternion_from_matrix(rotation)
+    pose = msg.placement.camera_pose
+    pose.position.x, pose.position.z = 1.0, 2.0
+    pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w = map(float, q)
+    return msg
+
+
+def test_frustum_opens_at_the_cameras_field_of_view_along_its_view_axis():
+    lines = frustum_lines(proposal().placement.camera_pose, camera()).reshape(-1, 2, 3)
+    apex = np.array([1.0, 0.0, 2.0])
+    np.testing.assert_allclose(lines[:4, 0], np.tile(apex, (4, 1)))
+    far = lines[:4, 1]
+    np.testing.assert_allclose(far[:, 0], 1.0 + 1.5)  # drawn 1.5 m deep along world +x
+    half_width = np.abs(far[:, 1]).max()
+    assert math.degrees(2 * math.atan(half_width / 1.5)) == pytest.approx(87.0, abs=1e-6)
+    half_height = np.abs(far[:, 2] - 2.0).max()
+    assert math.degrees(2 * math.atan(half_height / 1.5)) == pytest.approx(58.0, abs=1e-6)
+    zoomed = frustum_lines(proposal().placement.camera_pose, camera(), zoom=2.0).reshape(-1, 2, 3)[:4, 1]
+    assert np.abs(zoomed[:, 1]).max() == pytest.approx(half_width / 2)
+
+
+def test_mission_markers_clear_then_draw_regions_target_and_labelled_proposals():
+    region = pm.PerchRegion(id=4, surface_class=pm.Surface.CLASS_WALL)
+    region.mesh.vertices = [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+    region.mesh.triangles = [0, 1, 2]
+    target = pm.TargetVolume(kind=pm.TargetVolume.KIND_BOX)
+    target.box.pose.orientation.w = 1.0
+    target.box.size.x, target.box.size.y, target.box.size.z = 2.0, 3.0, 1.0
+    to_input = np.eye(4)
+    to_input[:3, 3] = [10.0, 0.0, 0.0]  # the stages' frame sits 10 m along x in the input frame
+    shown = mission_markers([proposal(), proposal(8, pm.Proposal.STATUS_REJECTED, 0.5)], [region], target,
+                            camera(), to_input, "scan", None)
+    markers = shown.markers
+    assert markers[0].action == Marker.DELETEALL
+    by_ns = {}
+    for m in markers[1:]:
+        by_ns.setdefault(m.ns, []).append(m)
+        assert m.header.frame_id == "scan"
+    [region_marker] = by_ns["perch_regions"]
+    assert [(p.x, p.y) for p in region_marker.points] == [(10.0, 0.0), (11.0, 0.0), (10.0, 1.0)]
+    [box] = by_ns["target_volume"]
+    assert (box.type, box.pose.position.x, box.scale.y) == (Marker.CUBE, 10.0, 3.0)
+    labels = sorted(m.text for m in by_ns["proposal_labels"])
+    assert labels == ["#7 drone 2 accepted gain 0.125", "#8 drone 2 rejected gain 0.500"]
+    assert len(by_ns["camera_frustums"]) == 2 and all(len(m.points) == 16 for m in by_ns["camera_frustums"])
+    accepted, rejected = sorted(by_ns["perch_proposals"], key=lambda m: m.id)
+    assert accepted.color.g > accepted.color.r and rejected.color.r > rejected.color.g
+
+
+def test_a_camera_without_intrinsics_is_a_clear_error():
+    with pytest.raises(ValueError, match="camera spec without intrinsics"):
+        frustum_lines(proposal().placement.camera_pose, pm.CameraSpec())
