@@ -31,9 +31,10 @@ class NearbyGeometry:
 
 
 def geometry_in_front(samples: MeshSamples, index: SampleIndex, raster: SurfaceRaster, own_faces: np.ndarray,
-                      up: np.ndarray, min_depth: float, max_depth: float, margin: float) -> NearbyGeometry:
-    """Samples not on the surface's own faces with min_depth < depth <= max_depth, whose plane
-    coordinates lie within `margin` of the raster."""
+                      up: np.ndarray, min_depth: float, max_depth: float, margin: float,
+                      own_min_depth: float | None = None) -> NearbyGeometry:
+    """Samples with min_depth < depth <= max_depth whose plane coordinates lie within `margin` of the
+    raster; samples on the surface's own faces only beyond `own_min_depth` (never when None)."""
     f = raster.frame
     rows, cols = raster.shape
     u_lo, u_hi = raster.u0 - margin, raster.u0 + (cols - 1) * raster.cell + margin
@@ -50,7 +51,8 @@ def geometry_in_front(samples: MeshSamples, index: SampleIndex, raster: SurfaceR
         candidate = np.flatnonzero(keep)
         face = samples.face[candidates[candidate]]
         inside = face < len(own)
-        keep[candidate[inside]] = ~own[face[inside]]
+        mine = candidate[inside][own[face[inside]]]
+        keep[mine] = local[mine, 0] > own_min_depth if own_min_depth is not None else False
     sel = local[keep]
     return NearbyGeometry(sel[:, 0], sel[:, 1:], project(samples.points[candidates[keep]], up)[:, 0])
 

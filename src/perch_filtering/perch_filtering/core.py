@@ -148,11 +148,12 @@ def _raster_filters(surface: Surface, mesh: Mesh, samples, index: SampleIndex, u
     spacing = samples.spacing
     roughness = _roughness(surface, mesh)
     # Other geometry beyond plane_tolerance is not the perch surface (support asks the same of the
-    # window), however rough the whole surface is: it blocks the approach and the fall.
+    # window), however rough the whole surface is: it blocks the approach and the fall. The surface's
+    # own faces block beyond plane_tolerance + max_support_rms (a window's surface may reach that far).
     lookahead = config.lookahead
     margin = max(prism_half, lookahead) + spacing + 2 * config.cell
     near = geometry_in_front(samples, index, raster, surface.face_indices, up, config.plane_tolerance,
-                             lookahead + spacing, margin)
+                             lookahead + spacing, margin, config.plane_tolerance + config.max_support_rms)
     fall = free_fall(raster, near, up, floor_height, lookahead, config.drone_radius, spacing,
                      surface.surface_class)
     fall_ok = fall >= config.min_recovery_height
