@@ -182,9 +182,14 @@ def test_cancelling_during_a_long_segment_stops_it_and_the_next_mission_is_fast(
         with graph.spinner(graph.node):
             assert client.wait_for_server(timeout_sec=30)
             sent = client.send_goal_async(big)
-            deadline = time.monotonic() + 120
+            deadline = time.monotonic() + 180
+            result_future = None
             while not (sent.done() and any(e.info.event_type == 1 for e in events)):  # REQUEST_RECEIVED
                 assert time.monotonic() < deadline, "segmentation never received the request"
+                if sent.done() and result_future is None:
+                    result_future = sent.result().get_result_async()
+                if result_future is not None and result_future.done():
+                    raise AssertionError(f"the mission ended before segmenting: {result_future.result().result.message}")
                 time.sleep(0.1)
             time.sleep(1.0)
             cancel_sent = time.monotonic()
