@@ -16,6 +16,7 @@ BUILD_PREFIX = "/opt/python/cp311-cp311"
 
 
 def replacements(prefix: Path) -> list[tuple[bytes, bytes]]:
+    """Byte replacements that point the wheels' CMake files at this venv's paths."""
     import numpy
 
     include = sysconfig.get_paths()["include"]
@@ -29,6 +30,7 @@ def replacements(prefix: Path) -> list[tuple[bytes, bytes]]:
 
 
 def repair(prefix: Path) -> int:
+    """Apply the replacements under the prefix; returns the number of files changed."""
     pairs = replacements(prefix)
     changed = 0
     roots = [prefix / "share", prefix / "lib" / "cmake"]
@@ -49,6 +51,7 @@ def repair(prefix: Path) -> int:
 
 
 def main() -> int:
+    """Repair the venv's ROS wheels; exit code."""
     prefix = Path(sys.prefix)
     if not (prefix / "share" / "ament_cmake").is_dir():
         print(f"repair_ros_wheels: {prefix} has no ament_cmake; install the ros-jazzy wheels first",

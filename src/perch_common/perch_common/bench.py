@@ -11,6 +11,7 @@ import sys
 
 
 def register(sub) -> None:
+    """Add `perch bench` with every installed benchmark (entry points perch.benchmarks) as a subcommand."""
     parser = sub.add_parser("bench", help="run a benchmark and print JSON")
     benches = parser.add_subparsers(dest="bench", metavar="BENCHMARK")
     from perch_common.cli import load_plugins

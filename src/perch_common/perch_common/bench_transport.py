@@ -11,6 +11,7 @@ from perch_common.bench import emit, peak_rss_mb
 
 
 def register(sub) -> None:
+    """Add `perch bench transport`: mesh message conversion and cross-process round-trip times."""
     p = sub.add_parser("transport", help="mesh message conversion and cross-process round trip")
     p.add_argument("--faces", type=int, default=300000)
     p.add_argument("--repeats", type=int, default=5)

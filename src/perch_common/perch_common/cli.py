@@ -16,6 +16,7 @@ from perch_common.namespace import NAMESPACE_ENV, normalise
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The `perch` argument parser with every installed command (entry points perch.commands)."""
     parser = argparse.ArgumentParser(
         prog="perch",
         description="Perch: where should each camera drone perch? Stages: reconstruct, crop, segment, "
@@ -37,6 +38,7 @@ def load_plugins(group: str, subparsers) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the `perch` command line; returns the exit code."""
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.namespace is not None:

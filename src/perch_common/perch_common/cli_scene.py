@@ -12,6 +12,7 @@ from perch_common.scene_generator import KINDS, generate_scene
 
 
 def register(sub) -> None:
+    """Add `perch scene`: generate seeded scenes with their ground truth."""
     p = sub.add_parser("scene", help="procedural scenes with ground truth")
     verbs = p.add_subparsers(dest="verb", metavar="VERB")
     g = verbs.add_parser("generate", help="write a seeded scene mesh and its labels")

@@ -33,10 +33,12 @@ class Mesh:
 
     @property
     def num_faces(self) -> int:
+        """Number of triangles."""
         return int(self.faces.shape[0])
 
     @property
     def num_vertices(self) -> int:
+        """Number of vertices."""
         return int(self.vertices.shape[0])
 
     def triangles(self) -> np.ndarray:
@@ -50,6 +52,7 @@ class Mesh:
         return self._cache["cross"]
 
     def face_areas(self) -> np.ndarray:
+        """(F,) triangle areas (m^2)."""
         return 0.5 * np.linalg.norm(self._cross(), axis=1)
 
     def face_normals(self) -> np.ndarray:
@@ -59,6 +62,7 @@ class Mesh:
         return np.divide(c, n, out=np.zeros_like(c), where=n > 0)
 
     def face_centroids(self) -> np.ndarray:
+        """(F,3) triangle centroids."""
         return self.triangles().mean(axis=1)
 
     def face_colors(self) -> np.ndarray | None:

@@ -25,6 +25,8 @@ class MeshToolsConfig:
 
 
 class MeshToolsNode(Node):
+    """Serves the mesh inspection service: problems, size, bounds and an up estimate of any mesh."""
+
     def __init__(self) -> None:
         super().__init__("perch_mesh_tools")
         self.config = declare_config(self, MeshToolsConfig)
@@ -33,6 +35,7 @@ class MeshToolsNode(Node):
 
     @answering
     def on_inspect(self, request: InspectMesh.Request, response: InspectMesh.Response) -> InspectMesh.Response:
+        """Answer one inspection request (success=false with the problems for an unusable mesh)."""
         mesh = mesh_from_msg(request.mesh)  # a malformed message raises: answered success=false
         problems = inspect_mesh(mesh)
         response.problems = problems.fatal + problems.warnings
@@ -55,6 +58,7 @@ COMPONENT = MeshToolsNode  # what a one-process graph (perch_common.ros.containe
 
 
 def main(args: list[str] | None = None) -> int:
+    """Run the perch_mesh_tools node until Ctrl-C."""
     return run_node(MeshToolsNode, args)
 
 

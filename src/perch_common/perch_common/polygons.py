@@ -65,4 +65,5 @@ def to_shapely(polygons: list):
 
 
 def polygons_area(polygons: list) -> float:
+    """Total area of polygons with holes (m^2)."""
     return float(to_shapely(polygons).area)

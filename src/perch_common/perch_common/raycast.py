@@ -21,6 +21,7 @@ class RayHits:
 
     @property
     def hit(self) -> np.ndarray:
+        """(N,) whether each ray hit a face."""
         return self.face != MISS
 
 

@@ -25,6 +25,8 @@ DEFAULT_RESOLUTION = {"building": 0.042}   # m; others 0.1. A building floor is 
 
 
 class SemanticClass(IntEnum):
+    """Ground-truth class of a generated face: floor, wall, ceiling, door, window, furniture (or none)."""
+
     NONE = 0
     FLOOR = 1
     WALL = 2
@@ -48,6 +50,8 @@ COLOR_PRIORITY = (SemanticClass.CEILING, SemanticClass.WALL, SemanticClass.FLOOR
 
 @dataclass
 class GroundTruthPlane:
+    """One planar piece of a generated scene, with its class and outward normal."""
+
     id: int
     semantic_class: SemanticClass
     normal: np.ndarray     # unit, into free space (world frame)
@@ -72,6 +76,7 @@ class VoxelGrid:
         return np.floor((local - self.origin) / self.voxel_size).astype(np.int64)
 
     def is_free(self, points: np.ndarray) -> np.ndarray:
+        """(N,) whether each point lies in a free voxel of the scene."""
         idx = self.indices(points)
         inside = np.all((idx >= 0) & (idx < self.occupied.shape), axis=1)
         out = np.zeros(len(idx), bool)
@@ -82,6 +87,8 @@ class VoxelGrid:
 
 @dataclass
 class FurnitureBox:
+    """A piece of generated furniture: its kind and axis-aligned box."""
+
     kind: str
     center: np.ndarray
     size: np.ndarray
@@ -90,6 +97,8 @@ class FurnitureBox:
 
 @dataclass
 class GeneratedScene:
+    """A generated scene: the mesh, each face's ground-truth plane and class, free space, furniture, target."""
+
     mesh: Mesh
     face_plane: np.ndarray
     face_class: np.ndarray

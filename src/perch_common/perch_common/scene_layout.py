@@ -12,6 +12,8 @@ MARGIN = 2     # solid voxels kept around the rooms
 
 @dataclass
 class FurnitureItem:
+    """A furniture box placed in the voxel layout."""
+
     kind: str
     center: np.ndarray  # voxel units, scene frame
     size: np.ndarray
@@ -19,6 +21,8 @@ class FurnitureItem:
 
 @dataclass
 class Layout:
+    """The voxel layout of a generated scene: solid labels, room boxes and furniture."""
+
     resolution: float
     solid: np.ndarray                 # int labels: 0 free, 1 structure, >1 furniture
     rooms: list[tuple[int, ...]]      # free boxes (x0, y0, z0, x1, y1, z1), main room first

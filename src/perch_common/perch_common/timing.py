@@ -18,6 +18,7 @@ class Laps:
         self._start = self._last = time.perf_counter()
 
     def lap(self, name: str) -> float:
+        """Add the seconds since the previous lap to lap `name`; returns that lap's total."""
         now = time.perf_counter()
         self.laps[name] = self.laps.get(name, 0.0) + now - self._last
         self._last = now
@@ -26,4 +27,5 @@ class Laps:
 
     @property
     def total(self) -> float:
+        """Seconds since the timer started."""
         return time.perf_counter() - self._start

@@ -130,6 +130,8 @@ class FilterRemoval:
 
 @dataclass
 class ExclusionZone:
+    """No perch within `radius` of `center` (a rejected or failed perch)."""
+
     center: np.ndarray
     radius: float
 

@@ -20,6 +20,7 @@ from perch_common.bench import emit, peak_rss_mb
 
 
 def register(sub) -> None:
+    """Add `perch bench filter`: time the filtering stage and score it on generated scenes."""
     p = sub.add_parser("filter", help="time the filtering stage (and score it on generated scenes)")
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--mesh", help="mesh file; segmented first, only the filter is timed")
@@ -35,6 +36,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    """Run the filter benchmark; prints JSON."""
     from perch_common.raycast import RayScene
     from perch_filtering.core import FilterConfig, filter_surfaces
 

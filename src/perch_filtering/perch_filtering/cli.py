@@ -15,6 +15,7 @@ from perch_filtering.config import FilterConfig
 
 
 def register(sub) -> None:
+    """Add `perch filter`: the filtering stage on a mesh and its surfaces."""
     p = sub.add_parser("filter", help="keep the surface regions where a drone can safely perch",
                        description="Run the filtering stage on a mesh and its segmented surfaces; writes "
                                    "OUT/regions.json (regions, per-filter removed area), OUT/surfaces.json "
@@ -33,6 +34,7 @@ def register(sub) -> None:
 
 
 def add_target_arguments(p: argparse.ArgumentParser) -> None:
+    """Add the target volume options (footprint mesh or box)."""
     g = p.add_argument_group("target volume (one of)")
     g.add_argument("--target-mesh", help="footprint mesh, projected onto the floor and extruded")
     g.add_argument("--target-height", type=float, default=1.2, help="extrusion of --target-mesh (m)")
@@ -41,6 +43,7 @@ def add_target_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def target_from_args(args) -> TargetVolume:
+    """The target volume the target options describe (raises ValueError naming the problem)."""
     if args.target_box:
         v = args.target_box
         if len(v) not in (6, 7):
@@ -69,12 +72,14 @@ def load_config(path: str | None, overrides: list[str]) -> tuple[FilterConfig, s
 
 
 def segment_surfaces(mesh: Mesh) -> list:
+    """Surfaces of a mesh by the segmentation stage with its defaults (`--surfaces segment`)."""
     from perch_segmentation.core import SegmentationConfig, segment_mesh
 
     return segment_mesh(mesh, SegmentationConfig()).surfaces
 
 
 def run(args) -> int:
+    """Run `perch filter`; writes regions.json, surfaces.json and regions.ply."""
     from perch_common.outputs import refuse_overwriting_inputs
     from perch_common.surfaces_file import read_surfaces
     from perch_filtering.core import filter_surfaces

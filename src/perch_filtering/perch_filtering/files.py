@@ -18,20 +18,24 @@ CLASS_COLORS = {SurfaceClass.WALL: (60, 140, 230), SurfaceClass.CEILING: (240, 1
 
 
 def frame_dict(frame: PlaneFrame) -> dict:
+    """A plane frame as plain lists."""
     return {k: np.round(getattr(frame, k), 9).tolist() for k in ("origin", "axis_u", "axis_v", "normal")}
 
 
 def polygons_list(polygons: list) -> list:
+    """Polygons with holes as plain nested lists."""
     return [[np.round(np.asarray(ring, np.float64), 6).tolist() for ring in poly] for poly in polygons]
 
 
 def region_dict(r: PerchRegion) -> dict:
+    """A perch region as plain data (without its mesh)."""
     return {"id": int(r.id), "source_surface": int(r.source_surface),
             "surface_class": SurfaceClass(r.surface_class).name.lower(), "area": float(r.area),
             "frame": frame_dict(r.frame), "polygons": polygons_list(r.polygons)}
 
 
 def removal_dict(r: FilterRemoval) -> dict:
+    """A surface's per-filter removed areas as plain data."""
     return {k: (int(v) if k == "surface_id" else round(float(v), 6)) for k, v in vars(r).items()}
 
 

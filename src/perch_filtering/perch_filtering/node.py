@@ -44,6 +44,8 @@ def config_from_spec(spec, base: FilterConfig) -> FilterConfig:
 
 
 class FilterNode(Node):
+    """Serves the filter service: surfaces in, safe perch regions and per-filter removals out."""
+
     def __init__(self) -> None:
         super().__init__("perch_filtering")
         config = declare_config(self, FilterNodeConfig, check=FilterNodeConfig.validate)
@@ -86,6 +88,7 @@ COMPONENT = FilterNode  # what a one-process graph (perch_common.ros.container) 
 
 
 def main(args: list[str] | None = None) -> int:
+    """Run the perch_filtering node until Ctrl-C."""
     return run_node(lambda: FilterNode(), args)
 
 

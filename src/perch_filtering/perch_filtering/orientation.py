@@ -26,6 +26,8 @@ SAMPLES_PER_SURFACE = 32
 
 @dataclass
 class Orientation:
+    """How a surface's normal was oriented: the sign applied and which evidence decided."""
+
     sign: float      # +1 keeps the input normal, -1 flips it
     decided_by: str  # "winding", "visibility" or "winding-majority"
 
@@ -109,6 +111,7 @@ def oriented_copy(surface: Surface, sign: float, up: np.ndarray, class_angle_deg
 
 
 def class_enabled(cls: SurfaceClass, config: FilterConfig) -> bool:
+    """Whether the configuration allows perching on this surface class."""
     return {SurfaceClass.WALL: config.allow_walls, SurfaceClass.CEILING: config.allow_ceiling,
             SurfaceClass.FLOOR: config.allow_floor,
             SurfaceClass.INTERMEDIATE: config.allow_intermediate}.get(cls, False)

@@ -29,6 +29,7 @@ class SurfaceRaster:
         return np.column_stack([self.u0 + cols * self.cell, self.v0 + rows * self.cell])
 
     def cell_world(self, mask: np.ndarray | None = None) -> np.ndarray:
+        """(M,3) world positions of the cells (all, or those in `mask`)."""
         return self.frame.to_world(self.cell_uv(mask))
 
     def to_pixels(self, uv: np.ndarray) -> np.ndarray:
@@ -37,6 +38,7 @@ class SurfaceRaster:
 
     @property
     def cell_area(self) -> float:
+        """Area of one raster cell (m^2)."""
         return self.cell * self.cell
 
 

@@ -16,6 +16,7 @@ from perch_common.errors import PerchError
 
 
 def register(sub) -> None:
+    """Add `perch operator`: decide on the running mission's proposals and surface reviews."""
     p = sub.add_parser("operator", help="decide on proposed perches of the running mission")
     actions = p.add_subparsers(dest="operator_action", metavar="ACTION")
     for name, help_text in (("accept", "accept a proposal"), ("reject", "reject a proposal (re-plans that drone)"),
@@ -152,6 +153,7 @@ def _list(args) -> int:
 
 
 def register_replay(sub) -> None:
+    """Add `perch replay`: re-send a recorded mission's stage requests and compare the replies."""
     p = sub.add_parser("replay", help="re-send a recorded mission's stage requests to the live graph")
     p.add_argument("recording", type=Path, help="run.mcap written by perch plan / perch demo")
     p.add_argument("--check", action="store_true", help="compare every reply with the recorded one; "
@@ -191,6 +193,7 @@ def _replay(args) -> int:
 
 
 def register_dispatch(sub) -> None:
+    """Add `perch dispatch`: receive accepted perch waypoints, as a drone dispatcher would."""
     p = sub.add_parser("dispatch", help="receive accepted perch waypoints (a minimal drone dispatcher)")
     p.add_argument("--output", type=Path, help="keep this YAML file of the latest waypoint per drone")
     p.set_defaults(func=_dispatch)
@@ -203,6 +206,7 @@ def _dispatch(args) -> int:
 
 
 def register_record(sub) -> None:
+    """Add `perch record`: record every perch topic and stage call until Ctrl-C."""
     p = sub.add_parser("record", help="record every /perch topic and stage call to an MCAP file until Ctrl-C "
                                       "(for missions started by another client)")
     p.add_argument("output", type=Path, help="MCAP file to write")
@@ -233,6 +237,7 @@ def _record(args) -> int:
 
 
 def register_view(sub) -> None:
+    """Add `perch view`: open a mission's rerun recording."""
     p = sub.add_parser("view", help="open a mission's rerun recording (run.rrd) in the rerun viewer")
     p.add_argument("recording", type=Path, help="run.rrd written by perch plan / perch demo")
     p.add_argument("--web", action="store_true", help="serve the web viewer (open the printed URL in a browser)")
@@ -240,6 +245,7 @@ def register_view(sub) -> None:
 
 
 def viewer_command(recording: Path, web: bool) -> list[str] | None:
+    """The rerun viewer command for a recording (web viewer without a display); None without rerun."""
     exe = shutil.which("rerun") or (str(Path(sys.executable).with_name("rerun"))
                                     if Path(sys.executable).with_name("rerun").exists() else None)
     if exe is None:
@@ -248,6 +254,7 @@ def viewer_command(recording: Path, web: bool) -> list[str] | None:
 
 
 def has_display() -> bool:
+    """Whether a graphical display is available."""
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")) or sys.platform in ("darwin", "win32")
 
 

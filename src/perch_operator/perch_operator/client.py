@@ -65,6 +65,7 @@ class ProgressPrinter:
         self.started = time.monotonic()
 
     def __call__(self, feedback: PlanPerches.Feedback) -> None:
+        """Print one feedback message (a new line per stage, updated in place on a terminal)."""
         elapsed = time.monotonic() - self.started
         if feedback.stage != self.stage:
             self.stage = feedback.stage
@@ -78,6 +79,7 @@ class ProgressPrinter:
         self.stream.flush()
 
     def close(self) -> None:
+        """End the progress line."""
         if self.tty:
             self.stream.write("\n")
             self.stream.flush()

@@ -33,12 +33,15 @@ class Box:
             raise ValueError("crop box orientation is not a rotation (check the quaternion is normalised)")
 
     def contains(self, points: np.ndarray) -> np.ndarray:
+        """(N,) whether each point lies inside the box."""
         local = (np.asarray(points, np.float64) - self.center) @ self.rotation
         return np.all(np.abs(local) <= self.size / 2, axis=1)
 
 
 @dataclass
 class CropResult:
+    """The cropped mesh, which input faces it kept, and the target volume."""
+
     mesh: Mesh
     kept_faces: np.ndarray   # indices into the input mesh's faces
     target: TargetVolume     # never None: given, or the default floor-area target

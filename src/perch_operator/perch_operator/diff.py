@@ -16,11 +16,14 @@ IGNORED_FIELDS = frozenset({"seconds", "message", "stamp"})
 
 @dataclass(frozen=True)
 class Tolerance:
+    """Relative and absolute tolerance for comparing replayed numbers."""
+
     rtol: float = 1e-4
     atol: float = 1e-5
 
 
 def is_message(value) -> bool:
+    """Whether a value is a ROS message."""
     return hasattr(value, "get_fields_and_field_types")
 
 

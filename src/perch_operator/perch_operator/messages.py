@@ -28,6 +28,7 @@ from perch_operator.proposals import Proposal, approach_point
 
 
 def box_from_ros(msg: pm.OrientedBox, what: str) -> Box:
+    """A crop box of a perch_interfaces/OrientedBox (ValueError naming `what` when unusable)."""
     center, size, rotation = box_from_msg(msg)
     try:
         return Box(center, size, rotation)

@@ -41,6 +41,8 @@ WAITING_FEEDBACK_PERIOD = 3.0  # s between repeated "waiting for decisions" feed
 
 @dataclass
 class MissionOptions:
+    """What a mission needs besides the goal: the node's operator, crop and frame settings."""
+
     auto_accept: bool
     exclusion_radius: float
     clean_given_mesh: bool
@@ -103,6 +105,7 @@ class Mission:
         self._done_weight += STAGE_WEIGHTS[stage]
 
     def run(self, goal: PlanPerches.Goal) -> PlanPerches.Result:
+        """Run the goal through every stage and the operator's decisions; the action's result."""
         started = time.monotonic()
         mesh_msg = self._acquire_mesh(goal)
         if self.on_alignment is not None:

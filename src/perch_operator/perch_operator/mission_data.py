@@ -25,6 +25,8 @@ MISSION_METADATA = "perch_mission"
 
 @dataclass
 class MissionData:
+    """A mission read back from its run.mcap: inputs, stage results, proposals and waypoints."""
+
     mesh: Mesh | None = None                 # the environment the cameras were placed in
     cropped: Mesh | None = None              # what segmentation saw
     surfaces: list[Surface] = field(default_factory=list)
@@ -132,6 +134,7 @@ def mission_id_text(mission_id) -> str:
 
 
 def waypoint_dict(msg) -> dict:
+    """A waypoint message as plain data (for waypoints.yaml)."""
     p, q, a = msg.pose.pose.position, msg.pose.pose.orientation, msg.approach
     return {"mission_id": mission_id_text(msg.mission_id),
             "drone_index": int(msg.drone_index), "proposal_id": int(msg.proposal_id),

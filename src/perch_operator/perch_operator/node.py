@@ -57,6 +57,8 @@ LATCHED_LAST = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=
 
 
 class OperatorNode(Node):
+    """Serves crop, the plan_perches action, confirm and surface review; publishes proposals and waypoints."""
+
     def __init__(self) -> None:
         super().__init__("perch_operator")
         self.config = declare_config(self, OperatorConfig, check=OperatorConfig.validate)
@@ -262,6 +264,7 @@ COMPONENT = OperatorNode  # what a one-process graph (perch_common.ros.container
 
 
 def main(args: list[str] | None = None) -> int:
+    """Run the perch_operator node until Ctrl-C."""
     # Enough threads for: the mission, a confirm call re-optimising, and the replies they wait on.
     return run_node(lambda: OperatorNode(), args, threads=6)
 

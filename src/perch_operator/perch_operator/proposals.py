@@ -35,6 +35,8 @@ class Decision(IntEnum):
 
 @dataclass
 class Proposal:
+    """A proposed perch for one camera slot, and the operator's decision on it."""
+
     id: int
     slot: int                   # camera slot (drone index) this proposal fills
     placement: CameraPlacement
@@ -61,9 +63,11 @@ class ProposalBook:
 
     @property
     def next_id(self) -> int:
+        """The id the next proposal will get."""
         return self._next_id
 
     def propose(self, slot: int, placement: CameraPlacement) -> Proposal:
+        """Record a new pending proposal for `slot`."""
         with self.changed:
             proposal = Proposal(self._next_id, slot, placement)
             self._next_id += 1
@@ -79,6 +83,7 @@ class ProposalBook:
             self.changed.notify_all()
 
     def get(self, proposal_id: int) -> Proposal:
+        """The proposal with this id (ProposalError naming the known ids otherwise)."""
         if proposal_id not in self._by_id:
             known = sorted(self._by_id)
             raise ProposalError(f"unknown proposal {proposal_id} (known: {known[:10]}"
@@ -111,6 +116,7 @@ class ProposalBook:
             return proposal
 
     def exclusions(self) -> list[ExclusionZone]:
+        """The exclusion zones of every rejected or failed perch so far."""
         with self.changed:
             return list(self._zones)
 
@@ -126,6 +132,7 @@ class ProposalBook:
             return [p for _, p in sorted(self._current.items()) if p is not None]
 
     def accepted(self) -> list[Proposal]:
+        """The current proposals that are accepted."""
         return [p for p in self.current() if p.status == Status.ACCEPTED]
 
     def open_slots(self) -> list[int]:
@@ -134,14 +141,17 @@ class ProposalBook:
             return [s for s, p in sorted(self._current.items()) if p is not None and p.status != Status.ACCEPTED]
 
     def settled(self) -> bool:
+        """Whether every slot is decided (accepted or left empty)."""
         return not self.open_slots()
 
     def wait_settled(self, timeout: float) -> bool:
+        """Wait until every slot is decided; False on timeout."""
         with self.changed:
             return self.changed.wait_for(self.settled, timeout)
 
 
 def perch_position(placement: CameraPlacement) -> np.ndarray:
+    """The drone's position of a placement."""
     return np.asarray(placement.drone_pose, np.float64)[:3, 3].copy()
 
 

@@ -30,11 +30,13 @@ class TopView:
         self.height = int(np.ceil((hi[1] - lo[1]) / self.res))
 
     def pixels(self, xy: np.ndarray) -> np.ndarray:
+        """(N,2) pixel coordinates of plan positions."""
         xy = np.asarray(xy, np.float64)
         xy = xy.reshape(-1, xy.shape[-1])[:, :2]
         return np.column_stack([(xy[:, 0] - self.lo[0]) / self.res, (self.hi[1] - xy[:, 1]) / self.res])
 
     def cell_centres(self) -> np.ndarray:
+        """(W*H,2) plan positions of the pixel centres."""
         u, v = np.meshgrid(np.arange(self.width) + 0.5, np.arange(self.height) + 0.5)
         return np.column_stack([self.lo[0] + u.ravel() * self.res, self.hi[1] - v.ravel() * self.res])
 

@@ -20,6 +20,8 @@ from perch_operator.stages import STAGES
 
 @dataclass
 class CallOutcome:
+    """One replayed stage call: its reply, the time it took and how it differs from the recording."""
+
     call: StageCall
     index: int
     seconds: float
@@ -28,6 +30,7 @@ class CallOutcome:
 
     @property
     def ok(self) -> bool:
+        """Whether the call succeeded and matched the recording."""
         return not self.error and not self.differences
 
 
@@ -92,6 +95,7 @@ def _print_outcome(o: CallOutcome, check: bool, out) -> None:
 
 
 def summary_line(outcomes: list[CallOutcome], check: bool) -> str:
+    """One line summing up a replay (and its comparison when checked)."""
     bad = [o for o in outcomes if not o.ok]
     if not check:
         return f"replayed {len(outcomes)} stage call(s)"

@@ -23,6 +23,7 @@ figure { margin: 0; } figcaption { font-size: 0.9em; color: #555; }
 
 
 def summary_rows(data: MissionData) -> list[tuple[str, str]]:
+    """The summary table of the report: cameras, coverage, uncertainty, stage times."""
     s = data.summary
     rows = [("cameras", str(len(data.placements))),
             ("coverage", _pct(s.get("coverage"))),

@@ -16,6 +16,8 @@ class ReviewError(ValueError):
 
 
 class ReviewDesk:
+    """Open surface reviews and the operator's rejections, waited on by the mission."""
+
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self._next_id = 1

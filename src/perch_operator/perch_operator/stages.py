@@ -50,6 +50,8 @@ class StageError(PerchError):
 
 
 class MissionCancelled(PerchError):
+    """The mission was cancelled (by its client, or because the client left)."""
+
     pass
 
 

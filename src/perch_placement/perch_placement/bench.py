@@ -19,6 +19,7 @@ LABELS = {"pso": "Greedy PSO", "random": "Random", "grid": "Grid", "naive": "Nai
 
 
 def register(sub) -> None:
+    """Add `perch bench placement`: the searches against the exhaustive reference."""
     parser = sub.add_parser("placement", help="placement search: methods vs the exhaustive reference")
     add_problem_arguments(parser, mesh_positional=False)
     parser.add_argument("--cameras", type=int, default=5, help="largest camera count (runs 1..N)")
@@ -35,6 +36,7 @@ def register(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run the placement benchmark; prints JSON and the Table-7 style markdown table."""
     from dataclasses import replace
 
     from perch_placement.core import PlacementCache, optimise

@@ -13,6 +13,7 @@ from perch_placement.search import METHODS
 
 
 def register(sub) -> None:
+    """Add `perch place`: choose perches on a mesh, write placements.yaml and simulated views."""
     parser = sub.add_parser("place", help="choose camera perches on a mesh (placement stage)",
                             description="Place camera drones to observe a target volume; writes "
                                         "placements.yaml and one colour + depth view per camera.")
@@ -26,6 +27,7 @@ def register(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run `perch place`; exit code 1 when no camera could be placed."""
     from perch_placement.core import optimise
 
     config = load_config(args.params).resolved()
@@ -46,6 +48,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def write_placements(path: Path, problem, result, config) -> None:
+    """Write the placements and scores as YAML."""
     import yaml
 
     def plain(p):
@@ -67,6 +70,7 @@ def write_placements(path: Path, problem, result, config) -> None:
 
 
 def write_views(out: Path, problem, placements, config, scale: float) -> list[Path]:
+    """Write each placed camera's simulated colour and depth views (PNG); returns the colour paths."""
     import cv2
 
     from perch_placement.core import scene_for

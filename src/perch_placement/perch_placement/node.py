@@ -25,6 +25,7 @@ from perch_placement.core import PlacementCache, optimise
 
 
 def camera_from_msg(msg) -> CameraSpec:
+    """The camera of a perch_interfaces/CameraSpec."""
     return CameraSpec(name=msg.name or "custom", width=int(msg.width), height=int(msg.height), fx=msg.fx,
                       fy=msg.fy, cx=msg.cx, cy=msg.cy, distortion=tuple(float(c) for c in msg.distortion),
                       baseline=msg.baseline, subpixel_error=msg.subpixel_error, min_range=msg.min_range,
@@ -33,6 +34,7 @@ def camera_from_msg(msg) -> CameraSpec:
 
 
 def drone_from_msg(msg) -> DroneSpec:
+    """The drone of a perch_interfaces/DroneSpec (angles in radians on the wire)."""
     return DroneSpec(radius=msg.radius, camera_offset=msg.camera_offset,
                      pan_range_deg=math.degrees(msg.pan_range), tilt_range_deg=math.degrees(msg.tilt_range),
                      gimbal_limited_targeting=bool(msg.gimbal_limited_targeting),
@@ -40,6 +42,8 @@ def drone_from_msg(msg) -> DroneSpec:
 
 
 class PlacementNode(Node):
+    """Serves the optimise service: perch regions and a target in, camera placements out."""
+
     def __init__(self) -> None:
         super().__init__("perch_placement")
         config = declare_config(self, PlacementNodeConfig, check=PlacementNodeConfig.validate)
@@ -58,6 +62,7 @@ class PlacementNode(Node):
 
     @answering
     def optimise(self, request: srv.Optimise.Request, response: srv.Optimise.Response) -> srv.Optimise.Response:
+        """Answer one optimise request (success=false with the reason for unusable input)."""
         config = self._request_config(request)
         target = target_from_msg(request.target)
         if target is None:
@@ -86,6 +91,7 @@ COMPONENT = PlacementNode  # what a one-process graph (perch_common.ros.containe
 
 
 def main(args: list[str] | None = None) -> int:
+    """Run the perch_placement node until Ctrl-C."""
     return run_node(lambda: PlacementNode(), args)
 
 

@@ -20,6 +20,8 @@ from perch_placement.fitness import point_score
 
 @dataclass
 class BoundCheck:
+    """Exhaustive optimum versus the greedy online bounds on one small instance."""
+
     k: int
     optimum: float          # best fitness over all feasible k-subsets of the candidates
     greedy: float           # plain greedy's fitness
@@ -41,10 +43,12 @@ class BoundCheck:
 
     @property
     def coverage_holds(self) -> bool:
+        """Whether the coverage bound held at every greedy prefix."""
         return min(self.coverage_bounds) >= self.optimum - self.TOLERANCE
 
     @property
     def slack(self) -> float:
+        """Least margin of the online bound over the optimum (negative: it failed)."""
         return min(self.bounds) - self.optimum
 
 

@@ -39,6 +39,7 @@ class Perch:
         return len(self.region)
 
     def take(self, index) -> "Perch":
+        """The perches at `index`."""
         return Perch(*(getattr(self, f)[index] for f in self.__dataclass_fields__))
 
 
@@ -76,6 +77,7 @@ class Perches:
 
     @property
     def dims(self) -> int:
+        """Length D of an encoding: region selector, position (2 or 1), pan, tilt and zoom when enabled."""
         return (6 if self.encoding == "plane" else 5) - (self.max_zoom <= 1.0)
 
     def _prepare_faces(self) -> None:
@@ -90,6 +92,7 @@ class Perches:
     # --- positions -------------------------------------------------------------------------
 
     def region_of(self, selector: np.ndarray) -> np.ndarray:
+        """(B,) region index of each area-weighted selector in [0,1]."""
         return np.minimum(np.searchsorted(self.cdf, selector, side="right"), len(self.regions) - 1)
 
     def surface_points(self, region: np.ndarray, a: np.ndarray, b: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
@@ -132,6 +135,7 @@ class Perches:
     # --- poses -----------------------------------------------------------------------------
 
     def drone_rotations(self, region: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """(B,3,3) world-from-drone rotations at the points: head-down on walls, facing the target elsewhere."""
         normal = self.normals[region]
         towards = self.target_centre - points
         forward = np.where(self.is_wall[region][:, None], -self.up, towards)
@@ -184,6 +188,7 @@ class Perches:
         return Perch(region, points, rot, cam, cam_rot, pan, tilt, zoom, inside)
 
     def decode(self, x: np.ndarray) -> Perch:
+        """The perches (poses, gimbal angles, zoom) of encodings x (B,D) in [0,1]."""
         x = np.clip(np.asarray(x, np.float64).reshape(-1, self.dims), 0.0, 1.0)
         region = self.region_of(x[:, 0])
         if self.encoding == "plane":

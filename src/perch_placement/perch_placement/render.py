@@ -117,6 +117,8 @@ def target_outline(target: TargetVolume, tolerance: float = 0.05) -> np.ndarray:
 
 @dataclass
 class PointScores:
+    """Each target point's score per camera and fused, for colouring points."""
+
     points: np.ndarray      # (N,3) target points
     seen: np.ndarray        # (K,N) camera k sees point n
     per_camera: np.ndarray  # (K,N) score 1 - ||C||/||C_max|| of camera k alone (0 unseen)

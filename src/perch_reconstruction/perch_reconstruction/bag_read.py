@@ -19,6 +19,8 @@ MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 @dataclass
 class RawMessage:
+    """One message as read from a bag: topic, type, time and CDR bytes."""
+
     topic: str
     type_name: str
     log_time_ns: int

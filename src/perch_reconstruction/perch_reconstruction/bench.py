@@ -15,6 +15,7 @@ from perch_reconstruction.bag_write import BagTopics
 
 
 def register(sub) -> None:
+    """Add `perch bench reconstruct`: fps with poses and odometry, ATE, Chamfer, cleaning, memory."""
     parser = sub.add_parser("reconstruct", help="reconstruction: fps with poses and with odometry, ATE, "
                                                 "Chamfer, cleaning time, memory")
     source = parser.add_mutually_exclusive_group(required=True)
@@ -51,6 +52,7 @@ def subdivide(mesh: Mesh) -> Mesh:
 
 
 def run(args) -> int:
+    """Run the reconstruction benchmark; prints JSON."""
     from perch_reconstruction.cleaning import clean_mesh_with_report
     from perch_reconstruction.cli import load_config
     from perch_reconstruction.core import reconstruct_bag

@@ -51,6 +51,7 @@ def _topics(args) -> BagTopics:
 # --- perch bag -----------------------------------------------------------------------------------
 
 def register_bag(sub) -> None:
+    """Add `perch bag`: convert frame folders to bags, inspect them, play them on the graph."""
     parser = sub.add_parser("bag", help="RGB-D bags: convert frames, inspect, play on the graph")
     bag = parser.add_subparsers(dest="bag_command", metavar="ACTION")
     conv = bag.add_parser("from-frames", help="TUM/7-Scenes-style folder -> ROS 2 MCAP bag")
@@ -127,6 +128,7 @@ def _play(args) -> int:
 # --- perch clean ---------------------------------------------------------------------------------
 
 def register_clean(sub) -> None:
+    """Add `perch clean`: merge, drop small pieces, decimate and gravity-align a mesh."""
     parser = sub.add_parser("clean", help="clean a mesh: merge, drop small pieces, decimate, gravity-align")
     parser.add_argument("mesh")
     parser.add_argument("-o", "--output", required=True)
@@ -172,6 +174,7 @@ def _clean(args) -> int:
 # --- perch reconstruct ---------------------------------------------------------------------------
 
 def register_reconstruct(sub) -> None:
+    """Add `perch reconstruct`: an RGB-D bag or frame folder to a clean mesh."""
     parser = sub.add_parser("reconstruct", help="RGB-D bag (or frame folder) -> clean gravity-aligned mesh")
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument("--bag", help="ROS 2 MCAP bag")

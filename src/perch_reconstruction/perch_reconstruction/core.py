@@ -33,6 +33,8 @@ Progress = Callable[["ReconstructionStats"], None]
 
 @dataclass
 class ReconstructionStats:
+    """What happened to the frames of a reconstruction, and the resulting mesh sizes."""
+
     frames_received: int = 0
     frames_integrated: int = 0
     frames_dropped: int = 0         # live only: frames discarded because integration fell behind
@@ -53,6 +55,7 @@ class ReconstructionStats:
     frame_id: str = "map"           # the volume's (input) frame: the recorded poses' world frame, or odometry's
 
     def summary(self) -> dict:
+        """The statistics as a plain dict for reports."""
         keys = ("frames_received", "frames_integrated", "frames_dropped", "frames_without_pose", "frames_lost",
                 "frames_over_budget", "blocks", "faces_raw", "faces")
         out = {k: getattr(self, k) for k in keys}
@@ -70,6 +73,7 @@ class Reconstructor:
         self.reset()
 
     def reset(self) -> None:
+        """Forget every integrated frame."""
         self.stats = ReconstructionStats()
         self.intrinsics: Intrinsics | None = None
         self._volume: TsdfVolume | None = None
@@ -137,6 +141,7 @@ class Reconstructor:
         return np.mean([pose[:3, 1] for _, pose in self.stats.trajectory], axis=0)
 
     def extract(self, frame_id: str = "map") -> Mesh:
+        """The mesh of the integrated frames (PerchError when nothing was integrated)."""
         if self._volume is None or self.stats.frames_integrated == 0:
             raise PerchError("nothing integrated yet: no frame could be used (check topics, camera info and poses)")
         mesh = self._volume.extract(frame_id)

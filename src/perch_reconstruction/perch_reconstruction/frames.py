@@ -28,6 +28,7 @@ class Intrinsics:
     cy: float
 
     def matrix(self) -> np.ndarray:
+        """The 3x3 camera matrix K."""
         return np.array([[self.fx, 0, self.cx], [0, self.fy, self.cy], [0, 0, 1.0]])
 
     def scaled(self, factor: float) -> "Intrinsics":
@@ -38,6 +39,7 @@ class Intrinsics:
 
     @staticmethod
     def from_matrix(k: np.ndarray, width: int, height: int) -> "Intrinsics":
+        """Intrinsics from a 3x3 camera matrix and the image size."""
         k = np.asarray(k, np.float64).reshape(3, 3)
         return Intrinsics(int(width), int(height), float(k[0, 0]), float(k[1, 1]), float(k[0, 2]), float(k[1, 2]))
 
@@ -84,6 +86,7 @@ class FrameFolder:
         return len(self.stems)
 
     def load(self, index: int, stamp_ns: int = 0) -> RGBDFrame:
+        """Frame `index` of the folder: colour, depth and the pose when the folder has one."""
         import cv2
 
         stem = self.root / self.stems[index]
@@ -120,6 +123,7 @@ def read_matrix(path: Path, shape: tuple[int, ...], what: str) -> np.ndarray:
 
 
 def open_frame_folder(path: str | Path, limit: int | None = None, step: int = 1) -> FrameFolder:
+    """A TUM/7-Scenes-style frame folder (PerchError naming what is missing)."""
     root = Path(path)
     if not root.is_dir():
         raise PerchError(f"{root}: no such frame folder")
@@ -154,6 +158,7 @@ def open_frame_folder(path: str | Path, limit: int | None = None, step: int = 1)
 
 
 def iter_folder_frames(folder: FrameFolder, fps: float = 30.0, start_ns: int = 0) -> Iterator[RGBDFrame]:
+    """The folder's frames in order, stamped at `fps`."""
     period_ns = int(round(1e9 / fps))
     for i in range(len(folder)):
         yield folder.load(i, start_ns + i * period_ns)

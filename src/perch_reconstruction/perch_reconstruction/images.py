@@ -88,6 +88,7 @@ def _decode_compressed(msg, topic: str, color: bool) -> np.ndarray:
 
 
 def intrinsics_from_camera_info(msg, topic: str) -> Intrinsics:
+    """Intrinsics of a sensor_msgs/CameraInfo (PerchError naming the topic when unusable)."""
     k = np.asarray(msg.k, np.float64)
     if k.shape != (9,) or k[0] <= 0 or k[4] <= 0 or int(msg.width) == 0 or int(msg.height) == 0:
         raise PerchError(f"{topic}: camera info has no usable K ({k.tolist()}) or size "
@@ -101,16 +102,19 @@ def pose_from_msg(msg) -> np.ndarray:
 
 
 def stamp_ns(msg) -> int:
+    """A message header's stamp in nanoseconds."""
     return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
 
 
 # --- builders (dicts for the MCAP encoder) -----------------------------------------------------
 
 def header(stamp: int, frame_id: str) -> dict:
+    """std_msgs/Header fields for a bag record."""
     return {"stamp": {"sec": stamp // 1_000_000_000, "nanosec": stamp % 1_000_000_000}, "frame_id": frame_id}
 
 
 def image_fields(array: np.ndarray, encoding: str, stamp: int, frame_id: str) -> dict:
+    """sensor_msgs/Image fields of an array."""
     array = np.ascontiguousarray(array)
     height, width = array.shape[:2]
     return {"header": header(stamp, frame_id), "height": height, "width": width, "encoding": encoding,
@@ -118,6 +122,7 @@ def image_fields(array: np.ndarray, encoding: str, stamp: int, frame_id: str) ->
 
 
 def compressed_fields(array: np.ndarray, fmt: str, stamp: int, frame_id: str) -> dict:
+    """sensor_msgs/CompressedImage fields of an array (JPEG colour or PNG depth)."""
     import cv2
 
     if fmt == "jpeg":
@@ -130,6 +135,7 @@ def compressed_fields(array: np.ndarray, fmt: str, stamp: int, frame_id: str) ->
 
 
 def camera_info_fields(intr: Intrinsics, stamp: int, frame_id: str) -> dict:
+    """sensor_msgs/CameraInfo fields of the intrinsics."""
     k = intr.matrix()
     p = np.zeros((3, 4))
     p[:, :3] = k
@@ -147,10 +153,12 @@ def _pose_dict(matrix: np.ndarray) -> dict:
 
 
 def pose_stamped_fields(matrix: np.ndarray, stamp: int, frame_id: str) -> dict:
+    """geometry_msgs/PoseStamped fields of a 4x4 pose."""
     return {"header": header(stamp, frame_id), "pose": _pose_dict(matrix)}
 
 
 def odometry_fields(matrix: np.ndarray, stamp: int, frame_id: str, child_frame_id: str) -> dict:
+    """nav_msgs/Odometry fields of a 4x4 pose (zero twist)."""
     zero3 = {"x": 0.0, "y": 0.0, "z": 0.0}
     return {"header": header(stamp, frame_id), "child_frame_id": child_frame_id,
             "pose": {"pose": _pose_dict(matrix), "covariance": [0.0] * 36},

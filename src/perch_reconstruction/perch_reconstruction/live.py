@@ -26,6 +26,8 @@ MAX_QUIET_WAIT_S = 3.0
 
 
 class LiveIngest:
+    """Live RGB-D input: pairs colour and depth, waits for poses, integrates in a worker thread."""
+
     def __init__(self, config: ReconstructionNodeConfig, log: Callable[[str], None] = print):
         self.config = config.validate()
         self.log = log
@@ -52,19 +54,23 @@ class LiveIngest:
 
     # --- input ----------------------------------------------------------------------------------
     def on_camera_info(self, intrinsics: Intrinsics) -> None:
+        """Take the camera intrinsics."""
         with self._lock:
             self.intrinsics = intrinsics
             self._wake.notify_all()
 
     def on_pose(self, stamp: int, pose: np.ndarray) -> None:
+        """Take one world-from-camera pose."""
         with self._lock:
             self.poses.add(stamp, pose)
             self._wake.notify_all()
 
     def on_color(self, stamp: int, color: np.ndarray) -> None:
+        """Take one colour image."""
         self._offer(lambda: self.assembler.add_color(stamp, color))
 
     def on_depth(self, stamp: int, depth: np.ndarray) -> None:
+        """Take one depth image."""
         self._offer(lambda: self.assembler.add_depth(stamp, depth))
 
     def _offer(self, pair: Callable[[], RGBDFrame | None]) -> None:
@@ -85,6 +91,7 @@ class LiveIngest:
             self._wake.notify_all()
 
     def report_error(self, message: str) -> None:
+        """Log an input error once (until a different one occurs)."""
         with self._lock:
             if message != self.last_error:
                 self.log(message)
@@ -184,13 +191,16 @@ class LiveIngest:
 
     @property
     def frames_dropped(self) -> int:
+        """Frames dropped because integration fell behind."""
         return int(sum(self.dropped.values()))
 
     def reset(self) -> None:
+        """Start over: empty volume, queues and statistics."""
         with self._lock, self._volume_lock:
             self._reset_state()
 
     def status(self) -> dict:
+        """Progress counters for the progress topic."""
         with self._lock:
             stats = self.recon.stats
             return {"frames_received": stats.frames_received, "frames_integrated": stats.frames_integrated,
@@ -200,6 +210,7 @@ class LiveIngest:
                     "blocks": stats.blocks, "last_error": self.last_error}
 
     def stop(self) -> None:
+        """Stop the integration thread."""
         with self._lock:
             self._stop = True
             self._wake.notify_all()

@@ -46,6 +46,8 @@ def input_qos(lossless: bool, depth: int) -> QoSProfile:
 
 
 class ReconstructionNode(Node):
+    """Serves reconstruct, reset and clean_mesh; integrates live RGB-D topics."""
+
     def __init__(self) -> None:
         super().__init__("perch_reconstruction")
         self.config = declare_config(self, ReconstructionNodeConfig, check=ReconstructionNodeConfig.validate)
@@ -203,6 +205,7 @@ class ReconstructionNode(Node):
             self.static_transforms.send(response.alignment)
 
     def destroy_node(self):
+        """Stop live integration, then destroy the node."""
         self.ingest.stop()
         return super().destroy_node()
 
@@ -211,6 +214,7 @@ COMPONENT = ReconstructionNode  # what a one-process graph (perch_common.ros.con
 
 
 def main(args: list[str] | None = None) -> int:
+    """Run the perch_reconstruction node until Ctrl-C."""
     return run_node(lambda: ReconstructionNode(), args=args, threads=4)
 
 

@@ -45,6 +45,7 @@ def render_mesh(mesh: Mesh, width: int = 800, height: int = 600, elevation_deg: 
 
 
 def save_rendering(path: str | Path, mesh: Mesh, **kwargs) -> Path:
+    """Render the mesh (render_mesh's options) to a PNG file; returns its path."""
     import cv2
 
     path = Path(path)

@@ -28,9 +28,11 @@ class FrameAssembler:
         self.unpaired_dropped = 0
 
     def add_color(self, stamp: int, color: np.ndarray) -> RGBDFrame | None:
+        """Add a colour image; the RGB-D frame once its depth partner is there."""
         return self._add(stamp, color, self._color, self._depth, color_first=True)
 
     def add_depth(self, stamp: int, depth: np.ndarray) -> RGBDFrame | None:
+        """Add a depth image; the RGB-D frame once its colour partner is there."""
         return self._add(stamp, depth, self._depth, self._color, color_first=False)
 
     def _add(self, stamp: int, image: np.ndarray, mine: OrderedDict, other: OrderedDict,
@@ -51,6 +53,7 @@ class FrameAssembler:
         return None
 
     def clear(self) -> None:
+        """Drop every waiting image."""
         self._color.clear()
         self._depth.clear()
 
@@ -64,6 +67,7 @@ class PoseBuffer:
         self._poses: list[np.ndarray] = []
 
     def add(self, stamp: int, pose: np.ndarray) -> None:
+        """Add one stamped pose."""
         i = bisect.bisect(self._stamps, stamp)
         self._stamps.insert(i, stamp)
         self._poses.insert(i, pose)
@@ -74,9 +78,11 @@ class PoseBuffer:
         return len(self._stamps)
 
     def newest_stamp(self) -> int | None:
+        """Stamp of the newest pose, None when empty."""
         return self._stamps[-1] if self._stamps else None
 
     def lookup(self, stamp: int, tolerance_ns: int) -> np.ndarray | None:
+        """The pose stamped closest to `stamp` within the tolerance, None otherwise."""
         i = bisect.bisect_left(self._stamps, stamp)
         best = None
         for j in (i - 1, i):
@@ -86,5 +92,6 @@ class PoseBuffer:
         return None if best is None else self._poses[best]
 
     def clear(self) -> None:
+        """Forget every pose."""
         self._stamps.clear()
         self._poses.clear()

@@ -66,6 +66,7 @@ def _face_colors(mesh: Mesh) -> np.ndarray:
 
 def render_sequence(mesh: Mesh, poses: list[np.ndarray], intrinsics: Intrinsics = DEFAULT_INTRINSICS,
                     fps: float = 30.0, depth_noise: float = 0.0, seed: int = 0) -> list[RGBDFrame]:
+    """Simulated RGB-D frames (noisy depth, seeded) of the mesh seen from the poses."""
     scene = RayScene(mesh)
     colors = _face_colors(mesh)
     rng = np.random.default_rng(seed)

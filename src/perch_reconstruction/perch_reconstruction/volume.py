@@ -21,6 +21,7 @@ MIN_TRACKING_WIDTH = 160  # px
 
 
 def depth_mm(depth_m: np.ndarray) -> np.ndarray:
+    """Depth in metres as 16-bit millimetres."""
     return np.clip(np.round(depth_m * DEPTH_SCALE), 0, 65535).astype(np.uint16)
 
 
@@ -50,6 +51,7 @@ class TsdfVolume:
 
     @property
     def blocks(self) -> int:
+        """Number of allocated TSDF blocks."""
         return int(self._model.get_hashmap().size())
 
     def _image(self, array: np.ndarray):

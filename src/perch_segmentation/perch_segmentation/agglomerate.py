@@ -34,6 +34,7 @@ class MergeRules:
 
 
 def components(count: int, u: np.ndarray, v: np.ndarray) -> tuple[int, np.ndarray]:
+    """Connected components of the graph with edges (u, v): (count, label of each node)."""
     graph = coo_matrix((np.ones(len(u), np.int8), (u, v)), shape=(count, count))
     return connected_components(graph, directed=False)
 

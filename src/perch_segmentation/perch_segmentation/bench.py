@@ -16,6 +16,7 @@ from perch_common.mesh import Mesh
 
 
 def register(sub) -> None:
+    """Add `perch bench segment`: seconds, peak memory, surfaces and accuracy against a baseline."""
     p = sub.add_parser("segment", help="segmentation: seconds, peak memory, surfaces, accuracy on scenes")
     source = p.add_mutually_exclusive_group(required=True)
     source.add_argument("--mesh", type=Path, help="mesh file (e.g. ../shared/data/meshes/apartment.ply)")
@@ -54,6 +55,7 @@ def subdivide(mesh: Mesh) -> Mesh:
 
 
 def area_fractions(mesh: Mesh, surfaces) -> dict:
+    """Share of the mesh area in the largest surfaces."""
     total = float(mesh.face_areas().sum())
     areas = sorted((s.area for s in surfaces), reverse=True)
     return {"top10_area_fraction": sum(areas[:10]) / total, "labelled_area_fraction": sum(areas) / total,
@@ -67,6 +69,7 @@ def _current_rss_mb() -> float:
 
 
 def run(args) -> int:
+    """Run the segmentation benchmark; prints JSON."""
     from perch_segmentation.core import SegmentationConfig, segment_mesh
     from perch_segmentation.evaluation import score_scene
 

@@ -12,6 +12,7 @@ from perch_common.up_axis import add_up_argument
 
 
 def register(sub) -> None:
+    """Add `perch segment`: split a mesh into planar surfaces, write the surfaces file."""
     parser = sub.add_parser(
         "segment", help="split a room mesh into planar surfaces",
         description="Run the segmentation stage on MESH; write the surfaces (YAML or JSON) and a mesh "
@@ -31,6 +32,7 @@ def register(sub) -> None:
 
 
 def load_config(config_path: Path | None, overrides: list[str]):
+    """The segmentation settings of a parameter file with -p NAME=VALUE overrides."""
     from perch_segmentation.core import SegmentationConfig
 
     try:
@@ -61,6 +63,7 @@ def _parse_value(text: str):
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run `perch segment`; writes the surfaces file and a coloured mesh."""
     from perch_common.errors import PerchError
     from perch_common.outputs import refuse_overwriting_inputs
     from perch_common.surfaces_file import write_surfaces

@@ -13,6 +13,8 @@ FLOOR, CEILING = 1, 3  # perch_common.scene_generator.SemanticClass codes
 
 @dataclass
 class PlaneScores:
+    """How well surfaces match the ground-truth planes: recall, precision and normal errors."""
+
     plane_recall: float        # ground-truth planes >= min_area matched with IoU >= iou
     plane_precision: float     # predicted surfaces >= min_area matched with IoU >= iou
     normal_error_deg: float    # largest normal error over matched pairs
@@ -22,6 +24,7 @@ class PlaneScores:
     matched: int
 
     def as_dict(self) -> dict:
+        """The scores as a plain dict."""
         return dict(self.__dict__)
 
 

@@ -25,6 +25,8 @@ from perch_segmentation.agglomerate import best_edges, components, flag_union
 
 @dataclass
 class PlaneRules:
+    """When step 2 merges two clusters: normal angle, stacking angle, plane distance, colour."""
+
     theta_max_deg: float
     theta_min_deg: float
     d_max: float
@@ -42,6 +44,7 @@ class Geometry:
 
     @staticmethod
     def of(table: np.ndarray) -> "Geometry":
+        """The geometry of every cluster of a statistics table."""
         centroid, normals = st.plane_normals(table)
         return Geometry(table[:, st.AREA], centroid, normals, st.mean_lab(table))
 
@@ -52,10 +55,12 @@ def normal_cosine(g: Geometry, u: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 
 def normals_agree(g: Geometry, u, v, rules: PlaneRules) -> np.ndarray:
+    """(E,) whether the normals of clusters u and v differ by less than theta_max."""
     return normal_cosine(g, u, v) >= np.cos(np.radians(rules.theta_max_deg))
 
 
 def side_by_side(g: Geometry, u, v, rules: PlaneRules) -> np.ndarray:
+    """(E,) whether clusters u and v lie side by side, not stacked (the joining line is far from both normals)."""
     d = g.centroid[v] - g.centroid[u]
     length = np.linalg.norm(d, axis=1)
     unit = np.divide(d, length[:, None], out=np.zeros_like(d), where=length[:, None] > 1e-9)
@@ -65,18 +70,21 @@ def side_by_side(g: Geometry, u, v, rules: PlaneRules) -> np.ndarray:
 
 
 def planes_close(g: Geometry, u, v, rules: PlaneRules) -> np.ndarray:
+    """(E,) whether each centroid lies within d_max of the other's plane."""
     d = g.centroid[v] - g.centroid[u]
     return (np.abs(np.einsum("ij,ij->i", d, g.normal[u])) <= rules.d_max) & \
            (np.abs(np.einsum("ij,ij->i", d, g.normal[v])) <= rules.d_max)
 
 
 def colors_close(g: Geometry, u, v, rules: PlaneRules) -> np.ndarray:
+    """(E,) whether the mean colours are close enough (always, without colour)."""
     if rules.color_threshold is None:
         return np.ones(len(u), bool)
     return st.distance(g.lab[u], g.lab[v]) <= rules.color_threshold
 
 
 def mergeable(g: Geometry, u, v, rules: PlaneRules) -> np.ndarray:
+    """(E,) whether clusters u and v may merge: every rule holds."""
     return (normals_agree(g, u, v, rules) & side_by_side(g, u, v, rules)
             & planes_close(g, u, v, rules) & colors_close(g, u, v, rules))
 

@@ -26,6 +26,8 @@ def face_labels_array(labels: np.ndarray):
 
 
 class SegmentationNode(Node):
+    """Serves the segment service: a mesh in, planar surfaces and face labels out."""
+
     def __init__(self) -> None:
         super().__init__("perch_segmentation")
         config = declare_config(self, SegmentationNodeConfig, check=lambda c: c.segmentation_config().validate())
@@ -50,6 +52,7 @@ COMPONENT = SegmentationNode  # what a one-process graph (perch_common.ros.conta
 
 
 def main(args: list[str] | None = None) -> int:
+    """Run the perch_segmentation node until Ctrl-C."""
     return run_node(lambda: SegmentationNode(), args)
 
 

@@ -26,6 +26,7 @@ def frames_of(table: np.ndarray, centre: np.ndarray) -> tuple[list[PlaneFrame], 
 
 
 def faces_by_label(face_labels: np.ndarray, count: int) -> list[np.ndarray]:
+    """The face indices of each label 0..count-1."""
     order = np.argsort(face_labels, kind="stable")
     bounds = np.searchsorted(face_labels[order], np.arange(count + 1))
     return [order[bounds[k]:bounds[k + 1]] for k in range(count)]

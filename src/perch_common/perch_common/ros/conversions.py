@@ -42,10 +42,12 @@ def from_array(values, dtype: type, columns: int | None = None) -> np.ndarray:
 # --- geometry -------------------------------------------------------------------------------
 
 def point_msg(p: np.ndarray) -> Point:
+    """geometry_msgs/Point of a 3-vector."""
     return Point(x=float(p[0]), y=float(p[1]), z=float(p[2]))
 
 
 def vector_msg(v: np.ndarray) -> Vector3:
+    """geometry_msgs/Vector3 of a 3-vector."""
     return Vector3(x=float(v[0]), y=float(v[1]), z=float(v[2]))
 
 
@@ -55,17 +57,20 @@ def xyz(m) -> np.ndarray:
 
 
 def pose_msg(matrix: np.ndarray) -> Pose:
+    """geometry_msgs/Pose of a 4x4 rigid transform."""
     q = quaternion_from_matrix(matrix[:3, :3])
     return Pose(position=point_msg(matrix[:3, 3]), orientation=Quaternion(x=q[0], y=q[1], z=q[2], w=q[3]))
 
 
 def pose_matrix(pose: Pose) -> np.ndarray:
+    """4x4 rigid transform of a geometry_msgs/Pose."""
     return pose_to_matrix(pose)
 
 
 # --- mesh -----------------------------------------------------------------------------------
 
 def mesh_to_msg(mesh: Mesh, stamp=None) -> pm.TriangleMesh:
+    """perch_interfaces/TriangleMesh of a mesh (flat float32 vertices, uint32 faces, optional colours)."""
     msg = pm.TriangleMesh()
     msg.header.frame_id = mesh.frame_id
     if stamp is not None:
@@ -153,15 +158,18 @@ def cached_mesh_to_msg(mesh: Mesh, stamp=None) -> pm.TriangleMesh:
 # --- planes and polygons -----------------------------------------------------------------------
 
 def frame_to_msg(frame: PlaneFrame) -> pm.PlaneFrame:
+    """perch_interfaces/PlaneFrame of a plane frame."""
     return pm.PlaneFrame(origin=point_msg(frame.origin), axis_u=vector_msg(frame.axis_u),
                          axis_v=vector_msg(frame.axis_v), normal=vector_msg(frame.normal))
 
 
 def frame_from_msg(msg: pm.PlaneFrame) -> PlaneFrame:
+    """Plane frame of a perch_interfaces/PlaneFrame."""
     return PlaneFrame(xyz(msg.origin), xyz(msg.axis_u), xyz(msg.axis_v), xyz(msg.normal))
 
 
 def polygons_to_msg(polygons: list) -> pm.PlanarPolygons:
+    """perch_interfaces/PlanarPolygons (flat points, ring starts, ring owners) of polygons with holes."""
     rings = [np.asarray(ring, np.float64).reshape(-1, 2) for poly in polygons for ring in poly]
     owner = [i for i, poly in enumerate(polygons) for _ in poly]
     sizes = np.array([len(r) for r in rings], dtype=np.int64)
@@ -174,6 +182,7 @@ def polygons_to_msg(polygons: list) -> pm.PlanarPolygons:
 
 
 def polygons_from_msg(msg: pm.PlanarPolygons) -> list:
+    """Polygons with holes of a perch_interfaces/PlanarPolygons."""
     points = from_array(msg.points_xy, np.float32, 2).astype(np.float64)
     starts = from_array(msg.ring_starts, np.uint32).astype(np.int64)
     owner = from_array(msg.ring_polygon, np.uint32).astype(np.int64)
@@ -187,6 +196,7 @@ def polygons_from_msg(msg: pm.PlanarPolygons) -> list:
 
 
 def surface_to_msg(surface: Surface) -> pm.Surface:
+    """perch_interfaces/Surface of a surface."""
     msg = pm.Surface(id=int(surface.id), surface_class=int(surface.surface_class),
                      frame=frame_to_msg(surface.frame), area=float(surface.area),
                      rms_distance=float(surface.rms_distance),
@@ -197,6 +207,7 @@ def surface_to_msg(surface: Surface) -> pm.Surface:
 
 
 def surface_from_msg(msg: pm.Surface) -> Surface:
+    """Surface of a perch_interfaces/Surface."""
     return Surface(id=msg.id, frame=frame_from_msg(msg.frame), area=msg.area,
                    face_indices=from_array(msg.face_indices, np.uint32).astype(np.int64),
                    surface_class=SurfaceClass(msg.surface_class), rms_distance=msg.rms_distance,
@@ -205,6 +216,7 @@ def surface_from_msg(msg: pm.Surface) -> Surface:
 
 
 def region_to_msg(region: PerchRegion) -> pm.PerchRegion:
+    """perch_interfaces/PerchRegion of a perch region (with its mesh)."""
     return pm.PerchRegion(id=int(region.id), source_surface=int(region.source_surface),
                           surface_class=int(region.surface_class), area=float(region.area),
                           frame=frame_to_msg(region.frame), polygons=polygons_to_msg(region.polygons),
@@ -212,6 +224,7 @@ def region_to_msg(region: PerchRegion) -> pm.PerchRegion:
 
 
 def region_from_msg(msg: pm.PerchRegion) -> PerchRegion:
+    """Perch region of a perch_interfaces/PerchRegion."""
     return PerchRegion(id=msg.id, source_surface=msg.source_surface,
                        surface_class=SurfaceClass(msg.surface_class), frame=frame_from_msg(msg.frame),
                        polygons=polygons_from_msg(msg.polygons), mesh=mesh_from_msg(msg.mesh, "region mesh"),
@@ -229,10 +242,12 @@ def evidence_from_msg(msg: pm.PerchEvidence) -> PerchEvidence:
 
 
 def removal_to_msg(r: FilterRemoval) -> pm.FilterRemoval:
+    """perch_interfaces/FilterRemoval of a surface's per-filter removed areas."""
     return pm.FilterRemoval(**{k: (int(v) if k == "surface_id" else float(v)) for k, v in vars(r).items()})
 
 
 def removal_from_msg(msg: pm.FilterRemoval) -> FilterRemoval:
+    """Per-filter removed areas of a perch_interfaces/FilterRemoval."""
     return FilterRemoval(**{k: getattr(msg, k) for k in FilterRemoval.__dataclass_fields__})
 
 
@@ -290,6 +305,7 @@ def target_from_msg(msg: pm.TargetVolume) -> TargetVolume | None:
 
 
 def placement_to_msg(p: CameraPlacement) -> pm.CameraPlacement:
+    """perch_interfaces/CameraPlacement of a placement."""
     return pm.CameraPlacement(
         drone_index=int(p.drone_index), region_id=int(p.region_id), drone_pose=pose_msg(p.drone_pose),
         camera_pose=pose_msg(p.camera_pose), pan=float(p.pan), tilt=float(p.tilt), zoom=float(p.zoom),
@@ -298,6 +314,7 @@ def placement_to_msg(p: CameraPlacement) -> pm.CameraPlacement:
 
 
 def placement_from_msg(msg: pm.CameraPlacement) -> CameraPlacement:
+    """Placement of a perch_interfaces/CameraPlacement."""
     return CameraPlacement(
         drone_index=msg.drone_index, region_id=msg.region_id, drone_pose=pose_matrix(msg.drone_pose),
         camera_pose=pose_matrix(msg.camera_pose), pan=msg.pan, tilt=msg.tilt, zoom=msg.zoom,
@@ -306,8 +323,10 @@ def placement_from_msg(msg: pm.CameraPlacement) -> CameraPlacement:
 
 
 def exclusion_to_msg(zone: ExclusionZone) -> pm.ExclusionZone:
+    """perch_interfaces/ExclusionZone of an exclusion zone."""
     return pm.ExclusionZone(center=point_msg(zone.center), radius=float(zone.radius))
 
 
 def exclusion_from_msg(msg: pm.ExclusionZone) -> ExclusionZone:
+    """Exclusion zone of a perch_interfaces/ExclusionZone."""
     return ExclusionZone(xyz(msg.center), msg.radius)
