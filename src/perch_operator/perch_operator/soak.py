@@ -32,6 +32,7 @@ SCENE_SEEDS = (1, 3)          # generated rooms: each a few seconds per mission 
 KINDS = {"complete": 0.65, "kill": 0.12, "cancel": 0.12, "bad_goal": 0.11}
 RESPAWNED_NODE = "perch_segmentation"
 OUTPUTS = ("waypoints.yaml", "run.rrd", "report.html")
+PER_MISSION = ("proposal_id", "mission_id")   # waypoint fields that differ between equal missions
 
 
 @dataclass
@@ -221,7 +222,7 @@ class Soak:
             if failed.exists() or len(present) != len(OUTPUTS):
                 return f"exit 0 but outputs {present}, FAILED {failed.exists()}"
             waypoints = yaml.safe_load((out / "waypoints.yaml").read_text())["waypoints"]
-            perches = [{k: v for k, v in w.items() if k != "proposal_id"} for w in waypoints]
+            perches = [{k: v for k, v in w.items() if k not in PER_MISSION} for w in waypoints]
             expected = self.reference.setdefault(scene, perches)
             if len(waypoints) != CAMERAS or perches != expected:
                 return f"waypoints differ from the scene's first mission: {waypoints}"
