@@ -7,6 +7,7 @@ comes in with a goal (boxes, target) the other way.
 
 from __future__ import annotations
 
+import numpy as np
 from geometry_msgs.msg import PoseArray, PoseStamped
 from unique_identifier_msgs.msg import UUID
 
@@ -106,4 +107,20 @@ def target_to_aligned(target: pm.TargetVolume, alignment: Alignment) -> pm.Targe
         out.footprint = mesh_to_msg(footprint)
     else:
         out = target  # an unknown kind: crop answers it with a clear error
+    return out
+
+
+def surface_to_input(surface: pm.Surface, alignment: Alignment) -> pm.Surface:
+    """A copy of a (gravity-aligned) surface message with its plane frame in the input frame; its
+    outline stays in plane coordinates and its face indices in the mesh it was segmented from."""
+    import copy
+
+    out = copy.deepcopy(surface)
+    r = np.asarray(alignment.rotation).T
+    frame = out.frame
+    frame.origin = point_msg(r @ [frame.origin.x, frame.origin.y, frame.origin.z])
+    for name in ("axis_u", "axis_v", "normal"):
+        v = getattr(frame, name)
+        moved = r @ [v.x, v.y, v.z]
+        v.x, v.y, v.z = (float(c) for c in moved)
     return out

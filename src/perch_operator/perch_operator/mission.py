@@ -28,7 +28,7 @@ from perch_common.ros.static_transforms import alignment_from_msg, alignment_to_
 from perch_common.up_axis import choose_up, file_convention
 from perch_interfaces import srv
 from perch_interfaces.action import PlanPerches
-from perch_operator.messages import boxes_to_aligned, placement_msg, target_to_aligned
+from perch_operator.messages import boxes_to_aligned, placement_msg, surface_to_input, target_to_aligned
 from perch_operator.proposals import Decision, Proposal, ProposalBook, ProposalError, Status
 from perch_operator.stages import MissionCancelled, StageCaller, StageError
 
@@ -105,7 +105,7 @@ class Mission:
         self._done_weight += STAGE_WEIGHTS[stage]
 
     def run(self, goal: PlanPerches.Goal) -> PlanPerches.Result:
-        """Run the goal through every stage and the operator's decisions; the action's result."""
+        """Run the goal through every stage and the operator's decisions; the action's result, in the input's own frame."""
         started = time.monotonic()
         mesh_msg = self._acquire_mesh(goal)
         if self.on_alignment is not None:
@@ -202,7 +202,7 @@ class Mission:
         largest = sorted(surfaces, key=lambda s: -s.area)[:count]
         self.feedback("review", self._fraction(), f"waiting for review of surfaces {[s.id for s in largest]} "
                       "(perch operator review ID [--reject ...])")
-        rejected = self.review(largest)
+        rejected = self.review([surface_to_input(s, self.alignment) for s in largest])  # the input's frame
         self._finish("review", time.monotonic() - started)
         return [s for s in surfaces if s.id not in rejected]
 

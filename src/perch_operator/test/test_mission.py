@@ -229,3 +229,26 @@ def test_a_given_up_axis_the_mesh_contradicts_fails_the_mission_clearly(meshes):
     goal.up_axis = "-y"
     assert Mission(ScriptedStages(goal.mesh), options(), 1, lambda *f: None, lambda: False, lambda p: None,
                    lambda o: None).run(goal).success
+
+
+def test_surfaces_under_review_are_shown_in_the_input_frame(meshes):
+    goal, up, _ = rotated_room_goal(meshes, review_surfaces=1)
+
+    class FloorSurface(ScriptedStages):
+        def call(self, stage, request, cancelled=lambda: False):
+            if stage == "segment":  # a floor in the gravity-aligned frame: normal +z
+                surface = pm.Surface(id=7, area=4.0)
+                surface.frame.normal.z = surface.frame.axis_u.x = surface.frame.axis_v.y = 1.0
+                surface.frame.origin.z = 0.5
+                return srv.Segment.Response(success=True, surfaces=[surface], seconds=0.2)
+            return super().call(stage, request, cancelled)
+
+    shown = []
+    mission = Mission(FloorSurface(goal.mesh), options(), 1, lambda *f: None, lambda: False, lambda p: None,
+                      lambda o: None, review=lambda surfaces: shown.extend(surfaces) or set())
+    assert mission.run(goal).success
+    assert [s.id for s in shown] == [7]
+    np.testing.assert_allclose(xyz(shown[0].frame.normal), up, atol=1e-9)  # the floor faces the true up
+    np.testing.assert_allclose(xyz(shown[0].frame.origin), 0.5 * up, atol=1e-9)
+    # the filter still got the surface in the gravity-aligned frame
+    assert dict(mission.caller.requests)["filter"].surfaces[0].frame.normal.z == 1.0
