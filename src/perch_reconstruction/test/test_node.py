@@ -125,6 +125,12 @@ def test_clean_mesh_service(ros, synthetic):
                                 target_faces=5000)
     reply = call_service(client, CleanMesh, "/perch/clean_mesh", request)
     assert reply.success, reply.message
+    from perch_common.ros.static_transforms import alignment_from_msg
+
     cleaned = mesh_from_msg(reply.mesh)
     assert cleaned.num_faces <= 5000 and cleaned.vertex_colors is not None
-    np.testing.assert_allclose(cleaned.bounds(), scene.mesh.bounds(), atol=0.15)
+    # The reply is gravity-aligned (walls onto the axes): its alignment takes it back to the input frame.
+    assert reply.alignment.header.frame_id == "map" and reply.alignment.child_frame_id == "map_gravity_aligned"
+    assert reply.mesh.header.frame_id == "map_gravity_aligned" and reply.up_source == "gravity"
+    back = cleaned.transformed(alignment_from_msg(reply.alignment).to_input())
+    np.testing.assert_allclose(back.bounds(), scene.mesh.bounds(), atol=0.15)
