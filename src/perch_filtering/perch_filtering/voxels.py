@@ -12,6 +12,11 @@ from perch_common.transforms import rotation_between
 from perch_filtering.sampling import project
 
 SIX_CONNECTED = ndimage.generate_binary_structure(3, 1)
+# Distances are exact up to this many voxels past the drone radius (enough for the hover test below).
+DISTANCE_MARGIN_VOXELS = 3
+# Open space (for orienting surfaces) is more than 1.5 voxels from any sample: one voxel of
+# sampling noise either side of a thin wall never connects the two sides.
+OPEN_SPACE_VOXELS = 1.5
 
 
 @dataclass
@@ -81,11 +86,11 @@ def build_flight_grid(points: np.ndarray, rotation: np.ndarray, target: TargetVo
     occupied[[0, -1], :, :] = occupied[:, [0, -1], :] = True
     occupied[:, :, [0, -1]] = True
     # In voxels, from free voxel centres to occupied centres (exact up to just past the drone radius).
-    distance = free_distance(occupied, reach=int(np.ceil(drone_radius / voxel)) + 3)
+    distance = free_distance(occupied, reach=int(np.ceil(drone_radius / voxel)) + DISTANCE_MARGIN_VOXELS)
     grid = FlightGrid(rotation, lo, voxel, occupied, occupied, occupied)
     seeds = grid.indices(target.sample(count=4000, seed=seed))
     seeds = seeds[np.all((seeds >= 0) & (seeds < shape), axis=1)]
-    grid.open_space = _connected_to(distance > 1.5, seeds)
+    grid.open_space = _connected_to(distance > OPEN_SPACE_VOXELS, seeds)
     grid.reachable = _connected_to(distance >= drone_radius / voxel, seeds)
     grid.hover = grid.reachable & (distance >= drone_radius / voxel + np.sqrt(3.0) / 2)
     grid.reachable_near = ndimage.binary_dilation(grid.reachable, SIX_CONNECTED)

@@ -68,6 +68,17 @@ def test_bench_scene_prints_accuracy_and_baseline(tmp_path, capsys, baseline):
     assert (tmp_path / "scene_room_0.png").is_file()
 
 
+def test_bench_reports_a_failed_baseline_and_still_prints_its_own_figures(tmp_path, capsys):
+    """Scene 11 is the one where Open3D's detect_planar_patches dies in Qhull (QH6154)."""
+    assert main(["bench", "segment", "--scene", "11", "--repeats", "1", "--no-render", "--out", str(tmp_path),
+                 "--json"]) == 0
+    captured = capsys.readouterr()
+    result = json.loads(captured.out)
+    assert "Qhull" in result["baseline"]["error"] and "seconds" not in result["baseline"]
+    assert result["surfaces"] > 10 and result["plane_recall"] >= 0.9
+    assert "baseline patches failed" in captured.err
+
+
 @pytest.mark.parametrize("suffix", [".yaml", ".json"])
 def test_surfaces_file_round_trips(tmp_path, suffix):
     from perch_common.surfaces_file import read_surfaces, write_surfaces
