@@ -1,8 +1,13 @@
 #!/usr/bin/env bash
-# Run the whole suite (every package's tests and the cross-package tests in test/).
+# Run the lint gate (ruff.toml: pyflakes, pycodestyle, import order, public docstrings), then the whole
+# suite (every package's tests and the cross-package tests in test/).
 # pytest exit code 5 (no tests collected) is a failure here, never a silent pass.
 set -uo pipefail
 cd "$(dirname "$0")/.."
+if ! .venv/bin/ruff check --quiet .; then
+  echo "run_tests: ruff check . failed (fix the lines above, or .venv/bin/ruff check --fix . for imports)" >&2
+  exit 1
+fi
 export OMP_NUM_THREADS=${OMP_NUM_THREADS:-2}
 export OPENBLAS_NUM_THREADS=${OPENBLAS_NUM_THREADS:-1}
 .venv/bin/python -m pytest -p no:cacheprovider "$@"
