@@ -149,6 +149,11 @@ def test_recording_decodes_with_rosbags_and_foxglove_and_keeps_rosbag2_metadata(
     assert {q.durability.name for q in qos["/perch/waypoints"]} == {"TRANSIENT_LOCAL"}
     # What a viewer needs: the mission's markers, its accepted waypoint set and the camera frames.
     assert counts["/perch/markers"] >= 2 * CAMERAS and counts["/perch/mission_waypoints"] >= CAMERAS
+    # one simulated view (Image + CameraInfo) per proposal: the auto-accepted mission made CAMERAS of them
+    assert counts["/perch/views/image"] == counts["/perch/views/camera_info"] == CAMERAS
+    [view] = [m for _, m, _ in iter_messages(recorded.mcap, ["/perch/views/image"])][:1]
+    assert view.encoding == "rgb8" and view.width > 0 and len(view.data) == view.height * view.step
+    assert np.frombuffer(bytes(view.data), np.uint8).std() > 0  # a picture, not a blank
     frames = {tf.child_frame_id for _, msg, _ in iter_messages(recorded.mcap, ["/tf_static"]) for tf in msg.transforms}
     assert {f"perch_drone_{i}_camera_optical" for i in range(CAMERAS)} <= frames
     try:

@@ -16,6 +16,7 @@ from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import CameraInfo, Image
 from unique_identifier_msgs.msg import UUID
 from visualization_msgs.msg import MarkerArray
 
@@ -48,6 +49,7 @@ from perch_operator.mission_data import placement_config
 from perch_operator.proposals import Decision, Proposal, ProposalError, Status
 from perch_operator.review import ReviewDesk, ReviewError
 from perch_operator.stages import MissionCancelled, StageCaller, StageError
+from perch_operator.views import camera_info_msg, image_msg, render_proposal_view
 
 # Late joiners (a dispatcher started after the mission, a UI) still get every waypoint/proposal.
 LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
@@ -84,6 +86,10 @@ class OperatorNode(Node):
         self.markers_pub = self.create_publisher(MarkerArray, "perch/markers", LATCHED_LAST)
         self._shown: dict[int, pm.Proposal] = {}  # the current mission's proposals as last published
         self._camera = None
+        # Each proposal's simulated view (latched, one per proposal: a late viewer gets them all).
+        self.view_pub = self.create_publisher(Image, "perch/views/image", LATCHED)
+        self.view_info_pub = self.create_publisher(CameraInfo, "perch/views/camera_info", LATCHED)
+        self._view_scene = None
         self.action = ActionServer(self, PlanPerches, "perch/plan_perches", self._execute, callback_group=group,
                                    goal_callback=self._on_goal, cancel_callback=lambda _: CancelResponse.ACCEPT)
         self.operator: Operator | None = None
@@ -133,7 +139,7 @@ class OperatorNode(Node):
     def _run_mission(self, goal_handle) -> PlanPerches.Result:
         config = read_config(self, OperatorConfig)
         self._mission_id = UUID(uuid=goal_handle.goal_id.uuid)
-        self._shown, self._camera = {}, None
+        self._shown, self._camera, self._view_scene = {}, None, None
         self.waypoint_set_pub.publish(waypoint_set_msg(self._mission_id, [], self._frame_id(),
                                                        self.get_clock().now().to_msg()))
         options = MissionOptions(
@@ -228,6 +234,8 @@ class OperatorNode(Node):
         alignment = self.operator.alignment
         published = proposal_msg(proposal, alignment, self.operator.optimise_request.regions)
         self.proposals_pub.publish(published)
+        if published.id not in self._shown:
+            self._publish_view(proposal)
         self._publish_markers(published)
         if proposal.status == Status.ACCEPTED:
             # the accepted camera's optical frame (z forward, x right, y down) for tf users and viewers
@@ -250,6 +258,25 @@ class OperatorNode(Node):
         self.markers_pub.publish(mission_markers(
             list(self._shown.values()), list(request.regions), request.target, self._camera,
             self.operator.alignment.to_input(), self.operator.alignment.input_frame, self.get_clock().now().to_msg()))
+
+    def _publish_view(self, proposal: Proposal) -> None:
+        """The new proposal's simulated camera view (Image + CameraInfo in its drone's camera frame)."""
+        request = self.operator.optimise_request
+        camera = placement_config().camera  # the renderer's camera model (what the placement stage assumes)
+        try:
+            mesh = mesh_from_request(request.mesh, "mission mesh")
+            if self._view_scene is None:
+                from perch_placement.core import scene_for
+
+                self._view_scene = scene_for(mesh)
+            rgb = render_proposal_view(mesh, self._view_scene, proposal.placement, camera,
+                                       target_from_msg(request.target))
+        except (PerchError, MeshError, ValueError) as exc:  # a view is a picture: the mission goes on
+            self.get_logger().warning(f"no simulated view for proposal {proposal.id}: {exc}")
+            return
+        stamp, frame = self.get_clock().now().to_msg(), camera_frame(proposal.slot)
+        self.view_info_pub.publish(camera_info_msg(camera, rgb.shape[1], rgb.shape[0], frame, stamp))
+        self.view_pub.publish(image_msg(rgb, frame, stamp))
 
     def _waypoint(self, proposal: Proposal) -> pm.PerchWaypoint:
         config = read_config(self, OperatorConfig)

@@ -32,7 +32,9 @@ MISSION_TOPICS = {"perch/proposals": "perch_interfaces/msg/Proposal",
                   "perch/waypoint_poses": "geometry_msgs/msg/PoseArray",
                   "perch/surface_review": "perch_interfaces/msg/SurfaceReview",
                   "perch/mission_waypoints": "perch_interfaces/msg/PerchWaypointSet",
-                  "perch/markers": "visualization_msgs/msg/MarkerArray"}
+                  "perch/markers": "visualization_msgs/msg/MarkerArray",
+                  "perch/views/image": "sensor_msgs/msg/Image",
+                  "perch/views/camera_info": "sensor_msgs/msg/CameraInfo"}
 
 
 def event_topics() -> dict[str, str]:

@@ -81,3 +81,18 @@ def test_mission_markers_clear_then_draw_regions_target_and_labelled_proposals()
 def test_a_camera_without_intrinsics_is_a_clear_error():
     with pytest.raises(ValueError, match="camera spec without intrinsics"):
         frustum_lines(proposal().placement.camera_pose, pm.CameraSpec())
+
+
+def test_view_camera_info_scales_the_pinhole_model_with_the_image():
+    from perch_operator.views import camera_info_msg, image_msg
+
+    spec = camera()
+    info = camera_info_msg(spec, 320, 180, "perch_drone_2_camera_optical", None)
+    assert (info.width, info.height) == (320, 180)
+    assert info.k[0] == pytest.approx(spec.fx / 4) and info.k[2] == pytest.approx(160.0)
+    assert info.k[4] == pytest.approx(spec.fy / 4) and info.k[5] == pytest.approx(90.0)
+    rgb = np.zeros((180, 320, 3), np.uint8)
+    rgb[10, 20] = (255, 0, 7)
+    image = image_msg(rgb, "f", None)
+    back = np.frombuffer(bytes(image.data), np.uint8).reshape(image.height, image.width, 3)
+    assert image.step == 960 and tuple(back[10, 20]) == (255, 0, 7)
