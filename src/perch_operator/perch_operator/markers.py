@@ -1,6 +1,8 @@
 """The mission as RViz/Foxglove markers (visualization_msgs/MarkerArray), all in the input's own frame.
 
-Perch regions coloured by surface class, the target volume, and for each proposal its perch (coloured
+Surfaces outlined in their class colour, the area each safety filter removed (a label per surface,
+coloured by the filter that removed most), perch regions coloured by surface class, the target
+volume, and for each proposal its perch (coloured
 by status), the camera frustum drawn from the CameraSpec, and a label `#id status gain`. Every array
 starts with DELETEALL, so the latched last message is the whole current picture. Built from messages
 and numpy only (no rclpy).
@@ -13,6 +15,7 @@ from geometry_msgs.msg import Point, Pose, Quaternion, Vector3
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
+from perch_common.conventions import FILTER_COLOURS, FILTER_NAMES
 from perch_common.transforms import pose_to_matrix, quaternion_from_matrix
 from perch_interfaces import msg as pm
 
@@ -134,8 +137,51 @@ def target_marker(target: pm.TargetVolume, to_input: np.ndarray, frame_id: str, 
     return None
 
 
+def surface_outline(surface: pm.Surface, to_input: np.ndarray, frame_id: str, stamp, rgb, ns: str,
+                    width: float) -> Marker | None:
+    """A surface's boundary rings (LINE_LIST in 3D from its plane frame), coloured `rgb`."""
+    xy = np.asarray(surface.boundary.points_xy, np.float64).reshape(-1, 2)
+    if not len(xy):
+        return None
+    f = surface.frame
+    origin = np.array([f.origin.x, f.origin.y, f.origin.z])
+    u, v = np.array([f.axis_u.x, f.axis_u.y, f.axis_u.z]), np.array([f.axis_v.x, f.axis_v.y, f.axis_v.z])
+    points = _apply(to_input, origin + xy[:, :1] * u + xy[:, 1:] * v)
+    starts = list(np.asarray(surface.boundary.ring_starts, np.int64)) + [len(points)]
+    segments = []
+    for a, b in zip(starts[:-1], starts[1:]):
+        ring = np.arange(a, b)
+        segments += [points[ring], points[np.roll(ring, -1)]]
+    marker = _marker(Marker.LINE_LIST, ns, surface.id, frame_id, stamp, rgb)
+    marker.scale = Vector3(x=width, y=0.0, z=0.0)
+    pairs = np.stack([np.concatenate(segments[0::2]), np.concatenate(segments[1::2])], axis=1)
+    marker.points = _points(pairs)
+    return marker
+
+
+def removal_label(surface: pm.Surface, removal: pm.FilterRemoval, to_input: np.ndarray, frame_id: str, stamp,
+                  filter_names, filter_colours) -> Marker | None:
+    """The area each filter removed from a surface, as a label coloured by the filter that removed most."""
+    removed = [(float(getattr(removal, name)), name, colour) for name, colour in zip(filter_names, filter_colours)
+               if float(getattr(removal, name)) > 0]
+    if not removed:
+        return None
+    worst = max(removed)
+    f = surface.frame
+    position = _apply(to_input, [f.origin.x, f.origin.y, f.origin.z])[0]
+    marker = _marker(Marker.TEXT_VIEW_FACING, "area_removed", surface.id, frame_id, stamp,
+                     np.asarray(worst[2], np.float64) / 255.0)
+    marker.pose = Pose(position=Point(x=float(position[0]), y=float(position[1]), z=float(position[2])),
+                       orientation=Quaternion(w=1.0))
+    marker.scale = Vector3(x=0.0, y=0.0, z=0.1)
+    marker.text = f"surface {surface.id} removed: " + ", ".join(f"{name} {area:.2f} m2" for area, name, _ in
+                                                                sorted(removed, reverse=True))
+    return marker
+
+
 def mission_markers(proposals: list[pm.Proposal], regions: list[pm.PerchRegion], target: pm.TargetVolume,
-                    camera: pm.CameraSpec, to_input: np.ndarray, frame_id: str, stamp) -> MarkerArray:
+                    camera: pm.CameraSpec, to_input: np.ndarray, frame_id: str, stamp,
+                    surfaces: list[pm.Surface] = (), removals: list[pm.FilterRemoval] = ()) -> MarkerArray:
     """The whole current picture: DELETEALL, then regions, target and every proposal (input frame).
 
     regions and target are in the stages' gravity-aligned frame (`to_input` takes them to the input
@@ -144,9 +190,17 @@ def mission_markers(proposals: list[pm.Proposal], regions: list[pm.PerchRegion],
     clear = Marker(action=Marker.DELETEALL)
     clear.header.frame_id, clear.header.stamp = frame_id, stamp
     markers = [clear]
+    for surface in surfaces:  # every segmented surface, outlined in its class colour
+        rgb = CLASS_COLOURS.get(surface.surface_class, CLASS_COLOURS[pm.Surface.CLASS_UNKNOWN])
+        markers.append(surface_outline(surface, to_input, frame_id, stamp, rgb, "surfaces", 0.02))
+    by_id = {s.id: s for s in surfaces}
+    for removal in removals:  # what the safety filters took away, labelled and coloured by filter
+        if removal.surface_id in by_id:
+            markers.append(removal_label(by_id[removal.surface_id], removal, to_input, frame_id, stamp,
+                                         FILTER_NAMES, FILTER_COLOURS))
     markers += [m for m in (region_marker(r, to_input, frame_id, stamp) for r in regions) if m is not None]
     target_msg = target_marker(target, to_input, frame_id, stamp)
     markers += [target_msg] if target_msg is not None else []
     for proposal in proposals:
         markers += proposal_markers(proposal, camera, frame_id, stamp)
-    return MarkerArray(markers=markers)
+    return MarkerArray(markers=[m for m in markers if m is not None])

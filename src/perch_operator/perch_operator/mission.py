@@ -63,6 +63,8 @@ class Operator:
     alignment: Alignment        # the book's placements are gravity-aligned; messages go out in the input frame
     scores: tuple[float, float, float] = (0.0, 0.0, 0.0)   # fitness, coverage, mean uncertainty
     replan_seconds: list[float] = field(default_factory=list)
+    surfaces: list = field(default_factory=list)   # the filter's surfaces and removals, for viewers
+    removals: list = field(default_factory=list)
 
 
 class Mission:
@@ -132,7 +134,8 @@ class Mission:
             self.notes.append(optimised.message.split(". placed ")[0])
         operator = Operator(ProposalBook(self.options.exclusion_radius, self.first_proposal_id), request,
                             self.options.auto_accept or goal.auto_accept, self.alignment,
-                            (optimised.fitness, optimised.coverage, optimised.mean_uncertainty))
+                            (optimised.fitness, optimised.coverage, optimised.mean_uncertainty),
+                            surfaces=list(filtered.surfaces), removals=list(filtered.removals))
         self.on_operator(operator)
         confirmed = self._confirm(operator, optimised.placements)
         self._finish("confirm", confirmed)

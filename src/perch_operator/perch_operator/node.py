@@ -257,7 +257,8 @@ class OperatorNode(Node):
         self._shown[published.id] = published
         self.markers_pub.publish(mission_markers(
             list(self._shown.values()), list(request.regions), request.target, self._camera,
-            self.operator.alignment.to_input(), self.operator.alignment.input_frame, self.get_clock().now().to_msg()))
+            self.operator.alignment.to_input(), self.operator.alignment.input_frame, self.get_clock().now().to_msg(),
+            self.operator.surfaces, self.operator.removals))
 
     def _publish_view(self, proposal: Proposal) -> None:
         """The new proposal's simulated camera view (Image + CameraInfo in its drone's camera frame)."""

@@ -96,3 +96,23 @@ def test_view_camera_info_scales_the_pinhole_model_with_the_image():
     image = image_msg(rgb, "f", None)
     back = np.frombuffer(bytes(image.data), np.uint8).reshape(image.height, image.width, 3)
     assert image.step == 960 and tuple(back[10, 20]) == (255, 0, 7)
+
+
+def test_surfaces_are_outlined_by_class_and_removals_labelled_by_filter():
+    from perch_common.conventions import FILTER_COLOURS, FILTER_NAMES
+
+    surface = pm.Surface(id=3, surface_class=pm.Surface.CLASS_CEILING)
+    surface.frame.origin.z = 2.5
+    surface.frame.axis_u.x, surface.frame.axis_v.y = 1.0, 1.0
+    surface.boundary.points_xy = [0.0, 0.0, 2.0, 0.0, 2.0, 1.0, 0.0, 1.0]
+    surface.boundary.ring_starts, surface.boundary.ring_polygon = [0], [0]
+    removal = pm.FilterRemoval(surface_id=3, area_total=2.0, area_kept=0.5)
+    setattr(removal, FILTER_NAMES[0], 0.25)
+    setattr(removal, FILTER_NAMES[2], 1.25)
+    markers = mission_markers([], [], pm.TargetVolume(), camera(), np.eye(4), "map", None, [surface], [removal]).markers
+    [outline] = [m for m in markers if m.ns == "surfaces"]
+    assert len(outline.points) == 8 and {p.z for p in outline.points} == {2.5}  # 4 edges of the ring
+    assert (outline.points[0].x, outline.points[1].x) == (0.0, 2.0)
+    [label] = [m for m in markers if m.ns == "area_removed"]
+    assert label.text == f"surface 3 removed: {FILTER_NAMES[2]} 1.25 m2, {FILTER_NAMES[0]} 0.25 m2"
+    assert label.color.r == pytest.approx(FILTER_COLOURS[2][0] / 255)
