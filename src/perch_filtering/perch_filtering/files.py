@@ -31,7 +31,8 @@ def region_dict(r: PerchRegion) -> dict:
     """A perch region as plain data (without its mesh)."""
     return {"id": int(r.id), "source_surface": int(r.source_surface),
             "surface_class": SurfaceClass(r.surface_class).name.lower(), "area": float(r.area),
-            "frame": frame_dict(r.frame), "polygons": polygons_list(r.polygons)}
+            "frame": frame_dict(r.frame), "polygons": polygons_list(r.polygons),
+            "evidence": {k: float(v) for k, v in vars(r.evidence).items()}}
 
 
 def removal_dict(r: FilterRemoval) -> dict:

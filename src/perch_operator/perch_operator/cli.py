@@ -229,6 +229,8 @@ def _mission_and_outputs(node, goal, args, describe: dict, started: float) -> in
         raise PerchError(f"mission failed: {result.message} (reason in {args.out}/FAILED, recording {outputs.mcap})")
     print(f"\n{describe.get('source', 'mission')}: {result.message}")
     print(summary_table(result))
+    if outputs.removals:
+        print(outputs.removals)
     print(f"outputs in {args.out}/: waypoints.yaml, run.mcap, run.rrd, report.html  "
           f"({time.monotonic() - started:.1f} s in all, mission {outputs.mission_seconds:.1f} s)")
     return 0

@@ -56,6 +56,18 @@ def removal_rows(data: MissionData, count: int = LARGEST_SURFACES) -> list[tuple
     return rows
 
 
+def removal_text(data: MissionData, count: int = LARGEST_SURFACES) -> str:
+    """The removal table of the largest surfaces as text (for `perch plan`'s summary); "" without data."""
+    rows = removal_rows(data, count)
+    if not rows:
+        return ""
+    header = ("surface", "class", "area", *FILTER_NAMES, "kept")
+    widths = [max(len(str(r[k])) for r in [header, *rows]) for k in range(len(header))]
+    lines = ["area (m^2) removed by each filter on the largest surfaces:"]
+    lines += ["  " + "  ".join(str(c).rjust(w) for c, w in zip(r, widths)) for r in [header, *rows]]
+    return "\n".join(lines)
+
+
 def removal_picture(data: MissionData, count: int = LARGEST_SURFACES) -> np.ndarray:
     """Stacked bars (BGR image), one per largest surface: its area coloured by the filter that removed
     it (FILTER_COLOURS) and green for the area kept."""

@@ -147,3 +147,20 @@ def test_operator_list_line_shows_the_safety_evidence():
     assert "approach 1.00 m, fall 0.62 m, support 94 %, flat 1.1 cm" in line
     assert "evidence not measured" in _proposal_line(Proposal(id=8, evidence=PerchEvidence(
         approach_clearance=-1.0, free_fall=-1.0, support_share=-1.0, flatness_rms=-1.0)))
+
+
+def test_removal_text_lists_the_largest_surfaces_by_filter(mission):
+    from perch_common.conventions import FILTER_NAMES
+    from perch_common.types import FilterRemoval, PlaneFrame, Surface, SurfaceClass
+    from perch_operator.report import removal_text
+
+    assert removal_text(mission) == ""  # no filter data recorded
+    frame = PlaneFrame.from_normal(np.array([2.0, 1.5, 2.5]), np.array([0, 0, -1.0]), np.array([0, 0, 1.0]))
+    mission.surfaces = [Surface(id=k, surface_class=SurfaceClass.WALL, frame=frame, area=a, rms_distance=0.0,
+                                mean_color=np.zeros(3), face_indices=np.zeros(0, np.int64), boundary=[])
+                        for k, a in enumerate([3.0, 9.0])]
+    mission.removals = [FilterRemoval(0, 3.0, support=3.0), FilterRemoval(1, 9.0, recovery_height=7.5, area_kept=1.5)]
+    lines = removal_text(mission).splitlines()
+    assert all(n in lines[1] for n in FILTER_NAMES)
+    assert lines[2].split()[:4] == ["1", "wall", "9.00", "0.00"] and lines[2].split()[-1] == "1.50"
+    assert lines[3].split()[FILTER_NAMES.index("support") + 3] == "3.00"
