@@ -295,6 +295,12 @@ def run_recorded_mission(node, goal: PlanPerches.Goal, out_dir: Path, progress: 
         outputs.result = PlanPerches.Result(success=False, message=reason)
         fail_outputs(outputs, reason)
         raise PerchError(f"{reason}; the recording so far is in {outputs.mcap}") from None
+    except Exception as exc:  # anything else that ends the client's mission still leaves its reason
+        recorder.close()
+        reason = f"the client failed during the mission: {type(exc).__name__}: {exc}"
+        outputs.result = PlanPerches.Result(success=False, message=reason)
+        fail_outputs(outputs, reason)
+        raise
     except BaseException:
         recorder.close()
         shutil.rmtree(staged, ignore_errors=True)
