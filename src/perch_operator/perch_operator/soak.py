@@ -117,7 +117,7 @@ class LaunchedGraph:
 class Soak:
     """Runs the missions against a LaunchedGraph with the client node `node`."""
 
-    def __init__(self, graph: LaunchedGraph, node, work: Path, seed: int = 0, log=sys.stderr):
+    def __init__(self, graph: LaunchedGraph, node, work: Path, seed: int = 0, log=None):
         self.graph = graph
         self.node = node
         self.work = Path(work)
@@ -127,8 +127,9 @@ class Soak:
 
     def say(self, text: str) -> None:
         """One progress line on the log stream."""
-        self.log.write(f"[soak] {text}\n")
-        self.log.flush()
+        stream = self.log or sys.stderr   # looked up per line: a test harness swaps sys.stderr
+        stream.write(f"[soak] {text}\n")
+        stream.flush()
 
     def run(self, missions: int, kinds: list[str] | None = None) -> SoakReport:
         """Run `missions` missions (of the given `kinds`, else a seeded random mix) and return what was seen."""
