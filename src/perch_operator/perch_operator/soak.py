@@ -217,7 +217,10 @@ class Soak:
         """'' when the outputs are what this kind of mission must leave, else what is wrong."""
         present = [n for n in OUTPUTS if (out / n).exists()]
         failed = out / "FAILED"
-        if code == 0:
+        # A client killed or interrupted after its outputs were moved into place finished its mission:
+        # the outputs must then be complete and correct, like an ordinary mission's.
+        finished_first = kind in ("kill", "cancel") and len(present) == len(OUTPUTS) and not failed.exists()
+        if code == 0 or finished_first:
             if kind in ("bad_goal",):
                 return "a goal with a NaN target succeeded"
             if failed.exists() or len(present) != len(OUTPUTS):
@@ -228,9 +231,6 @@ class Soak:
             if len(waypoints) != CAMERAS or perches != expected:
                 return f"waypoints differ from the scene's first mission: {waypoints}"
             report.completed += 1
-            return ""
-        if kind == "kill" and len(present) == len(OUTPUTS) and not failed.exists():
-            report.completed += 1   # killed after its outputs were moved into place: they are complete
             return ""
         if present:
             return f"failed (exit {code}) but left outputs {present}"
