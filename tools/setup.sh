@@ -96,7 +96,7 @@ fi
 
 # 6. The ament_python packages, editable (code changes need no rebuild; entry points do).
 pkgs=$(ls -d src/perch_*/setup.py 2>/dev/null | xargs -n1 dirname)
-py=$(digest $(ls src/perch_*/setup.py src/perch_*/package.xml))
+py=$(digest $(ls src/perch_*/setup.py src/perch_*/setup.cfg src/perch_*/package.xml))  # setup.cfg: the entry points
 if ! fresh python "$py"; then
   say "installing the Perch Python packages (editable)"
   for p in $pkgs; do args+=(-e "$p"); done
