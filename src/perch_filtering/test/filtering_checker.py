@@ -37,6 +37,16 @@ WINDOW_POINTS = 7   # per side of the perch window (recovery)
 SUPPORT_POINTS = 21  # per side of the perch window (support: cell centres of a 21 x 21 grid)
 
 
+def surface_kind(normal: np.ndarray, up: np.ndarray, class_angle_deg: float) -> str:
+    """'floor', 'ceiling', 'wall' or 'intermediate' of a surface normal, by the class angle."""
+    c = float(np.asarray(normal) @ up)
+    a = np.radians(class_angle_deg)
+    if c >= np.cos(a):
+        return "floor"
+    if c <= -np.cos(a):
+        return "ceiling"
+    return "wall" if abs(c) <= np.sin(a) else "intermediate"
+
 @dataclass
 class Spec:
     allow_walls: bool = True
@@ -73,14 +83,7 @@ class SceneOracle:
 
     # --- per plane -----------------------------------------------------------------------------
     def plane_class(self, plane_id: int) -> str:
-        n = self.scene.planes[plane_id].normal
-        c = float(n @ self.up)
-        a = np.radians(self.spec.class_angle_deg)
-        if c >= np.cos(a):
-            return "floor"
-        if c <= -np.cos(a):
-            return "ceiling"
-        return "wall" if abs(c) <= np.sin(a) else "intermediate"
+        return surface_kind(self.scene.planes[plane_id].normal, self.up, self.spec.class_angle_deg)
 
     def enabled(self, plane_id: int) -> bool:
         sem = self.scene.planes[plane_id].semantic_class

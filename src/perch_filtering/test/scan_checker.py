@@ -21,7 +21,7 @@ faces that cross a box's side between the filter's mesh samples (5 cm apart).
 from __future__ import annotations
 
 import numpy as np
-from filtering_checker import SUPPORT_POINTS, Spec, triangles_overlap_box
+from filtering_checker import SUPPORT_POINTS, Spec, surface_kind, triangles_overlap_box
 
 from perch_common.mesh import Mesh
 from perch_common.raycast import RayScene
@@ -55,13 +55,7 @@ class ScanOracle:
 
     def kind(self, normal: np.ndarray) -> str:
         """'wall', 'ceiling', 'floor' or 'intermediate' by the spec's class angle."""
-        c = float(normal @ self.up)
-        a = np.radians(self.spec.class_angle_deg)
-        if c >= np.cos(a):
-            return "floor"
-        if c <= -np.cos(a):
-            return "ceiling"
-        return "wall" if abs(c) <= np.sin(a) else "intermediate"
+        return surface_kind(normal, self.up, self.spec.class_angle_deg)
 
     def box_free(self, centre: np.ndarray, axes: np.ndarray, half: np.ndarray) -> bool:
         """No mesh triangle overlaps the box centre + axes.T @ [-half, half]."""
