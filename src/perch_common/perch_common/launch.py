@@ -31,6 +31,7 @@ from perch_common.data import repo_root
 from perch_common.processes import stop_process
 
 NETWORK_ENV = "PERCH_NETWORK"          # 1/true/yes: let the graph use every network interface
+USE_XML_QOS_ENV = "RMW_FASTRTPS_USE_QOS_FROM_XML"   # 1: rmw_fastrtps applies the XML profiles' memory policy
 GRAPH_MODES = ("per-node", "one-process")
 CONTAINER = "perch_container"           # process name of a one-process graph
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
@@ -55,13 +56,18 @@ def use_perch_dds(env: dict | None = None, network: bool | None = None) -> dict:
     replace the profile's transports with ones bound to every interface. A profile of the user's
     own (FASTRTPS_DEFAULT_PROFILES_FILE already set) is kept, with the LOCALHOST range.
     Network (`network=True` or PERCH_NETWORK=1): config/fastdds_network.xml, discovery range left
-    to the user. Both profiles drop a process that died unannounced after ~3 s, not ~20 s.
+    to the user. Both profiles drop a process that died unannounced after ~3 s, not ~20 s, and free
+    each message's buffers with it (RMW_FASTRTPS_USE_QOS_FROM_XML=1 makes rmw_fastrtps apply that).
     """
     target = os.environ if env is None else env
     network = network_requested(target) if network is None else network
     profile = dds_profile(network)
     if profile.is_file():
         target.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(profile))
+    if _ours(target):
+        # rmw_fastrtps then takes the profiles' history memory policy (buffers freed with their
+        # samples) instead of its own, which keeps the largest message's buffers for good.
+        target.setdefault(USE_XML_QOS_ENV, "1")
     if network:
         target[NETWORK_ENV] = "1"   # child processes (respawned nodes) stay networked too
         if target.get("ROS_AUTOMATIC_DISCOVERY_RANGE") == "SYSTEM_DEFAULT" and _ours(target):

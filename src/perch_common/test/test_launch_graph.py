@@ -59,12 +59,16 @@ def test_local_profile_whitelists_loopback_and_network_opens_it():
     text = dds_profile(False).read_text()
     assert "<interfaceWhiteList>" in text and "<address>127.0.0.1</address>" in text
     assert "<useBuiltinTransports>false</useBuiltinTransports>" in text
+    # Sample buffers are freed with their samples: rmw_fastrtps applies the profile's memory policy.
+    assert local["RMW_FASTRTPS_USE_QOS_FROM_XML"] == "1" and "<historyMemoryPolicy>DYNAMIC<" in text
     opened = use_perch_dds({"PERCH_NETWORK": "1"})
     assert opened["FASTRTPS_DEFAULT_PROFILES_FILE"] == str(dds_profile(True))
     assert "ROS_AUTOMATIC_DISCOVERY_RANGE" not in opened
     assert "interfaceWhiteList" not in dds_profile(True).read_text()
+    assert opened["RMW_FASTRTPS_USE_QOS_FROM_XML"] == "1" and "<historyMemoryPolicy>DYNAMIC<" in dds_profile(True).read_text()
     kept = use_perch_dds({"FASTRTPS_DEFAULT_PROFILES_FILE": "/mine.xml"})
     assert kept["FASTRTPS_DEFAULT_PROFILES_FILE"] == "/mine.xml" and kept["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
+    assert "RMW_FASTRTPS_USE_QOS_FROM_XML" not in kept   # a user's own profile: rmw_fastrtps's defaults stay
 
 
 def test_one_process_mode_runs_one_container_with_every_node(tmp_path):

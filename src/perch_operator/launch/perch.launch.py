@@ -36,5 +36,8 @@ def generate_launch_description():
         SetEnvironmentVariable("FASTRTPS_DEFAULT_PROFILES_FILE",
                                EnvironmentVariable("FASTRTPS_DEFAULT_PROFILES_FILE",
                                                    default_value=os.path.join(share, "config", "fastdds.xml"))),
+        # ... and its memory policy applies (each message's buffers freed with it).
+        SetEnvironmentVariable("RMW_FASTRTPS_USE_QOS_FROM_XML",
+                               EnvironmentVariable("RMW_FASTRTPS_USE_QOS_FROM_XML", default_value="1")),
         OpaqueFunction(function=_nodes),
     ])

@@ -1,16 +1,19 @@
 """Calling the stage services from the coordinator: waits, timeouts, vanished servers, failures.
 
 Every failure becomes a StageError whose message names the stage and its service, so the
-mission result says which stage to look at. Each mesh goes to a stage once: a request whose mesh
-the service already holds carries its content id only, and a "mesh not cached" reply (the node
+mission result says which stage to look at. Each call carries its own request_id, so abandoning it
+(mission cancelled, no reply in time) stops that call's work on the stage and no other client's.
+Each mesh goes to a stage once: a request whose mesh the service already holds carries its content id only, and a "mesh not cached" reply (the node
 restarted) is answered by sending the arrays again (perch_common.mesh_cache). A stage hosted in this
 process reads this process's cache, so it gets by id whatever that cache holds.
 """
 
 from __future__ import annotations
 
+import itertools
 import threading
 import time
+import uuid
 from dataclasses import dataclass
 from typing import Callable
 
@@ -66,26 +69,30 @@ class StageCaller:
         self.clients = {name: node.create_client(s.srv_type, s.service, callback_group=callback_group)
                         for name, s in STAGES.items()}
         self.services = {name: node.resolve_service_name(s.service) for name, s in STAGES.items()}
-        from std_msgs.msg import String
-
         from perch_common.ros.service import CANCEL_TOPIC
+        from perch_interfaces.msg import StageCancel
 
-        self._cancel_msg = String
-        self.cancel_pub = node.create_publisher(String, CANCEL_TOPIC, 10)
+        self._cancel_msg = StageCancel
+        self.cancel_pub = node.create_publisher(StageCancel, CANCEL_TOPIC, 10)
         self.meshes = MeshBook()
+        # Request ids: this caller's own prefix (unique across processes and restarts), then a count.
+        self.caller_id = f"{node.get_fully_qualified_name()}/{uuid.uuid4().hex[:12]}"
+        self._calls = itertools.count(1)
 
-    def _abandon(self, stage: str, client, future) -> None:
-        """Stop waiting for a call and tell the stage to stop its work (it checks between steps)."""
+    def _abandon(self, stage: str, client, future, request_id: str, reason: str) -> None:
+        """Stop waiting for a call and tell the stage to stop that call's work (it checks between steps)."""
         client.remove_pending_request(future)
-        self.cancel_pub.publish(self._cancel_msg(data=STAGES[stage].service))
+        self.cancel_pub.publish(self._cancel_msg(service=STAGES[stage].service, request_id=request_id,
+                                                 reason=reason))
 
     def call(self, stage: str, request, cancelled: Callable[[], bool] = lambda: False):
         """The stage's successful reply; raises StageError (or MissionCancelled).
 
-        The request's mesh (when it has one) travels by content id when the service holds it;
-        the request object itself is left as given."""
+        The request's mesh (when it has one) travels by content id when the service holds it, and
+        each sending gets a fresh request_id; the request object itself is left as given."""
         service = STAGES[stage].service
         full = getattr(request, "mesh", None)
+        given_id = request.request_id
         key = ""
         if full is not None and len(full.triangles):
             full.content_id = full.content_id or msg_content_id(full)
@@ -100,6 +107,7 @@ class StageCaller:
                 request.mesh = full
             return self._accepted(stage, self._send(stage, request, cancelled), key, full)
         finally:
+            request.request_id = given_id
             if full is not None:
                 request.mesh = full
 
@@ -127,6 +135,7 @@ class StageCaller:
         if not client.wait_for_service(timeout_sec=self.service_wait):
             raise StageError(stage, f"service not available within {self.service_wait:.0f} s; is its node "
                                     "running? (`perch launch` starts the graph)", self.services[stage])
+        request.request_id = f"{self.caller_id}/{stage}/{next(self._calls)}"
         done = threading.Event()
         future = client.call_async(request)
         future.add_done_callback(lambda _: done.set())
@@ -135,7 +144,7 @@ class StageCaller:
         while not done.wait(0.05):
             now = time.monotonic()
             if cancelled():
-                self._abandon(stage, client, future)
+                self._abandon(stage, client, future, request.request_id, "mission cancelled")
                 raise MissionCancelled(f"mission cancelled during stage {stage}")
             if not client.service_is_ready():
                 gone_since = gone_since or now
@@ -146,7 +155,7 @@ class StageCaller:
             else:
                 gone_since = None
             if now > deadline:
-                self._abandon(stage, client, future)
+                self._abandon(stage, client, future, request.request_id, "no reply within stage_timeout")
                 raise StageError(stage, f"no reply within {self.timeout:.0f} s (parameter stage_timeout)", self.services[stage])
         response = future.result()
         if response is None:

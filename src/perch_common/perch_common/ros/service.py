@@ -1,9 +1,10 @@
 """Service callbacks that always answer: expected errors become success=false with their message,
 unexpected ones are logged with a traceback and answered as internal errors; the node keeps serving.
 
-Every request is validated first (perch_common.request_validation); a stage service's work can be
-cancelled by the coordinator (a std_msgs/String naming the service on CANCEL_TOPIC stops it at its
-next `checkpoint()`), and after each call the node gives freed memory back to the system.
+Every request is validated first (perch_common.request_validation); one stage call's work can be
+cancelled by its caller (a perch_interfaces/StageCancel naming the service and the request's
+request_id on CANCEL_TOPIC stops that call at its next `checkpoint()`, and no other call), and
+after each call the node gives freed memory back to the system.
 """
 
 from __future__ import annotations
@@ -12,15 +13,17 @@ import functools
 import threading
 import time
 import traceback
+from collections import OrderedDict
 from typing import Callable
 
-from perch_common.cancellation import CancelToken, cancellable
+from perch_common.cancellation import CancelToken, cancellable, checkpoint
 from perch_common.errors import EXPECTED
 from perch_common.memory import release_memory
 from perch_common.request_validation import validate_request
 
-CANCEL_TOPIC = "perch/stage_cancel"    # std_msgs/String: the (relative) service whose work in progress to stop
+CANCEL_TOPIC = "perch/stage_cancel"    # perch_interfaces/StageCancel: the one call whose work to stop
 RELEASE_DELAY = 0.2                    # s after a reply before freeing memory (the reply is sent by then)
+EARLY_CANCELS = 256                    # cancels remembered for calls not started yet (queued behind others)
 
 
 def answering(callback: Callable) -> Callable:
@@ -38,6 +41,7 @@ def answering(callback: Callable) -> Callable:
                 validate_request(request)
             except ValueError as exc:
                 raise type(exc)(f"invalid request: {exc}") from None
+            checkpoint("starting")   # cancelled while it waited behind another call
             response = callback(self, request, response)
         except EXPECTED as exc:
             response.success, response.message = False, str(exc)
@@ -57,19 +61,25 @@ def answering(callback: Callable) -> Callable:
 
 
 class StageWork:
-    """The calls a node is serving, per service, with their cancel tokens; one per node."""
+    """The calls a node is serving, by (service, request_id), with their cancel tokens; one per node.
+
+    A cancel names one call. One that arrives before its call started (the call waits behind
+    another in the service's callback group) is remembered, so the call stops as soon as it starts.
+    """
 
     def __init__(self, node) -> None:
         from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
-        from std_msgs.msg import String
+
+        from perch_interfaces.msg import StageCancel
 
         self.node = node
         self._lock = threading.Lock()
-        self._running: dict[str, set[CancelToken]] = {}
+        self._running: dict[tuple[str, str], set[CancelToken]] = {}
+        self._early: OrderedDict[tuple[str, str], str] = OrderedDict()
         self._release_timer = None
         # Its own group: a cancel must get through while a service callback is busy.
         self.group = MutuallyExclusiveCallbackGroup()
-        node.create_subscription(String, CANCEL_TOPIC, self._on_cancel, 10, callback_group=self.group)
+        node.create_subscription(StageCancel, CANCEL_TOPIC, self._on_cancel, 10, callback_group=self.group)
 
     @classmethod
     def of(cls, node) -> "StageWork":
@@ -80,27 +90,49 @@ class StageWork:
             node._perch_stage_work = work
         return work
 
-    def _on_cancel(self, msg) -> None:
+    def cancel(self, service: str, request_id: str, reason: str = "") -> int:
+        """Cancel the call to `service` whose request carries `request_id`; the number of running calls
+        it stopped (0: remembered for when that call starts)."""
+        key = (service, request_id)
+        reason = f"{service}: cancelled by its caller" + (f" ({reason})" if reason else "")
         with self._lock:
-            tokens = list(self._running.get(msg.data, ()))
+            tokens = list(self._running.get(key, ()))
+            if not tokens and request_id:
+                self._early[key] = reason
+                while len(self._early) > EARLY_CANCELS:
+                    self._early.popitem(last=False)
         for token in tokens:
-            token.cancel(f"{msg.data}: cancelled by the mission coordinator")
-        if tokens:
-            self.node.get_logger().warning(f"{msg.data}: cancelling the call in progress")
+            token.cancel(reason)
+        return len(tokens)
+
+    def _on_cancel(self, msg) -> None:
+        stopped = self.cancel(msg.service, msg.request_id, msg.reason)
+        call = f"call {msg.request_id!r}" if msg.request_id else "calls without a request_id"
+        if stopped:
+            self.node.get_logger().warning(f"{msg.service}: cancelling {call} in progress")
+        elif msg.request_id:
+            self.node.get_logger().info(f"{msg.service}: {call} cancelled before it started")
 
     def serve(self, name: str, callback: Callable) -> Callable:
-        """Wrap a service callback: run it under a cancel token, then schedule a memory release."""
+        """Wrap a service callback: run it under its call's cancel token, then schedule a memory release."""
 
         def run(request, response):
+            key = (name, str(getattr(request, "request_id", "")))
             token = CancelToken()
             with self._lock:
-                self._running.setdefault(name, set()).add(token)
+                self._running.setdefault(key, set()).add(token)
+                early = self._early.pop(key, None)
+            if early is not None:
+                token.cancel(early)
             try:
                 with cancellable(token):
                     return callback(request, response)
             finally:
                 with self._lock:
-                    self._running[name].discard(token)
+                    running = self._running[key]
+                    running.discard(token)
+                    if not running:
+                        del self._running[key]
                 del request
                 self._schedule_release()
 
