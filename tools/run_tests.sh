@@ -8,8 +8,6 @@ if ! .venv/bin/ruff check --quiet .; then
   echo "run_tests: ruff check . failed (fix the lines above, or .venv/bin/ruff check --fix . for imports)" >&2
   exit 1
 fi
-export OMP_NUM_THREADS=${OMP_NUM_THREADS:-2}
-export OPENBLAS_NUM_THREADS=${OPENBLAS_NUM_THREADS:-1}
 .venv/bin/python -m pytest -p no:cacheprovider "$@"
 code=$?
 if [ "$code" = 5 ]; then

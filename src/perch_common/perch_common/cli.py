@@ -13,6 +13,7 @@ from importlib.metadata import entry_points
 
 from perch_common.errors import report_errors
 from perch_common.namespace import NAMESPACE_ENV, normalise
+from perch_common.threads import limit_threads
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -39,6 +40,7 @@ def load_plugins(group: str, subparsers) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the `perch` command line; returns the exit code."""
+    limit_threads()
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.namespace is not None:

@@ -29,6 +29,7 @@ from perch_common import namespace as ros_namespace
 from perch_common.config import ConfigError, default_config_path, node_names
 from perch_common.data import repo_root
 from perch_common.processes import stop_process
+from perch_common.threads import thread_environment
 
 NETWORK_ENV = "PERCH_NETWORK"          # 1/true/yes: let the graph use every network interface
 USE_XML_QOS_ENV = "RMW_FASTRTPS_USE_QOS_FROM_XML"   # 1: rmw_fastrtps applies the XML profiles' memory policy
@@ -224,8 +225,7 @@ class GraphProcesses:
         self.overrides = parse_overrides(overrides)
         self.log_dir = Path(log_dir) if log_dir else None
         self.env = dict(os.environ if env is None else env)
-        self.env.setdefault("OMP_NUM_THREADS", "2")
-        self.env.setdefault("OPENBLAS_NUM_THREADS", "1")
+        self.env.update(thread_environment(self.env))
         use_perch_dds(self.env, network)
         self.namespace = ros_namespace.current(self.env) if namespace is None else ros_namespace.normalise(namespace)
         if self.namespace:

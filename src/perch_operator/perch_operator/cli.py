@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import contextlib
 import math
-import os
 import sys
 import time
 from pathlib import Path
@@ -259,7 +258,6 @@ def _demo(args) -> int:
     from perch_common.scene_generator import generate_scene
     from perch_interfaces.action import PlanPerches
 
-    os.environ.setdefault("OMP_NUM_THREADS", "2")
     started = time.monotonic()
     scene = generate_scene(args.seed, "apartment")
     goal = PlanPerches.Goal(mesh=mesh_to_msg(scene.mesh), target=target_to_msg(scene.target),

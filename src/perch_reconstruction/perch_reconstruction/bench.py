@@ -58,7 +58,6 @@ def run(args) -> int:
     from perch_reconstruction.core import reconstruct_bag
     from perch_reconstruction.metrics import ate_rmse, chamfer_distance, refine_alignment
 
-    os.environ.setdefault("OMP_NUM_THREADS", "2")
     config = load_config()
     if args.voxel_size:
         config.voxel_size = args.voxel_size

@@ -2,14 +2,10 @@
 
 from __future__ import annotations
 
-import os
-
 import numpy as np
 import pytest
 
-os.environ.setdefault("OMP_NUM_THREADS", "2")
-
-from perch_reconstruction.synthetic import DEFAULT_INTRINSICS, synthetic_room_frames  # noqa: E402
+from perch_reconstruction.synthetic import DEFAULT_INTRINSICS, synthetic_room_frames
 
 SYNTHETIC_FRAMES = 40
 

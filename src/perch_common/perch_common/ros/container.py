@@ -18,6 +18,7 @@ from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 
 from perch_common.memory import limit_heap_growth
 from perch_common.mesh_cache import PROCESS_CACHE
+from perch_common.threads import limit_threads
 
 # Threads per hosted node: a long service call must never starve another node's callbacks
 # (the coordinator blocks one thread for a whole mission and waits on stage replies).
@@ -95,6 +96,7 @@ def main(argv: list[str] | None = None) -> int:
     """`python -m perch_common.ros.container --nodes a,b --ros-args ...`: host the nodes until Ctrl-C."""
     from perch_common.ros.node_main import ros_context
 
+    limit_threads()
     argv = list(sys.argv[1:] if argv is None else argv)
     split = argv.index("--ros-args") if "--ros-args" in argv else len(argv)
     parser = argparse.ArgumentParser(prog="perch_common.ros.container")

@@ -15,6 +15,7 @@ from rclpy.node import Node
 
 from perch_common.launch import use_perch_dds
 from perch_common.processes import stop_process
+from perch_common.threads import thread_environment
 
 
 def isolated_ros_env(domain_id: int | None = None) -> dict[str, str]:
@@ -25,8 +26,7 @@ def isolated_ros_env(domain_id: int | None = None) -> dict[str, str]:
         domain_id = int(os.environ.get("PERCH_TEST_DOMAIN") or 100 + os.getpid() % 100)
     env["ROS_DOMAIN_ID"] = str(domain_id)
     env.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
-    env.setdefault("OMP_NUM_THREADS", "2")
-    env.setdefault("OPENBLAS_NUM_THREADS", "1")
+    env.update(thread_environment(env))
     return use_perch_dds(env)
 
 

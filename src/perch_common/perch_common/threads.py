@@ -1,0 +1,40 @@
+"""How many threads the native libraries get: applied by each entry point, never on import.
+
+Perch's numpy work is many small (N,3)x(3,3) products: a threaded OpenBLAS makes them up to 40x
+slower on a loaded 2-core machine, so BLAS gets one thread. Open3D's OpenMP pool has hung in a
+futex when left to size itself, so OpenMP gets at most two. The `perch` command, every node's
+main(), the one-process container and the test session call `limit_threads()` first; the launcher
+and the test graphs give their child processes `thread_environment()`.
+"""
+
+from __future__ import annotations
+
+import os
+
+BLAS_THREADS = 1
+OPENMP_THREADS = min(os.cpu_count() or 1, 2)
+
+
+def thread_environment(environ: dict[str, str] | None = None) -> dict[str, str]:
+    """The thread variables for a child process: those already in `environ` (default: this
+    process's) win, the others get Perch's limits."""
+    environ = os.environ if environ is None else environ
+    return {"OPENBLAS_NUM_THREADS": environ.get("OPENBLAS_NUM_THREADS", str(BLAS_THREADS)),
+            "OMP_NUM_THREADS": environ.get("OMP_NUM_THREADS", str(OPENMP_THREADS))}
+
+
+def limit_threads() -> dict[str, int]:
+    """Apply the limits to this process; returns them by library API ('blas', 'openmp').
+
+    Libraries already loaded (numpy's OpenBLAS, by the time an entry point runs) are limited through
+    threadpoolctl; the variables are also set, unless the user set them, because OpenMP reads
+    OMP_NUM_THREADS once, when Open3D first loads (lazily, after this), and child processes inherit them.
+    """
+    from threadpoolctl import threadpool_limits
+
+    values = thread_environment()
+    for name, value in values.items():
+        os.environ.setdefault(name, value)
+    limits = {"blas": int(values["OPENBLAS_NUM_THREADS"]), "openmp": int(values["OMP_NUM_THREADS"])}
+    threadpool_limits(limits=limits)
+    return limits
