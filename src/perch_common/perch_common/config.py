@@ -12,7 +12,7 @@ import dataclasses
 import math
 import os
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, Generic, TypeVar
 
 import yaml
 
@@ -77,6 +77,24 @@ def describe_range(low: float, high: float) -> str:
 def base_config(config: Any, cls: type[T]) -> T:
     """The `cls` part of a node config that extends it with node-only parameters."""
     return cls(**{f.name: getattr(config, f.name) for f in dataclasses.fields(cls)})
+
+
+@dataclasses.dataclass
+class StageNodeConfig(Generic[T]):
+    """The parameters a stage node has besides its stage's settings.
+
+    A node's config derives from its stage's config class and this one
+    (`class SegmentationNodeConfig(SegmentationConfig, StageNodeConfig[SegmentationConfig])`), adds its
+    own fields, and gives the stage its settings alone with `stage_config()`.
+    """
+
+    introspection: bool = param(True, "publish service introspection events (requests and replies) for the recorder")
+
+    def stage_config(self) -> T:
+        """The stage's settings alone, as the stage's config class (the dataclass this node config extends)."""
+        stage = next(c for c in type(self).__mro__[1:]
+                     if dataclasses.is_dataclass(c) and not issubclass(c, StageNodeConfig))
+        return base_config(self, stage)
 
 
 def default_config_path() -> Path:

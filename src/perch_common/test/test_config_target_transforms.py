@@ -5,7 +5,14 @@ from dataclasses import dataclass, field
 import numpy as np
 import pytest
 
-from perch_common.config import ConfigError, from_parameters, node_names, node_parameters, to_parameters
+from perch_common.config import (
+    ConfigError,
+    StageNodeConfig,
+    from_parameters,
+    node_names,
+    node_parameters,
+    to_parameters,
+)
 from perch_common.target import TargetVolume
 from perch_common.transforms import (
     matrix_from_quaternion,
@@ -45,6 +52,19 @@ def test_bad_values_and_unknown_keys_are_named():
         from_parameters(Outer, {"camera.width": 2.5})
     with pytest.raises(ConfigError, match="unknown parameter.*camera.height"):
         from_parameters(Outer, {"camera.height": 3}, strict=True)
+
+
+@dataclass
+class OuterNode(Outer, StageNodeConfig[Outer]):
+    queue: int = 4
+
+
+def test_a_stage_node_config_hands_its_stage_the_settings_alone():
+    node = from_parameters(OuterNode, {"name": "zed2", "camera.width": 640, "introspection": False, "queue": 9})
+    assert (node.introspection, node.queue) == (False, 9)
+    stage = node.stage_config()
+    assert type(stage) is Outer and stage == Outer(name="zed2", camera=Inner(width=640))
+    assert set(to_parameters(node)) == set(to_parameters(stage)) | {"introspection", "queue"}
 
 
 def test_project_config_parses():

@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, replace
 
-from perch_common.config import base_config, param
+from perch_common.config import StageNodeConfig, param
 from perch_common.transforms import parse_up_axis
 
 # The search methods (perch_placement.search.METHODS holds one function for each).
@@ -177,11 +177,5 @@ class PlacementConfig:
 
 
 @dataclass
-class PlacementNodeConfig(PlacementConfig):
+class PlacementNodeConfig(PlacementConfig, StageNodeConfig[PlacementConfig]):
     """The perch_placement node's parameters: the placement settings plus the node's own."""
-
-    introspection: bool = param(True, "service introspection (requests/replies recorded)")
-
-    def placement(self) -> PlacementConfig:
-        """The placement settings alone."""
-        return base_config(self, PlacementConfig)

@@ -53,7 +53,7 @@ class PlacementNode(Node):
         self.get_logger().info(f"ready: {STAGE_SERVICES['optimise']}")
 
     def _request_config(self, request) -> PlacementConfig:
-        config = read_config(self, PlacementNodeConfig).placement().resolved()
+        config = read_config(self, PlacementNodeConfig).stage_config().resolved()
         if request.camera.specified:
             config.camera = camera_from_msg(request.camera).validate()
         if request.drone.specified:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from perch_common.config import base_config, param
+from perch_common.config import StageNodeConfig, param
 
 
 @dataclass
@@ -57,7 +57,7 @@ class ReconstructionConfig:
 
 
 @dataclass
-class ReconstructionNodeConfig(ReconstructionConfig):
+class ReconstructionNodeConfig(ReconstructionConfig, StageNodeConfig[ReconstructionConfig]):
     """The node's parameters: the reconstruction settings plus live-input handling."""
 
     color_topic: str = param("/camera/color/image_raw", "colour images (sensor_msgs/Image rgb8/bgr8/...)")
@@ -79,7 +79,6 @@ class ReconstructionNodeConfig(ReconstructionConfig):
     drain_timeout: float = param(60.0, "Reconstruct waits at most this long for queued frames", "s", low=0.0)
     progress_period: float = param(1.0, "progress message period on /perch/reconstruct/progress", "s", low=0.0)
     frame_id: str = param("map", "frame of the returned mesh")
-    introspection: bool = param(True, "publish service requests/replies for the operator's recorder")
 
     def validate(self) -> "ReconstructionNodeConfig":
         """Raise ValueError naming the first unusable value; the configuration itself otherwise."""
@@ -91,7 +90,3 @@ class ReconstructionNodeConfig(ReconstructionConfig):
         if len(self.gravity) != 3:
             raise ValueError(f"reconstruction config: gravity needs 3 numbers, got {list(self.gravity)}")
         return self
-
-    def reconstruction(self) -> ReconstructionConfig:
-        """The core settings alone."""
-        return base_config(self, ReconstructionConfig)

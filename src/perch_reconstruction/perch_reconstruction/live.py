@@ -42,7 +42,7 @@ class LiveIngest:
         self._thread.start()
 
     def _reset_state(self) -> None:
-        self.recon = Reconstructor(self.config.reconstruction(), self.config.use_poses)
+        self.recon = Reconstructor(self.config.stage_config(), self.config.use_poses)
         self.assembler = FrameAssembler(int(self.config.sync_tolerance * 1e9), max(8, self.config.queue_size))
         self.poses = PoseBuffer(capacity=100_000)
         self.intrinsics: Intrinsics | None = None

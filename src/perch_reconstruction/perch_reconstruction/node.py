@@ -158,7 +158,7 @@ class ReconstructionNode(Node):
 
     def _reconstruct_bag(self, request):
         c = self.config
-        config = c.reconstruction()
+        config = c.stage_config()
         if request.target_faces:
             config = dataclasses.replace(config, target_faces=int(request.target_faces))
         topics = BagTopics(c.color_topic, c.depth_topic, c.camera_info_topic, c.pose_topic)
@@ -176,7 +176,7 @@ class ReconstructionNode(Node):
 
     @answering
     def _clean(self, request, response):
-        config = self.config.reconstruction()
+        config = self.config.stage_config()
         if request.target_faces:
             config = dataclasses.replace(config, target_faces=int(request.target_faces))
         gravity = xyz(request.gravity)

@@ -32,6 +32,17 @@ def make_ingest():
         ingest.stop()
 
 
+def _integrated(make_ingest, synthetic, count: int, poses: bool = True, **overrides) -> tuple[LiveIngest, list]:
+    """An ingest (queue of 50) that has received the camera info and the first `count` frames and
+    worked through them; with the synthetic frames."""
+    _, frames, intrinsics = synthetic
+    ingest = make_ingest(queue_size=50, **overrides)
+    ingest.on_camera_info(intrinsics)
+    _feed(ingest, frames[:count], poses)
+    assert ingest.drain(30)
+    return ingest, frames
+
+
 def test_full_queue_drops_the_oldest_and_counts(synthetic, make_ingest):
     _, frames, intrinsics = synthetic
     ingest = make_ingest(queue_size=1)
@@ -59,10 +70,7 @@ def test_no_camera_info_reports_topic_and_keeps_running(synthetic, make_ingest):
 
 
 def test_bad_depth_units_are_reported_and_integration_kept(synthetic, make_ingest):
-    _, frames, intrinsics = synthetic
-    ingest = make_ingest(queue_size=50)
-    ingest.on_camera_info(intrinsics)
-    _feed(ingest, frames[:4])
+    ingest, frames = _integrated(make_ingest, synthetic, 4)
     bad = frames[4]
     ingest.on_pose(bad.stamp_ns, bad.pose)
     ingest.on_color(bad.stamp_ns, bad.color)
@@ -81,20 +89,12 @@ def test_nothing_received(make_ingest):
 
 
 def test_missing_poses_are_counted(synthetic, make_ingest):
-    _, frames, intrinsics = synthetic
-    ingest = make_ingest(queue_size=50, pose_wait=0.05)
-    ingest.on_camera_info(intrinsics)
-    _feed(ingest, frames[:3], poses=False)
-    assert ingest.drain(10)
+    ingest, _ = _integrated(make_ingest, synthetic, 3, poses=False, pose_wait=0.05)
     assert ingest.status()["frames_without_pose"] == 3
 
 
 def test_reset_clears_everything(synthetic, make_ingest):
-    _, frames, intrinsics = synthetic
-    ingest = make_ingest(queue_size=50)
-    ingest.on_camera_info(intrinsics)
-    _feed(ingest, frames[:3])
-    assert ingest.drain(30)
+    ingest, _ = _integrated(make_ingest, synthetic, 3)
     ingest.reset()
     status = ingest.status()
     assert status["frames_integrated"] == 0 and status["frames_dropped"] == 0 and ingest.intrinsics is None

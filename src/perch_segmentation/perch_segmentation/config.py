@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from perch_common.config import base_config, param
+from perch_common.config import StageNodeConfig, param
 from perch_common.transforms import parse_up_axis
 
 
@@ -64,11 +64,5 @@ class SegmentationConfig:
 
 
 @dataclass
-class SegmentationNodeConfig(SegmentationConfig):
+class SegmentationNodeConfig(SegmentationConfig, StageNodeConfig[SegmentationConfig]):
     """The perch_segmentation node's parameters: the segmentation settings plus the node's own."""
-
-    introspection: bool = param(True, "publish service introspection events (requests and replies) of perch/segment")
-
-    def segmentation_config(self) -> SegmentationConfig:
-        """The segmentation settings alone."""
-        return base_config(self, SegmentationConfig)

@@ -30,13 +30,13 @@ class SegmentationNode(Node):
 
     def __init__(self) -> None:
         super().__init__("perch_segmentation")
-        config = declare_config(self, SegmentationNodeConfig, check=lambda c: c.segmentation_config().validate())
+        config = declare_config(self, SegmentationNodeConfig, check=lambda c: c.stage_config().validate())
         self.service = create_stage_service(self, srv.Segment, SERVICE, self._segment, config.introspection)
         self.get_logger().info(f"ready: {SERVICE}")
 
     @answering
     def _segment(self, request: srv.Segment.Request, response: srv.Segment.Response) -> srv.Segment.Response:
-        config = read_config(self, SegmentationNodeConfig).segmentation_config()  # valid: checked when set
+        config = read_config(self, SegmentationNodeConfig).stage_config()  # valid: checked when set
         mesh = mesh_from_request(request.mesh, "request mesh")
         result = segment_mesh(mesh, config)
         response.surfaces = [surface_to_msg(s) for s in result.surfaces]
