@@ -1,4 +1,4 @@
-"""Planar polygons with holes: outlines of face sets, conversions to and from shapely."""
+"""Planar polygons with holes: outlines of face sets, conversions to and from shapely, raster outlines."""
 
 from __future__ import annotations
 
@@ -67,3 +67,43 @@ def to_shapely(polygons: list):
 def polygons_area(polygons: list) -> float:
     """Total area of polygons with holes (m^2)."""
     return float(to_shapely(polygons).area)
+
+
+MAX_RASTER_CELLS = 50_000_000   # raster_outline refuses larger images (50 MB of uint8)
+
+
+def raster_outline(triangles: np.ndarray, cell: float, close_radius: float = 0.0, subpixel_bits: int = 0,
+                   epsilon: float = 1.0) -> tuple[np.ndarray, float]:
+    """Outer outline (K,2) and area (m^2) of the largest piece of the union of 2D triangles (N,3,2), holes ignored.
+
+    Traced on a raster of `cell` metres (OpenCV fillPoly, findContours): the outline runs through
+    the centres of the boundary pixels, so it lies within about a cell of the exact union's, and
+    pieces closer than a cell join. close_radius: gaps narrower than this are closed first;
+    subpixel_bits: corner precision below a cell (fillPoly's shift); epsilon: the Douglas-Peucker
+    tolerance of the returned outline, in cells. Raises ValueError for more than MAX_RASTER_CELLS cells
+    or no filled cell.
+    """
+    import cv2
+
+    tris = np.asarray(triangles, np.float64).reshape(-1, 3, 2)
+    pad = int(np.ceil(close_radius / cell)) + 2
+    corners = tris.reshape(-1, 2)
+    origin = corners.min(axis=0) - pad * cell
+    cells = np.ceil((corners.max(axis=0) - origin) / cell).astype(int) + pad + 1
+    if np.prod(cells) > MAX_RASTER_CELLS:
+        raise ValueError(f"the triangles span {np.round(cells * cell, 1).tolist()} m; too large to outline at "
+                         f"{cell} m cells")
+    image = np.zeros((cells[1], cells[0]), np.uint8)
+    scale = float(1 << subpixel_bits)
+    pixels = np.round((tris - origin) / cell * scale).astype(np.int32)
+    cv2.fillPoly(image, list(pixels), 255, shift=subpixel_bits)
+    if close_radius > 0:
+        radius = max(1, int(round(close_radius / cell)))
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+        image = cv2.morphologyEx(image, cv2.MORPH_CLOSE, kernel)
+    contours, _ = cv2.findContours(image, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    if not contours:
+        raise ValueError("the triangles cover no cell")
+    largest = max(contours, key=cv2.contourArea)
+    outline = cv2.approxPolyDP(largest, epsilon, True).reshape(-1, 2)
+    return origin + outline.astype(np.float64) * cell, float(cv2.contourArea(largest)) * cell * cell

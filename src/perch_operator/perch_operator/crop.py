@@ -7,10 +7,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import cv2  # imported up front: its first import costs ~0.4 s, better at node start than in a mission
+# The floor outline (perch_common.polygons) uses OpenCV, whose first import costs ~0.4 s: better at node
+# start than in a mission.
+import cv2  # noqa: F401
 import numpy as np
 
 from perch_common.mesh import Mesh, MeshError
+from perch_common.polygons import raster_outline
 from perch_common.target import TargetVolume
 from perch_operator.config import CropConfig
 
@@ -104,24 +107,11 @@ def floor_target(mesh: Mesh, config: CropConfig | None = None) -> TargetVolume:
     if config.target_height <= 0:
         raise ValueError(f"crop: target_height must be positive, got {config.target_height}")
     level, floor = floor_level(mesh, config)
-    tris = mesh.triangles()[floor][:, :, :2]
-    res = config.grid_resolution
-    pad = int(np.ceil(config.close_radius / res)) + 2
-    origin = tris.reshape(-1, 2).min(axis=0) - pad * res
-    cells = np.ceil((tris.reshape(-1, 2).max(axis=0) - origin) / res).astype(int) + pad + 1
-    if np.prod(cells) > 50_000_000:
-        raise MeshError(f"crop: floor spans {np.round(cells * res, 1).tolist()} m; too large to outline at "
-                        f"{res} m cells (raise grid_resolution or give a target)")
-    image = np.zeros((cells[1], cells[0]), np.uint8)
-    pixels = np.round((tris - origin) / res).astype(np.int32)
-    cv2.fillPoly(image, list(pixels), 255)
-    radius = max(1, int(round(config.close_radius / res)))
-    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
-    image = cv2.morphologyEx(image, cv2.MORPH_CLOSE, kernel)
-    contours, _ = cv2.findContours(image, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-    largest = max(contours, key=cv2.contourArea)
-    outline = cv2.approxPolyDP(largest, 1.0, True).reshape(-1, 2)
-    if len(outline) < 3 or cv2.contourArea(largest) * res * res < 0.05:
+    try:
+        footprint, area = raster_outline(mesh.triangles()[floor][:, :, :2], config.grid_resolution,
+                                         config.close_radius)
+    except ValueError as exc:
+        raise MeshError(f"crop: floor outline: {exc} (raise grid_resolution or give a target)") from None
+    if len(footprint) < 3 or area < 0.05:
         raise MeshError("crop: the floor is too small to derive a default target; give a target")
-    footprint = origin + outline.astype(np.float64) * res
     return TargetVolume(footprint=footprint, base=level, height=config.target_height)
