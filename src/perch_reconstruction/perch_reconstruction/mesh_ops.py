@@ -22,7 +22,12 @@ def _remap(mesh: Mesh, inverse: np.ndarray, count: int, average: bool) -> Mesh:
         sums = np.column_stack([np.bincount(inverse, mesh.vertex_colors[:, i].astype(np.float64), count)
                                 for i in range(3)])
         colors = np.clip(np.round(sums / weights[:, None]), 0, 255).astype(np.uint8)
-    faces = inverse[mesh.faces]
+    return _remap_faces(Mesh(vertices, mesh.faces, colors, frame_id=mesh.frame_id), inverse[mesh.faces])
+
+
+def _remap_faces(mesh: Mesh, faces: np.ndarray) -> Mesh:
+    """`mesh` with `faces` (indices into its vertices) less degenerate and duplicate ones, unused vertices dropped."""
+    count = mesh.num_vertices
     keep = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
     faces = faces[keep]
     ordered = np.sort(faces, axis=1)
@@ -31,8 +36,10 @@ def _remap(mesh: Mesh, inverse: np.ndarray, count: int, average: bool) -> Mesh:
         _, first_face = np.unique(ordered, axis=0, return_index=True)
     else:
         _, first_face = np.unique(key, return_index=True)
+    if len(first_face) == len(faces) and keep.all() and faces is mesh.faces:
+        return _drop_unused(mesh)
     faces = faces[np.sort(first_face)]
-    return _drop_unused(Mesh(vertices, faces, colors, frame_id=mesh.frame_id))
+    return _drop_unused(Mesh(mesh.vertices, faces, mesh.vertex_colors, mesh.vertex_normals, frame_id=mesh.frame_id))
 
 
 def _drop_unused(mesh: Mesh) -> Mesh:
@@ -49,12 +56,12 @@ def _cells(points: np.ndarray, cell: float) -> tuple[np.ndarray, int]:
     key = np.floor((points - points.min(axis=0)) / cell).astype(np.int64)
     span = key.max(axis=0) + 1
     linear = (key[:, 0] * span[1] + key[:, 1]) * span[2] + key[:, 2]
-    unique, inverse = np.unique(linear, return_inverse=True)
+    unique, first, inverse = np.unique(linear, return_index=True, return_inverse=True)
     inverse = inverse.ravel()
+    if len(unique) == len(points):   # one point per cell: numbered by first point, that is as given
+        return np.arange(len(points)), len(points)
     # Number the cells by their first point, not by position: the output keeps the input's order,
     # so the same mesh in another orientation (other cell keys) comes out in the same order.
-    first = np.full(len(unique), len(points), np.int64)
-    np.minimum.at(first, inverse, np.arange(len(points)))
     rank = np.empty(len(unique), np.int64)
     rank[np.argsort(first)] = np.arange(len(unique))
     return rank[inverse], len(unique)
@@ -63,6 +70,8 @@ def _cells(points: np.ndarray, cell: float) -> tuple[np.ndarray, int]:
 def weld_vertices(mesh: Mesh, distance: float) -> Mesh:
     """Merge vertices falling in the same `distance` cell (duplicates from block seams, STL soups)."""
     inverse, count = _cells(mesh.vertices, max(distance, 1e-12))
+    if count == mesh.num_vertices:   # nothing to merge: only degenerate and duplicate faces can go
+        return _remap_faces(Mesh(mesh.vertices, mesh.faces, mesh.vertex_colors, frame_id=mesh.frame_id), mesh.faces)
     return _remap(mesh, inverse, count, average=False)
 
 
