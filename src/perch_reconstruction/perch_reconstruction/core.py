@@ -1,6 +1,6 @@
 """The reconstruction core: RGB-D frames (with or without poses) -> TSDF -> cleaned z-up mesh.
 
-Pure Python over Open3D/pymeshlab; never imports rclpy. The node, the CLI and the benchmark all
+Pure Python over Open3D/fast-simplification; never imports rclpy. The node, the CLI and the benchmark all
 drive `Reconstructor`, so live and offline runs integrate identically.
 """
 

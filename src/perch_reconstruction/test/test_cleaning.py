@@ -85,6 +85,16 @@ def test_decimates_to_target_and_keeps_colours():
     np.testing.assert_allclose(out.bounds(), mesh.bounds(), atol=0.1)
 
 
+def test_decimated_vertices_keep_their_own_colours():
+    """Each kept vertex gets the colours of the vertices collapsed into it, not another part's."""
+    floor, ceiling = grid_patch(3.0, 40, z=0.0, color=(200, 10, 10)), grid_patch(3.0, 40, z=2.5, color=(10, 10, 200))
+    out = clean_mesh(merge(floor, ceiling), None, ReconstructionConfig(target_faces=800, gravity_align=False))
+    assert out.num_faces <= 800
+    low = out.vertices[:, 2] < 1.0
+    np.testing.assert_array_equal(np.unique(out.vertex_colors[low], axis=0), [[200, 10, 10]])
+    np.testing.assert_array_equal(np.unique(out.vertex_colors[~low], axis=0), [[10, 10, 200]])
+
+
 def test_gravity_vector_aligns_z_up():
     tilt = Rotation.from_euler("xyz", [25, -10, 40], degrees=True).as_matrix()
     mesh = room_box(tilt)
