@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterator
 
-from perch_common.ros.msgdefs import message_class
+from perch_common.ros.msgdefs import message_reader
 from perch_operator.recorder import EVENT_SUFFIX, GRAPH_METADATA
 from perch_operator.stages import STAGES
 
@@ -46,17 +46,20 @@ def iter_messages(path: str | Path, topics: list[str] | None = None) -> Iterator
     """(topic, deserialized message, log time ns) in log-time order.
 
     Topic names, given and yielded, are relative to the recorded graph's namespace (`/perch/...`
-    whatever namespace the graph ran in).
+    whatever namespace the graph ran in). Messages come as the installed classes, also from a
+    recording made with older definitions (read by its own schemas; fields added since keep their
+    defaults).
     """
-    from rclpy.serialization import deserialize_message
-
     namespace = recorded_namespace(path)
     wanted = None if topics is None else [namespace + t for t in topics]
+    readers: dict[int, Any] = {}
     handle, reader = _open(path)
     with handle:
         for schema, channel, message in reader.iter_messages(topics=wanted, log_time_order=True):
             topic = channel.topic[len(namespace):] if channel.topic.startswith(namespace + "/") else channel.topic
-            yield topic, deserialize_message(message.data, message_class(schema.name)), message.log_time
+            if schema.id not in readers:
+                readers[schema.id] = message_reader(schema.name, schema.data.decode())
+            yield topic, readers[schema.id](message.data), message.log_time
 
 
 def stage_calls(path: str | Path) -> list[StageCall]:

@@ -17,6 +17,7 @@ import re
 import sys
 from functools import lru_cache
 from pathlib import Path
+from typing import Any, Callable
 
 SEPARATOR = "=" * 80
 _PARTS_SPLIT = re.compile(r"^---[ \t]*$", re.M)
@@ -144,3 +145,59 @@ def message_class(type_name: str) -> type:
     base, _, part = name.rpartition("_")
     owner = getattr(module, base)
     return getattr(owner, part) if kind == "srv" else getattr(owner.Impl, part)
+
+
+def message_reader(type_name: str, recorded_definition: str) -> Callable[[bytes], Any]:
+    """bytes (CDR, as recorded) -> a message of the installed class `type_name`.
+
+    When the recording's definition is the installed one, rclpy deserializes directly. Otherwise
+    (a recording made before fields were added) the bytes are read by the recording's own
+    definition and copied field by field into the installed class: fields the recording lacks
+    keep their defaults, fields the installation dropped are left out.
+    """
+    from rclpy.serialization import deserialize_message
+
+    cls = message_class(type_name)
+    if recorded_definition.strip() == full_definition(type_name).strip():
+        return lambda data: deserialize_message(data, cls)
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    store = get_typestore(Stores.EMPTY)   # its own store: the recorded types shadow the installed ones
+    store.register(get_types_from_msg(recorded_definition, _store_name(type_name)))
+    name = _store_name(type_name)
+    return lambda data: _copy_into(store.deserialize_cdr(data, name), cls)
+
+
+_SEQUENCE = re.compile(r"^sequence<([^,>]+)(?:, *\d+)?>$")
+
+
+def _copy_into(old: Any, cls: type) -> Any:
+    """A `cls` message with the values of `old` (a rosbags message) for every field both have."""
+    new = cls()
+    for name, type_text in cls.get_fields_and_field_types().items():
+        if hasattr(old, name):
+            setattr(new, name, _value(getattr(old, name), getattr(new, name), type_text))
+    return new
+
+
+def _value(old: Any, default: Any, type_text: str) -> Any:
+    """`old` as the installed field with default value `default` and rosidl type `type_text` holds it."""
+    import array
+
+    import numpy as np
+
+    if isinstance(default, array.array):
+        values = array.array(default.typecode)
+        values.frombytes(np.ascontiguousarray(old, dtype=np.dtype(default.typecode)).tobytes())
+        return values
+    if isinstance(default, np.ndarray):
+        return np.asarray(old, dtype=default.dtype)
+    if hasattr(default, "get_fields_and_field_types"):
+        return _copy_into(old, type(default))
+    element = _SEQUENCE.match(type_text) or re.match(r"^([^\[]+)\[\d+\]$", type_text)
+    if element and "/" in element.group(1):
+        element_class = message_class(element.group(1))
+        return [_copy_into(item, element_class) for item in old]
+    if isinstance(default, list):
+        return list(old)
+    return old
