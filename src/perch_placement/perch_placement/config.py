@@ -179,3 +179,7 @@ class PlacementConfig:
 @dataclass
 class PlacementNodeConfig(PlacementConfig, StageNodeConfig[PlacementConfig]):
     """The perch_placement node's parameters: the placement settings plus the node's own."""
+
+    scene_cache_faces: int = param(1_000_000, "faces the ray-cast scenes kept for re-plans may hold together "
+                                   "(about 150 bytes each); a larger mesh's scene is freed after its request",
+                                   low=0)

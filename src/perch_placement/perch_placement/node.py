@@ -47,7 +47,8 @@ class PlacementNode(Node):
     def __init__(self) -> None:
         super().__init__("perch_placement")
         config = declare_config(self, PlacementNodeConfig, check=PlacementNodeConfig.validate)
-        self.cache = PlacementCache()  # re-optimising after a rejection reuses the scene and candidates
+        # Re-optimising after a rejection reuses the scene and candidates (scenes bounded in faces).
+        self.cache = PlacementCache(max_scene_faces=config.scene_cache_faces)
         self.service = create_stage_service(self, srv.Optimise, STAGE_SERVICES["optimise"], self.optimise,
                                             config.introspection)
         self.get_logger().info(f"ready: {STAGE_SERVICES['optimise']}")
