@@ -133,7 +133,7 @@ def test_cancelling_one_callers_call_leaves_the_other_callers_call_to_finish(seg
 
 
 def test_a_big_request_leaves_no_copy_of_itself_in_the_node(segmentation):
-    """After a 1M-face request is answered, the node's RSS is back near its level before the request:
+    """After a 0.8M-face request is answered, the node's RSS is back near its level before the request:
     less than a quarter of the request's size stays (transport buffers are freed with their samples,
     heap pages trimmed after the reply); it used to keep about the whole request."""
     import psutil
@@ -159,7 +159,7 @@ def test_a_big_request_leaves_no_copy_of_itself_in_the_node(segmentation):
     answered(far_away(1))   # first use of this path (imports, buffers of ordinary size)
     time.sleep(1.0)
     before = process.memory_info().rss
-    big = far_away(1_000_000)
+    big = far_away(800_000)
     size = 4 * (len(big.mesh.vertices) + len(big.mesh.triangles))
     answered(big)
     time.sleep(1.5)   # the node trims its heap 0.2 s after replying
