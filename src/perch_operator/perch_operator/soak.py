@@ -26,12 +26,17 @@ from pathlib import Path
 import yaml
 
 from perch_common.conventions import NODE_SERVICES
+from perch_common.outputs import STAGING_MARK
 
 CAMERAS = 2
 SCENE_SEEDS = (1, 3)          # generated rooms: each a few seconds per mission on two cores
 KINDS = {"complete": 0.65, "kill": 0.12, "cancel": 0.12, "bad_goal": 0.11}
 RESPAWNED_NODE = "perch_segmentation"
 OUTPUTS = ("waypoints.yaml", "run.rrd", "report.html")
+# A killed or interrupted client gets its signal once its progress shows one of these stages running
+# (chosen at random), so that it lands mid-mission even when a whole mission takes 2 s.
+INTERRUPT_AT = ("crop: running", "segment: running", "filter: running", "optimise: running")
+INTERRUPT_JITTER = 0.3   # s, at most, after that line
 PER_MISSION = ("proposal_id", "mission_id")   # waypoint fields that differ between equal missions
 
 
@@ -43,6 +48,9 @@ class SoakReport:
     kinds: dict[str, int] = field(default_factory=dict)
     completed: int = 0
     failed_with_reason: int = 0
+    cancelled_mid_mission: int = 0
+    killed_mid_mission: int = 0
+    finished_before_signal: int = 0
     refused_retries: int = 0
     bad_requests: int = 0
     free_after_kill_s: list[float] = field(default_factory=list)
@@ -65,7 +73,9 @@ class SoakReport:
         import statistics
 
         return {"missions": self.missions, "kinds": self.kinds, "completed": self.completed,
-                "failed_with_reason": self.failed_with_reason, "refused_then_retried": self.refused_retries,
+                "failed_with_reason": self.failed_with_reason, "cancelled_mid_mission": self.cancelled_mid_mission,
+                "killed_mid_mission": self.killed_mid_mission, "finished_before_signal": self.finished_before_signal,
+                "refused_then_retried": self.refused_retries,
                 "bad_requests_refused": self.bad_requests,
                 "free_after_client_kill_s": [round(s, 1) for s in self.free_after_kill_s],
                 "mission_wall_s_median": round(statistics.median(self.mission_s), 2) if self.mission_s else None,
@@ -170,6 +180,10 @@ class Soak:
         code, output = self._run_client(out, scene, extra, kind, report)
         report.mission_s.append(time.monotonic() - started)
         problem = self._check(out, scene, kind, code, output, report)
+        if not problem and kind != "kill":
+            # The client removed its own staging folder and, starting, those of killed clients before it.
+            left = sorted(p.name for p in self.work.glob(f".*{STAGING_MARK}*"))
+            problem = f"staging folders left behind: {left}" if left else ""
         if problem:
             report.problems.append(f"mission {index} ({kind}): {problem}")
             self.say(f"mission {index} ({kind}): PROBLEM {problem}")
@@ -203,13 +217,15 @@ class Soak:
         return code, output
 
     def _interrupt(self, proc: subprocess.Popen, log_path: Path, sig: int) -> None:
-        """Once the mission runs (the goal is sent), wait a random moment and send `sig`."""
+        """Once the mission reaches a stage chosen at random, wait a random moment and send `sig`."""
+        line = self.rng.choice(INTERRUPT_AT)
+        delay = self.rng.uniform(0.0, INTERRUPT_JITTER)
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline and proc.poll() is None:
-            if " s] " in log_path.read_text():   # the first progress line: the mission runs
+            if line in log_path.read_text():
                 break
-            time.sleep(0.1)
-        time.sleep(self.rng.uniform(0.2, 3.0))
+            time.sleep(0.02)
+        time.sleep(delay)
         if proc.poll() is None:
             proc.send_signal(sig)
 
@@ -231,11 +247,15 @@ class Soak:
             if len(waypoints) != CAMERAS or perches != expected:
                 return f"waypoints differ from the scene's first mission: {waypoints}"
             report.completed += 1
+            report.finished_before_signal += finished_first
             return ""
         if present:
             return f"failed (exit {code}) but left outputs {present}"
         if kind == "kill":
-            return "" if code == -signal.SIGKILL else f"killed client exited {code}"
+            if code != -signal.SIGKILL:
+                return f"killed client exited {code}"
+            report.killed_mid_mission += 1
+            return ""
         if not failed.exists():
             return f"failed (exit {code}) without a FAILED reason; output: {output[-300:]}"
         reason = failed.read_text()
@@ -245,6 +265,7 @@ class Soak:
         if wanted not in reason.lower():
             return f"FAILED does not say {wanted!r}: {reason[:200]}"
         report.failed_with_reason += 1
+        report.cancelled_mid_mission += kind == "cancel"
         return ""
 
     def _wait_free(self, within: float = 30.0) -> float:
