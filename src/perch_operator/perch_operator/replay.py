@@ -52,6 +52,7 @@ def replay(node, path: str | Path, check: bool = True, tol: Tolerance = Toleranc
         seen[call.stage] = seen.get(call.stage, 0) + 1
         started = time.monotonic()
         outcome = CallOutcome(call, seen[call.stage], 0.0)
+        call.request.request_id = ""   # the recorded call's id is that mission's, not this replay's
         try:
             reply = call_service(node, STAGES[call.stage].srv_type, call.service, call.request,
                                  timeout=timeout, wait=wait)

@@ -416,6 +416,10 @@ def _run(args) -> int:
 
     if "ROS_DOMAIN_ID" not in os.environ:
         use_isolated_ros_env()
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        # Started in the background by a shell, this process ignores SIGINT and its clients would
+        # inherit that: the soak's interrupts must reach them as a Ctrl-C does.
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     work = args.work or Path(tempfile.mkdtemp(prefix="perch_soak_"))
     work.mkdir(parents=True, exist_ok=True)
     with client_context():
