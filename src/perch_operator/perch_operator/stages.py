@@ -3,9 +3,10 @@
 Every failure becomes a StageError whose message names the stage and its service, so the
 mission result says which stage to look at. Each call carries its own request_id, so abandoning it
 (mission cancelled, no reply in time) stops that call's work on the stage and no other client's.
-Each mesh goes to a stage once: a request whose mesh the service already holds carries its content id only, and a "mesh not cached" reply (the node
-restarted) is answered by sending the arrays again (perch_common.mesh_cache). A stage hosted in this
-process reads this process's cache, so it gets by id whatever that cache holds.
+Each mesh goes to a stage once: a request whose mesh the service already holds carries its content
+id only, and a "mesh not cached" reply (the node restarted) is answered by sending the arrays again
+(perch_common.mesh_cache). A stage hosted in this process reads this process's cache, so it gets by
+id whatever that cache holds.
 """
 
 from __future__ import annotations
