@@ -25,6 +25,7 @@ from perch_common.ros.service import answering, create_stage_service
 from perch_common.transforms import parse_up_axis
 from perch_filtering.config import FilterConfig, FilterNodeConfig
 from perch_filtering.core import filter_surfaces
+from perch_interfaces import msg as pm
 from perch_interfaces import srv
 
 
@@ -78,8 +79,12 @@ class FilterNode(Node):
         surfaces = [surface_from_msg(s) for s in request.surfaces]
         result = filter_surfaces(mesh_from_request(request.mesh, "environment mesh"), surfaces, target, up, config)
         response.regions = [region_to_msg(r) for r in result.regions]
+        classes = {s.id: int(s.surface_class) for s in result.surfaces}
         response.removals = [removal_to_msg(r) for r in result.removals]
-        response.surfaces = [surface_to_msg(s) for s in result.surfaces]
+        for removal in response.removals:
+            removal.surface_class = classes.get(removal.surface_id, pm.Surface.CLASS_UNKNOWN)
+        if request.return_surfaces:   # only when asked: the caller holds the surfaces it sent
+            response.surfaces = [surface_to_msg(s) for s in result.surfaces]
         response.success, response.message = True, result.message
         return response
 

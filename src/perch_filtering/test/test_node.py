@@ -46,6 +46,7 @@ def call(node, request):
 
 def test_filter_service_answers_and_explains(ros_node, room_request):
     from perch_common.ros.conversions import region_from_msg, removal_from_msg, surface_from_msg
+    from perch_common.types import SurfaceClass
 
     node, proc = ros_node
     request, surfaces = room_request
@@ -55,8 +56,15 @@ def test_filter_service_answers_and_explains(ros_node, room_request):
     removals = [removal_from_msg(r) for r in reply.removals]
     assert len(regions) >= 5 and reply.message.startswith(f"{len(regions)} perch regions")
     assert [r.surface_id for r in removals] == [s.id for s in surfaces]
-    oriented = [surface_from_msg(s) for s in reply.surfaces]
-    assert [s.surface_class.name for s in oriented] == ["FLOOR", "CEILING", "WALL", "WALL", "WALL", "WALL"]
+    classes = ["FLOOR", "CEILING", "WALL", "WALL", "WALL", "WALL"]
+    assert [SurfaceClass(r.surface_class).name for r in reply.removals] == classes
+    assert len(reply.surfaces) == 0  # not echoed unless asked
+    asked = copy.copy(request)
+    asked.return_surfaces = True
+    echoed = call(node, asked)
+    oriented = [surface_from_msg(s) for s in echoed.surfaces]
+    assert [s.surface_class.name for s in oriented] == classes
+    assert [r.surface_class for r in echoed.removals] == [r.surface_class for r in reply.removals]
     floor = removals[0]
     assert floor.orientation == pytest.approx(floor.area_total, rel=1e-5)  # floor landing is off
     for region in regions:

@@ -124,3 +124,17 @@ def surface_to_input(surface: pm.Surface, alignment: Alignment) -> pm.Surface:
         moved = r @ [v.x, v.y, v.z]
         v.x, v.y, v.z = (float(c) for c in moved)
     return out
+
+
+def classed_surfaces(surfaces, removals) -> list[pm.Surface]:
+    """Copies of the surfaces sent to the filter, each with the class the filter gave it (its removal's
+    surface_class): what viewers and reports show, without the filter echoing every surface."""
+    import copy
+
+    classes = {r.surface_id: r.surface_class for r in removals}
+    out = []
+    for surface in surfaces:
+        classed = copy.copy(surface)
+        classed.surface_class = classes.get(surface.id, surface.surface_class)
+        out.append(classed)
+    return out

@@ -28,7 +28,13 @@ from perch_common.ros.static_transforms import alignment_from_msg, alignment_to_
 from perch_common.up_axis import choose_up, file_convention
 from perch_interfaces import srv
 from perch_interfaces.action import PlanPerches
-from perch_operator.messages import boxes_to_aligned, placement_msg, surface_to_input, target_to_aligned
+from perch_operator.messages import (
+    boxes_to_aligned,
+    classed_surfaces,
+    placement_msg,
+    surface_to_input,
+    target_to_aligned,
+)
 from perch_operator.proposals import Decision, Proposal, ProposalBook, ProposalError, Status
 from perch_operator.stages import MissionCancelled, StageCaller, StageError
 
@@ -135,7 +141,7 @@ class Mission:
         operator = Operator(ProposalBook(self.options.exclusion_radius, self.first_proposal_id), request,
                             self.options.auto_accept or goal.auto_accept, self.alignment,
                             (optimised.fitness, optimised.coverage, optimised.mean_uncertainty),
-                            surfaces=list(filtered.surfaces), removals=list(filtered.removals))
+                            surfaces=classed_surfaces(surfaces, filtered.removals), removals=list(filtered.removals))
         self.on_operator(operator)
         confirmed = self._confirm(operator, optimised.placements)
         self._finish("confirm", confirmed)

@@ -51,6 +51,7 @@ def load_mission(path: str | Path) -> MissionData:
         target_from_msg,
     )
     from perch_common.ros.static_transforms import TF_STATIC_TOPIC, alignment_from_msg
+    from perch_operator.messages import classed_surfaces
     from perch_operator.runfile import iter_messages, metadata, stage_calls
 
     def recorded_mesh(msg):
@@ -72,7 +73,10 @@ def load_mission(path: str | Path) -> MissionData:
         elif call.stage == "segment" and not data.surfaces:
             data.surfaces = [surface_from_msg(s) for s in reply.surfaces]
         elif call.stage == "filter":
-            data.surfaces = [surface_from_msg(s) for s in reply.surfaces] or data.surfaces
+            # The filter classes the surfaces it was sent (the reply echoes them only when asked).
+            sent = reply.surfaces or (call.request.surfaces if call.request is not None else [])
+            if sent:
+                data.surfaces = [surface_from_msg(s) for s in classed_surfaces(sent, reply.removals)]
             data.regions = [region_from_msg(r) for r in reply.regions]
             data.removals = [removal_from_msg(r) for r in reply.removals]
         elif call.stage == "optimise" and data.mesh is None and call.request is not None:

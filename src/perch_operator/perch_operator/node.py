@@ -110,7 +110,8 @@ class OperatorNode(Node):
             response.mesh = id_only_msg(request.mesh)
         else:
             response.mesh = cached_mesh_to_msg(result.mesh, stamp=request.mesh.header.stamp)
-        response.kept_faces = to_array(result.kept_faces, np.uint32)
+        if request.return_kept_faces:   # only when asked: on a 1M-face mesh they weigh as much as its triangles / 3
+            response.kept_faces = to_array(result.kept_faces, np.uint32)
         response.target = target_to_msg(result.target)
         response.success = True
         kind = "box" if result.target.is_box else f"footprint x {result.target.height:.2f} m"

@@ -45,10 +45,11 @@ class ScriptedStages:
                                      target=pm.TargetVolume(kind=pm.TargetVolume.KIND_BOX))
         if stage == "segment":
             return srv.Segment.Response(success=True, surfaces=[pm.Surface(id=0)], seconds=0.2)
-        if stage == "filter":
+        if stage == "filter":  # classes the surface a wall; echoes no surfaces (not asked)
             return srv.Filter.Response(success=True, regions=[pm.PerchRegion(id=i) for i in range(self.regions)],
                                        removals=[pm.FilterRemoval(surface_id=0, area_total=3.0, orientation=2.5,
-                                                                  perch_window=0.5)], seconds=0.3)
+                                                                  perch_window=0.5, surface_class=pm.Surface.CLASS_WALL)],
+                                       seconds=0.3)
         if stage == "optimise":
             n = request.num_cameras or 2
             start = 10.0 * len(request.exclusions)
@@ -90,6 +91,11 @@ def test_stages_run_in_order_with_rising_feedback_and_times(meshes, goal):
     optimise = stages.requests[-1][1]
     assert optimise.seed == 4 and optimise.num_cameras == 2 and optimise.mesh.header.frame_id == "map_gravity_aligned"
     assert (result.fitness, result.coverage) == (0.5, 0.8)
+    # Neither the crop's kept faces nor the filter's surfaces are asked for; viewers get the
+    # segmented surfaces with the classes the filter gave them.
+    requests = dict(stages.requests)
+    assert not requests["crop"].return_kept_faces and not requests["filter"].return_surfaces
+    assert [(s.id, s.surface_class) for s in operators[0].surfaces] == [(0, pm.Surface.CLASS_WALL)]
 
 
 def test_a_failing_stage_ends_the_mission_with_its_name(goal):

@@ -33,6 +33,9 @@ def test_crop_service_keeps_box_and_resolves_default_target(ros, room_msg):
     request.keep_boxes = [pm.OrientedBox(pose=pose_msg(pose), size=vector_msg([2.0, 3.2, 3.0]))]
     reply = testing.call_service(ros, Crop, "/perch/crop", request, timeout=20)
     assert reply.success, reply.message
+    assert len(reply.kept_faces) == 0  # not sent unless asked
+    request.return_kept_faces = True
+    reply = testing.call_service(ros, Crop, "/perch/crop", request, timeout=20)
     kept = from_array(reply.kept_faces, np.uint32)
     mesh = mesh_from_msg(reply.mesh)
     assert mesh.num_faces == len(kept) > 0

@@ -23,7 +23,7 @@ def test_crop_calls_are_recorded_and_replay_check_catches_a_parameter_change(ros
 
     path = tmp_path / "run.mcap"
     room = mesh_to_msg(meshes.room())
-    keep = Crop.Request(mesh=room)
+    keep = Crop.Request(mesh=room, return_kept_faces=True)
     pose = np.eye(4)
     pose[:3, 3] = [1.0, 1.5, 1.25]
     keep.keep_boxes = [pm.OrientedBox(pose=pose_msg(pose), size=vector_msg([2.0, 3.2, 3.0]))]
