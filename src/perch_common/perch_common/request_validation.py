@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from perch_common.mesh import scale_problem
+from perch_common.mesh import column_bounds, scale_problem
 
 MAX_COORDINATE = 10_000.0        # m: nothing Perch plans for lies 10 km from the origin
 MAX_TARGET_TO_MESH = 10.0        # a target this many times larger than the mesh is a unit or typing error
@@ -91,8 +91,8 @@ def _check_mesh(path: str, mesh) -> np.ndarray:
         triangles = np.frombuffer(mesh.triangles, dtype=np.uint32) if not isinstance(mesh.triangles, np.ndarray) \
             else mesh.triangles.ravel()
         count = n_v // 3
-        bad_faces = np.flatnonzero((triangles.reshape(-1, 3) >= count).any(axis=1))
-        if len(bad_faces):
+        if triangles.max() >= count:  # per-face detail only when something is wrong
+            bad_faces = np.flatnonzero((triangles.reshape(-1, 3) >= count).any(axis=1))
             face = int(bad_faces[0])
             raise RequestError(f"{path}.triangles: {len(bad_faces)} faces index vertices outside 0..{count - 1} "
                                f"(first: face {face} = {triangles.reshape(-1, 3)[face].tolist()})")
@@ -198,7 +198,8 @@ def _walk(path: str, msg, type_name: str, limit: float | None) -> None:
 def _mesh_extent(vertices: np.ndarray) -> float:
     if len(vertices) == 0:
         return 0.0
-    return float(np.max(vertices.max(axis=0) - vertices.min(axis=0)))
+    low, high = column_bounds(vertices)
+    return float(np.max(high - low))
 
 
 def _target_extent(target) -> float:

@@ -94,7 +94,6 @@ def quadric_decimate(mesh: Mesh, target: int) -> Mesh:
     """Quadric edge collapse (Garland-Heckbert, fast-simplification) down to `target` faces; each
     kept vertex gets the mean colour of the vertices collapsed into it."""
     import fast_simplification
-    from fast_simplification import replay_simplification
 
     faces = np.ascontiguousarray(mesh.faces, np.int32)
     with _DECIMATION_LOCK:
@@ -102,14 +101,39 @@ def quadric_decimate(mesh: Mesh, target: int) -> Mesh:
             np.ascontiguousarray(mesh.vertices, np.float64), faces, target_count=target, return_collapses=True)
     colors = None
     if mesh.vertex_colors is not None:
-        # The replay's vertex mapping (each input vertex -> the output vertex it went into) carries the colours.
-        _, _, mapping = replay_simplification(np.asarray(mesh.vertices, np.float32), faces, collapses)
-        kept = mapping >= 0
-        counts = np.bincount(mapping[kept], minlength=len(vertices)).astype(np.float64)
-        sums = np.column_stack([np.bincount(mapping[kept], mesh.vertex_colors[kept, i].astype(np.float64),
+        into = _collapsed_into(mesh, faces, out_faces, collapses)
+        kept = into >= 0
+        counts = np.bincount(into[kept], minlength=len(vertices)).astype(np.float64)
+        sums = np.column_stack([np.bincount(into[kept], mesh.vertex_colors[kept, i].astype(np.float64),
                                             len(vertices)) for i in range(3)])
         colors = np.clip(np.round(sums / np.maximum(counts, 1)[:, None]), 0, 255).astype(np.uint8)
     return Mesh(vertices, out_faces.astype(np.int64), colors, frame_id=mesh.frame_id)
+
+
+def _collapsed_into(mesh: Mesh, faces: np.ndarray, out_faces: np.ndarray, collapses: np.ndarray) -> np.ndarray:
+    """For each input vertex the output vertex it was collapsed into (-1: into none that was kept).
+
+    Following the collapses (i1 into i0) to their ends gives each vertex its survivor; the kept
+    faces are the input faces whose three survivors differ, numbered in input order. That is checked
+    against the decimator's faces; should it ever not hold, fast-simplification's own replay decides.
+    """
+    survivor = np.arange(mesh.num_vertices)
+    if len(collapses):
+        survivor[collapses[:, 1]] = collapses[:, 0]
+    while True:  # pointer jumping: log(chain length) passes
+        jumped = survivor[survivor]
+        if np.array_equal(jumped, survivor):
+            break
+        survivor = jumped
+    mapped = survivor[faces]
+    alive = (mapped[:, 0] != mapped[:, 1]) & (mapped[:, 1] != mapped[:, 2]) & (mapped[:, 0] != mapped[:, 2])
+    kept, numbered = np.unique(mapped[alive], return_inverse=True)
+    if not np.array_equal(numbered.reshape(-1, 3), out_faces):
+        from fast_simplification import replay_simplification
+
+        return replay_simplification(np.asarray(mesh.vertices, np.float32), faces, collapses)[2]
+    index = np.minimum(np.searchsorted(kept, survivor), len(kept) - 1)
+    return np.where(kept[index] == survivor, index, -1)
 
 
 def _up_rotation(mesh: Mesh, gravity: np.ndarray | None, config: ReconstructionConfig,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from perch_common.mesh import Mesh
+from perch_common.mesh import Mesh, column_bounds
 
 
 def _remap(mesh: Mesh, inverse: np.ndarray, count: int, average: bool) -> Mesh:
@@ -53,8 +53,8 @@ def _drop_unused(mesh: Mesh) -> Mesh:
 
 
 def _cells(points: np.ndarray, cell: float) -> tuple[np.ndarray, int]:
-    key = np.floor((points - points.min(axis=0)) / cell).astype(np.int64)
-    span = key.max(axis=0) + 1
+    key = np.floor((points - column_bounds(points)[0]) / cell).astype(np.int64)
+    span = column_bounds(key)[1] + 1
     linear = (key[:, 0] * span[1] + key[:, 1]) * span[2] + key[:, 2]
     unique, first, inverse = np.unique(linear, return_index=True, return_inverse=True)
     inverse = inverse.ravel()
@@ -71,7 +71,9 @@ def weld_vertices(mesh: Mesh, distance: float) -> Mesh:
     """Merge vertices falling in the same `distance` cell (duplicates from block seams, STL soups)."""
     inverse, count = _cells(mesh.vertices, max(distance, 1e-12))
     if count == mesh.num_vertices:   # nothing to merge: only degenerate and duplicate faces can go
-        return _remap_faces(Mesh(mesh.vertices, mesh.faces, mesh.vertex_colors, frame_id=mesh.frame_id), mesh.faces)
+        # Same arrays: per-face geometry already computed (validation) stays valid.
+        same = Mesh(mesh.vertices, mesh.faces, mesh.vertex_colors, frame_id=mesh.frame_id, _cache=mesh._cache)
+        return _remap_faces(same, mesh.faces)
     return _remap(mesh, inverse, count, average=False)
 
 
@@ -86,11 +88,15 @@ def remove_small_pieces(mesh: Mesh, min_diameter: float) -> tuple[Mesh, int]:
     cols = np.concatenate([f[:, 1], f[:, 2]])
     graph = coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), shape=(n, n))
     count, label = connected_components(graph, directed=False)
-    lo = np.full((count, 3), np.inf)
-    hi = np.full((count, 3), -np.inf)
-    np.minimum.at(lo, label, mesh.vertices)
-    np.maximum.at(hi, label, mesh.vertices)
-    big = np.linalg.norm(hi - lo, axis=1) >= min_diameter
+    if count == 1:
+        lo, hi = column_bounds(mesh.vertices)
+        big = np.array([np.linalg.norm(hi - lo) >= min_diameter])
+    else:  # each piece's bounding box: its vertices sorted together, then one reduction per piece
+        order = np.argsort(label, kind="stable")
+        starts = np.searchsorted(label[order], np.arange(count))
+        ordered = mesh.vertices[order]
+        lo, hi = np.minimum.reduceat(ordered, starts), np.maximum.reduceat(ordered, starts)
+        big = np.linalg.norm(hi - lo, axis=1) >= min_diameter
     keep = big[label[f[:, 0]]]
     removed = int((~keep).sum())
     return (mesh if removed == 0 else mesh.submesh(keep)), removed

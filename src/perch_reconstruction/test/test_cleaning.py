@@ -147,3 +147,20 @@ def test_bad_meshes_and_gravity_are_reported():
     crumbs = grid_patch(0.1, 2)
     with pytest.raises(MeshError, match="nothing left after removing pieces smaller than 0.3 m"):
         clean_mesh(crumbs, None, ReconstructionConfig())
+
+
+def test_collapse_mapping_matches_the_decimators_replay():
+    """The survivors found by following the collapses are what fast-simplification's replay maps to."""
+    import fast_simplification
+    from fast_simplification import replay_simplification
+
+    from perch_reconstruction.cleaning import _collapsed_into
+
+    mesh = room_box(Rotation.from_euler("xyz", [5, 3, 20], degrees=True).as_matrix())
+    faces = mesh.faces.astype(np.int32)
+    _, out_faces, collapses = fast_simplification.simplify(mesh.vertices, faces, target_count=3000, return_collapses=True)
+    ours = _collapsed_into(mesh, faces, out_faces, collapses)
+    theirs = replay_simplification(mesh.vertices.astype(np.float32), faces, collapses)[2]
+    kept = ours >= 0
+    assert kept.mean() > 0.95 and np.array_equal(ours[kept], theirs[kept])
+    assert set(ours[kept]) == set(range(out_faces.max() + 1))   # every output vertex gets colours
