@@ -54,8 +54,14 @@ class Mesh:
 
     def _cross(self) -> np.ndarray:
         if "cross" not in self._cache:
-            t = self.triangles()
-            self._cache["cross"] = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+            # np.cross's arithmetic written out: the same numbers at half the time on 2M faces.
+            first = self.vertices[self.faces[:, 0]]
+            u, v = self.vertices[self.faces[:, 1]] - first, self.vertices[self.faces[:, 2]] - first
+            cross = np.empty_like(u)
+            cross[:, 0] = u[:, 1] * v[:, 2] - u[:, 2] * v[:, 1]
+            cross[:, 1] = u[:, 2] * v[:, 0] - u[:, 0] * v[:, 2]
+            cross[:, 2] = u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]
+            self._cache["cross"] = cross
         return self._cache["cross"]
 
     def face_areas(self) -> np.ndarray:
