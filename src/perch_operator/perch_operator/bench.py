@@ -15,7 +15,9 @@ runs the mission with auto-accept and writes waypoints.yaml. JSON fields:
                messages between client, coordinator and stages;
   peak_rss_mb  peak resident memory of the whole graph (client and node processes, sampled 10 Hz,
                and this process's own peak).
-`--repeat N` runs N fresh processes and adds the median of each figure.
+`--repeat N` runs N fresh processes one after another (each pays its own start-up and frees its
+memory before the next) and reports the median of each figure, of the stage times and of cameras,
+coverage and fitness, with each run's 1-minute load average; it exits 1 when any run failed.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ import time
 from pathlib import Path
 
 FIGURES = ("wall_s", "startup_s", "mission_s", "transport_s", "peak_rss_mb")
+OUTCOMES = ("cameras", "coverage", "fitness")   # also medians with --repeat (seeded: equal unless a run differs)
 
 
 def register(sub) -> None:
@@ -116,7 +119,9 @@ def _run(args) -> int:
     from perch_common.bench import emit
 
     if args.repeat > 1:
-        return emit(_repeated(args))
+        result = _repeated(args)
+        emit(result)
+        return 1 if any(r["failures"] or r.get("dead_nodes") for r in result["runs"]) else 0
     result = _one_run(args)
     emit(result)
     return 1 if result["failures"] or result.get("dead_nodes") else 0
@@ -190,12 +195,13 @@ def _repeated(args) -> dict:
         if done.returncode not in (0, 1) or not done.stdout.strip():
             raise RuntimeError(f"benchmark run failed (exit {done.returncode}): {done.stderr[-2000:]}")
         runs.append(json.loads(done.stdout))
-    median = {k: round(statistics.median(r[k] for r in runs), 3) for k in FIGURES}
+    median = {k: round(statistics.median(r[k] for r in runs), 3) for k in FIGURES + OUTCOMES}
     stage_names = runs[0]["stages"].keys()
     median["stages"] = {n: round(statistics.median(r["stages"].get(n, float("nan")) for r in runs), 3)
                         for n in stage_names}
     return {"source": runs[0]["source"], "faces": runs[0]["faces"], "graph_mode": args.graph_mode,
-            "repeat": args.repeat, "median": median, "runs": runs}
+            "repeat": args.repeat, "median": median,
+            "load_average_1min": [r["load_average_1min"] for r in runs], "runs": runs}
 
 
 def _time_rejection(node, result) -> float:
