@@ -44,7 +44,7 @@ def test_filter_names_are_the_removal_fields_in_pipeline_order():
 
     msg = Path(__file__).resolve().parents[2] / "perch_interfaces" / "msg" / "FilterRemoval.msg"
     fields = [line.split()[1] for line in msg.read_text().splitlines() if line and not line.startswith("#")]
-    assert list(FILTER_NAMES) == [f for f in fields if f not in ("surface_id", "area_total", "area_kept")]
+    assert list(FILTER_NAMES) == [f for f in fields if f not in ("surface_id", "surface_class", "area_total", "area_kept")]
     assert FILTER_NAMES[0] == "orientation" and FILTER_NAMES[-1] == "reachability"
 
 
