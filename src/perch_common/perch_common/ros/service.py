@@ -75,6 +75,7 @@ class StageWork:
         self.node = node
         self._lock = threading.Lock()
         self._running: dict[tuple[str, str], set[CancelToken]] = {}
+        self._services: set[str] = set()   # what this node serves: cancels for other services are not its own
         self._early: OrderedDict[tuple[str, str], str] = OrderedDict()
         self._release_timer = None
         # Its own group: a cancel must get through while a service callback is busy.
@@ -90,12 +91,14 @@ class StageWork:
             node._perch_stage_work = work
         return work
 
-    def cancel(self, service: str, request_id: str, reason: str = "") -> int:
+    def cancel(self, service: str, request_id: str, reason: str = "") -> int | None:
         """Cancel the call to `service` whose request carries `request_id`; the number of running calls
-        it stopped (0: remembered for when that call starts)."""
+        it stopped (0: remembered for when that call starts), None when this node does not serve `service`."""
         key = (service, request_id)
         reason = f"{service}: cancelled by its caller" + (f" ({reason})" if reason else "")
         with self._lock:
+            if service not in self._services:
+                return None
             tokens = list(self._running.get(key, ()))
             if not tokens and request_id:
                 self._early[key] = reason
@@ -107,6 +110,8 @@ class StageWork:
 
     def _on_cancel(self, msg) -> None:
         stopped = self.cancel(msg.service, msg.request_id, msg.reason)
+        if stopped is None:
+            return
         call = f"call {msg.request_id!r}" if msg.request_id else "calls without a request_id"
         if stopped:
             self.node.get_logger().warning(f"{msg.service}: cancelling {call} in progress")
@@ -115,6 +120,8 @@ class StageWork:
 
     def serve(self, name: str, callback: Callable) -> Callable:
         """Wrap a service callback: run it under its call's cancel token, then schedule a memory release."""
+        with self._lock:
+            self._services.add(name)
 
         def run(request, response):
             key = (name, str(getattr(request, "request_id", "")))
