@@ -21,6 +21,12 @@ from perch_common.cancellation import checkpoint
 from perch_segmentation import stats as st
 from perch_segmentation.adjacency import unique_edges
 
+# Priorities are compared at this many decimals (of their bound): coplanar neighbours, which scans and
+# plane-optimised meshes have many of, all have energy ~0 to float rounding; rounded, they tie, and the
+# tie goes to the larger edge index instead of to rounding noise, which differs when the same mesh is
+# given in another orientation.
+PRIORITY_DECIMALS = 6
+
 
 @dataclass
 class MergeRules:
@@ -58,7 +64,7 @@ def admissible(table: np.ndarray, u: np.ndarray, v: np.ndarray, rules: MergeRule
     cos = np.abs(np.einsum("ij,ij->i", normal[u], normal[v]))
     big = np.maximum(area[u], area[v]) >= rules.guard_area
     ok &= cos >= np.where(big, rules.guard_cos, rules.fold_cos)
-    return ok, priority
+    return ok, np.round(priority, PRIORITY_DECIMALS)
 
 
 def flag_union(size: int, *index_arrays: np.ndarray) -> np.ndarray:

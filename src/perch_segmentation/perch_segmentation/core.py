@@ -27,6 +27,8 @@ from perch_segmentation.fragments import absorb_fragments
 from perch_segmentation.merge_pass import PlaneRules, boundary_plane_groups, merge_coplanar
 from perch_segmentation.surfaces import build_surfaces
 
+AREA_DECIMALS = 4  # m^2 digits at which surface areas are compared (see segment_mesh)
+
 
 @dataclass
 class SegmentationResult:
@@ -84,13 +86,16 @@ def segment_mesh(mesh: Mesh, config: SegmentationConfig | None = None) -> Segmen
     clusters_step2 = len(table)
     clock.lap("step2_merge")
 
-    keep = np.flatnonzero(table[:, st.AREA] >= max(config.min_area, 1e-12))
+    # Areas to 1 cm^2: a surface of exactly min_area, or two of equal area (generated rooms have them),
+    # are kept and ordered alike when the same mesh comes in another orientation (float rounding).
+    area = np.round(table[:, st.AREA], AREA_DECIMALS)
+    keep = np.flatnonzero(area >= max(config.min_area, 1e-12))
     if len(keep) == 0:
         largest = float(table[:, st.AREA].max()) if len(table) else 0.0
         raise PerchError(
             f"no planar region of at least min_area={config.min_area} m^2 found (largest planar cluster: "
             f"{largest:.3g} m^2 of {float(areas.sum()):.3g} m^2); is this a room mesh in metres?")
-    keep = keep[np.argsort(-table[keep, st.AREA], kind="stable")]
+    keep = keep[np.argsort(-area[keep], kind="stable")]
     surface_of = np.full(len(table), -1, np.int64)
     surface_of[keep] = np.arange(len(keep))
     face_labels = surface_of[labels]

@@ -17,7 +17,7 @@ import numpy as np
 from perch_common.symmetric import eigenvalues
 from perch_segmentation import stats as st
 from perch_segmentation.adjacency import unique_edges
-from perch_segmentation.agglomerate import components
+from perch_segmentation.agglomerate import PRIORITY_DECIMALS, components
 
 _MIN_FACING = 0.342  # cos 70 deg: RMS cosine between a fragment's face normals and the host's normal
 _FLATNESS = 0.2  # RMS off-plane spread below this fraction of the in-plane spread counts as flat
@@ -64,7 +64,10 @@ def absorb_fragments(table: np.ndarray, edges: np.ndarray, min_area: float, max_
         if not ok.any():
             break
         frag, host, cost = frag[ok], host[ok], cost[ok]
-        order = np.lexsort((host, cost, frag))  # per fragment: best host first
+        # Per fragment: best host first; costs compared as step 1 compares priorities (a fragment
+        # that lies in the plane of two hosts fits both at ~0: the smaller host index wins, not rounding).
+        rank = np.round(cost / (max_rms * max_rms), PRIORITY_DECIMALS) if max_rms > 0 else cost
+        order = np.lexsort((host, rank, frag))
         first = np.ones(len(order), bool)
         first[1:] = frag[order][1:] != frag[order][:-1]
         chosen = order[first]
