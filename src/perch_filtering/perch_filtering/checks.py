@@ -1,9 +1,9 @@
 """The safety model's geometric measures on one surface raster: free fall and approach clearance.
 
-Both measure the mesh samples in front of the surface (its own faces and bumps excluded).
-Samples are up to `spacing` apart and are
-snapped to the nearest cell, so every radius is widened by a share of the spacing (GAP) and of a
-cell (SNAP). Tuned on generated scenes against the independent checker in test/: these margins
+Both measure the mesh samples in front of the surface, beyond the depth that counts as the scanned
+surface itself (`surface_depth`: nearer geometry is judged by support). Samples are up to `spacing`
+apart and are snapped to the nearest cell, so every radius is widened by a share of the spacing
+(GAP) and of a cell (SNAP). Tuned on generated scenes against the independent checker in test/: these margins
 keep precision >= 0.99 while the full worst-case margins cost ~5 points of recall.
 """
 
@@ -30,11 +30,10 @@ class NearbyGeometry:
     height: np.ndarray
 
 
-def geometry_in_front(samples: MeshSamples, index: SampleIndex, raster: SurfaceRaster, own_faces: np.ndarray,
-                      up: np.ndarray, min_depth: float, max_depth: float, margin: float,
-                      own_min_depth: float | None = None) -> NearbyGeometry:
+def geometry_in_front(samples: MeshSamples, index: SampleIndex, raster: SurfaceRaster, up: np.ndarray,
+                      min_depth: float, max_depth: float, margin: float) -> NearbyGeometry:
     """Samples with min_depth < depth <= max_depth whose plane coordinates lie within `margin` of the
-    raster; samples on the surface's own faces only beyond `own_min_depth` (never when None)."""
+    raster (the surface's own faces included: its bumps beyond min_depth block like any geometry)."""
     f = raster.frame
     rows, cols = raster.shape
     u_lo, u_hi = raster.u0 - margin, raster.u0 + (cols - 1) * raster.cell + margin
@@ -45,14 +44,6 @@ def geometry_in_front(samples: MeshSamples, index: SampleIndex, raster: SurfaceR
     local = project(samples.points[candidates], np.stack([f.normal, f.axis_u, f.axis_v]), f.origin)
     keep = (local[:, 0] > min_depth) & (local[:, 0] <= max_depth)
     keep &= (local[:, 1] >= u_lo) & (local[:, 1] <= u_hi) & (local[:, 2] >= v_lo) & (local[:, 2] <= v_hi)
-    if len(own_faces):
-        own = np.zeros(int(own_faces.max()) + 1, bool)
-        own[own_faces[own_faces < len(own)]] = True
-        candidate = np.flatnonzero(keep)
-        face = samples.face[candidates[candidate]]
-        inside = face < len(own)
-        mine = candidate[inside][own[face[inside]]]
-        keep[mine] = local[mine, 0] > own_min_depth if own_min_depth is not None else False
     sel = local[keep]
     return NearbyGeometry(sel[:, 0], sel[:, 1:], project(samples.points[candidates[keep]], up)[:, 0])
 
@@ -72,15 +63,17 @@ def _box_cells(half: float, cell: float) -> int:
 
 
 def free_fall(raster: SurfaceRaster, near: NearbyGeometry, up: np.ndarray, floor_height: float,
-              lookahead: float, corridor_half_width: float, spacing: float,
+              lookahead: float, corridor_margin: float, corridor_depth: float, spacing: float,
               surface_class: SurfaceClass = SurfaceClass.WALL) -> np.ndarray:
     """Free fall height (m, capped at `lookahead`) below every cell: the recovery-height measure.
 
-    Walls (the surface's class, by the configured class angle): the fall corridor is the box in
-    front of the wall, 2 x half-width deep and wide, below the cell; the fall ends at the highest
-    sample in it. Ceilings (and intermediate surfaces facing down): the column below the cell,
-    half-width wide; it ends at the nearest sample. Both also end at the floor. Floors (and
-    intermediate surfaces facing up: landing) need no fall: `lookahead` everywhere.
+    Each cell's corridor is its column grown by `corridor_margin` on either side; the perch window
+    filter then asks it of every cell of the window, so a perch's corridor is the window (the drone's
+    footprint plus position uncertainty) grown by the margin. Walls (the surface's class, by the
+    configured class angle): the corridor runs below the cell in front of the wall, `corridor_depth`
+    deep; the fall ends at the highest sample in it. Ceilings (and intermediate surfaces facing
+    down): the column below the cell; it ends at the nearest sample. Both also end at the floor.
+    Floors (and intermediate surfaces facing up: landing) need no fall: `lookahead` everywhere.
     """
     import cv2
 
@@ -95,7 +88,7 @@ def free_fall(raster: SurfaceRaster, near: NearbyGeometry, up: np.ndarray, floor
     fall = np.repeat(np.minimum(heights - floor_height, lookahead)[:, None], cols, axis=1).astype(np.float32)
     if len(near.depth) == 0:
         return fall
-    half = _box_cells(corridor_half_width + spacing * GAP, cell)
+    half = _box_cells(corridor_margin + spacing * GAP, cell)
     pix = np.round(raster.to_pixels(near.uv)).astype(np.int64)
     if not wall:  # ceiling-like: the column below the cell ends at the nearest sample
         depth = np.full((rows + 2 * half, cols + 2 * half), lookahead, np.float32)
@@ -112,7 +105,7 @@ def free_fall(raster: SurfaceRaster, near: NearbyGeometry, up: np.ndarray, floor
     start = np.ceil((near.height - margin - heights[0]) / slope).astype(np.int64)
     col = pix[:, 0] + half
     ok = (start < rows) & (col >= 0) & (col < cols + 2 * half)
-    ok &= near.depth <= 2 * corridor_half_width + spacing * GAP
+    ok &= near.depth <= corridor_depth + spacing * GAP
     width = cols + 2 * half
     top = np.full((rows, width), NO_OBSTACLE, np.float32)
     np.maximum.at(top, (np.clip(start[ok], 0, rows - 1), col[ok]), near.height[ok] + margin)

@@ -21,12 +21,14 @@ class FilterConfig:
     min_recovery_height: float = param(0.5, "free fall needed below a perch to recover", "m", low=0.0, high=10.0)
     approach_distance: float = param(0.5, "approach prism depth: the window swept this far along the normal "
                                      "(the waypoint's approach point) must be free of geometry", "m", low=0.0, high=10.0)
-    approach_margin: float = param(0.1, "lateral margin added around the window for the approach prism", "m", low=0.0, high=10.0)
+    approach_margin: float = param(0.1, "lateral margin added around the window for the approach prism and the "
+                                   "fall corridor", "m", low=0.0, high=10.0)
     window_width: float = param(0.5, "perch window, horizontal side on walls", "m", low=0.0, high=10.0)
     window_height: float = param(0.5, "perch window, vertical side on walls (along gravity)", "m", low=0.0, high=10.0)
     window_ellipse: bool = param(False, "elliptic perch window instead of a rectangle")
     raster_density: float = param(50.0, "raster resolution of each surface", "px/m", low=0.0, high=1000.0)
-    drone_radius: float = param(0.35, "drone radius for flight clearance and the fall corridor", "m", low=0.0, high=5.0)
+    drone_radius: float = param(0.35, "drone radius for flight clearance; a wall's fall corridor is 2 radii deep",
+                                "m", low=0.0, high=5.0)
     standoff: float = param(0.5, "point in front of a perch (along its normal) that must be reachable", "m", low=0.0, high=10.0)
     voxel_size: float = param(0.05, "voxel size of the flight-reachability occupancy grid", "m", low=0.0, high=1.0)
     min_support: float = param(0.9, "share of the window that must have scanned surface within plane_tolerance "
@@ -38,8 +40,12 @@ class FilterConfig:
     visibility_spacing: float = param(0.06, "grid on which visibility shares are ray cast and then "
                                       "interpolated bilinearly", "m", low=0.001, high=10.0)
     los_offset: float = param(0.02, "line-of-sight rays start this far in front of the surface", "m", low=0.0, high=1.0)
-    plane_tolerance: float = param(0.03, "geometry closer to a surface's plane than this is the surface itself", "m",
+    plane_tolerance: float = param(0.03, "scanned surface within this of a window's perch plane supports it", "m",
                                    low=0.0, high=1.0)
+    surface_depth: float = param(0.06, "most depth in front of a surface's plane that counts as the scanned surface "
+                                 "itself (plane_tolerance plus 3 x the surface's roughness, capped here; support "
+                                 "judges it under the window); farther geometry is an obstacle to the approach "
+                                 "prism and the fall corridor", "m", low=0.0, high=1.0)
     floor_merge_tolerance: float = param(0.1, "floor pieces within this height of the lowest are one floor", "m",
                                          low=0.0, high=10.0)
     min_floor_area: float = param(1.0, "smallest horizontal surface that may be the floor", "m^2", low=0.0)
@@ -68,7 +74,7 @@ class FilterConfig:
             if not (math.isfinite(value) and value > 0):
                 problems.append(f"{name}={value} must be > 0")
         for name in ("min_recovery_height", "approach_distance", "approach_margin", "standoff", "los_offset",
-                     "plane_tolerance", "max_support_rms", "floor_merge_tolerance", "min_floor_area",
+                     "plane_tolerance", "surface_depth", "max_support_rms", "floor_merge_tolerance", "min_floor_area",
                      "min_region_area"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
@@ -87,6 +93,9 @@ class FilterConfig:
             problems.append(f"voxel_size={self.voxel_size} m is absurd (max 1.0)")
         if self.voxel_size > self.drone_radius:
             problems.append(f"voxel_size={self.voxel_size} m must not exceed drone_radius={self.drone_radius} m")
+        if self.surface_depth < self.plane_tolerance:
+            problems.append(f"surface_depth={self.surface_depth} m must be at least plane_tolerance="
+                            f"{self.plane_tolerance} m (support looks that far in front of the plane)")
         if self.standoff < self.drone_radius:
             problems.append(f"standoff={self.standoff} m must be at least drone_radius={self.drone_radius} m "
                             "(the drone's centre hovers there)")

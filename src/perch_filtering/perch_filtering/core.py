@@ -3,12 +3,16 @@
 One definition of a safe perch centre, filters in order (FILTER_NAMES):
   orientation      the surface's class (from its oriented normal) is enabled;
   recovery_height  the cell can fall min_recovery_height (fall corridor on walls, column below
-                   ceilings) and is that high above the floor;
+                   ceilings, each approach_margin wider than the cell) and is that high above the floor;
   perch_window     every cell of the window centred on it passes recovery_height;
   obstacle_clearance  the approach prism (window + approach_margin, swept approach_distance along
                    the normal) is free of geometry;
-  support          >= min_support of the window has scanned surface within plane_tolerance of the
-                   plane, with RMS distance <= max_support_rms;
+  support          >= min_support of the window has scanned surface within plane_tolerance of its
+                   perch plane (the fitted plane moved to the window's median depth), with RMS
+                   distance <= max_support_rms;
+Geometry nearer the plane than the surface's band (plane_tolerance plus three sigmas of its scan
+noise, at most surface_depth) is the scanned surface itself (support judges it); farther geometry, the
+surface's own bumps included, blocks the approach and the fall.
   line_of_sight    it sees >= min_visible_share of the target's sample points;
   reachability     its standoff point is reachable by flight from the target.
 Each surface is handled on one raster in its plane frame; the visibility rays of all surfaces go
@@ -36,12 +40,15 @@ from perch_filtering.orientation import class_enabled, find_floor, orient, orien
 from perch_filtering.raster import SurfaceRaster, erode_window, rasterise, window_kernel
 from perch_filtering.regions import mask_polygons, triangulate
 from perch_filtering.sampling import SampleIndex, project, sample_mesh
-from perch_filtering.support import cell_support, window_support
+from perch_filtering.support import first_surface_depth, local_window_support, scan_noise
 from perch_filtering.validation import validate_inputs
 from perch_filtering.visibility import visible_shares
 from perch_filtering.voxels import FlightGrid, build_flight_grid, grid_rotation
 
 __all__ = ["FilterConfig", "FilterResult", "filter_surfaces", "FILTER_NAMES"]
+
+NOISE_SIGMAS = 3.0  # scan noise sigmas in front of a plane that count as the surface itself (surface_band)
+SUPPORT_BIN = 0.1  # depth bins of the support statistics, as a share of plane_tolerance (3 mm at 3 cm)
 
 
 @dataclass
@@ -72,6 +79,7 @@ class _Work:
     alive: np.ndarray | None
     removal: FilterRemoval
     roughness: float = 0.0  # RMS distance (m) of the surface's vertices to its plane
+    band: float = 0.0       # m, geometry nearer the plane is the scanned surface itself (surface_band)
     evidence: dict = field(default_factory=dict)  # PerchEvidence field -> per-cell map
 
 
@@ -106,7 +114,7 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
     clock.lap("orientation")
 
     kernel = window_kernel(config.window_width, config.window_height, config.cell, config.window_ellipse)
-    work = [_raster_filters(s, mesh, samples, index, up, floor_height, kernel, config) for s in oriented]
+    work = [_raster_filters(s, mesh, samples, index, scene, up, floor_height, kernel, config) for s in oriented]
     clock.lap("raster_filters")
     for w in work:
         if w.raster is not None:
@@ -129,7 +137,7 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
     return result
 
 
-def _raster_filters(surface: Surface, mesh: Mesh, samples, index: SampleIndex, up: np.ndarray,
+def _raster_filters(surface: Surface, mesh: Mesh, samples, index: SampleIndex, scene: RayScene, up: np.ndarray,
                     floor_height: float, kernel: np.ndarray, config: FilterConfig) -> _Work:
     """Rasterise one oriented surface; apply the class, recovery, window and approach filters."""
     boundary = surface.boundary
@@ -147,15 +155,14 @@ def _raster_filters(surface: Surface, mesh: Mesh, samples, index: SampleIndex, u
         return _Work(surface, None, None, removal)
     spacing = samples.spacing
     roughness = _roughness(surface, mesh)
-    # Other geometry beyond plane_tolerance is not the perch surface (support asks the same of the
-    # window), however rough the whole surface is: it blocks the approach and the fall. The surface's
-    # own faces block beyond plane_tolerance + max_support_rms (a window's surface may reach that far).
+    # Geometry within the surface band of the plane is the scanned surface (support judges it under the
+    # window); beyond it, anything blocks the approach and the fall, the surface's own bumps included.
+    band = surface_band(scan_noise(scene, raster, config.surface_depth + config.cell), config)
     lookahead = config.lookahead
     margin = max(prism_half, lookahead) + spacing + 2 * config.cell
-    near = geometry_in_front(samples, index, raster, surface.face_indices, up, config.plane_tolerance,
-                             lookahead + spacing, margin, config.plane_tolerance + config.max_support_rms)
-    fall = free_fall(raster, near, up, floor_height, lookahead, config.drone_radius, spacing,
-                     surface.surface_class)
+    near = geometry_in_front(samples, index, raster, up, band, lookahead + spacing, margin)
+    fall = free_fall(raster, near, up, floor_height, lookahead, config.approach_margin, 2 * config.drone_radius,
+                     spacing, surface.surface_class)
     fall_ok = fall >= config.min_recovery_height
     removal.recovery_height = float((inside & ~fall_ok).sum() * cell_area)
     alive = inside & fall_ok
@@ -168,8 +175,17 @@ def _raster_filters(surface: Surface, mesh: Mesh, samples, index: SampleIndex, u
     removal.obstacle_clearance = float((alive & ~approach_ok).sum() * cell_area)
     alive &= approach_ok
     window_fall = -_window_max(-fall, kernel)
-    return _Work(surface, raster, alive, removal, roughness,
+    return _Work(surface, raster, alive, removal, roughness, band,
                  {"approach_clearance": clearance, "free_fall": window_fall})
+
+
+def surface_band(noise: float, config: FilterConfig) -> float:
+    """Depth (m) up to which geometry in front of a surface's plane is the scanned surface itself:
+    plane_tolerance plus NOISE_SIGMAS of the surface's scan noise, at most surface_depth. A clean
+    surface keeps a thin band (a 4 cm panel under a window is an obstacle); a noisy scan's walls are
+    not blocked by their own scatter."""
+    return float(np.clip(config.plane_tolerance + NOISE_SIGMAS * noise, config.plane_tolerance,
+                         max(config.surface_depth, config.plane_tolerance)))
 
 
 def _window_max(values: np.ndarray, kernel: np.ndarray) -> np.ndarray:
@@ -180,12 +196,13 @@ def _window_max(values: np.ndarray, kernel: np.ndarray) -> np.ndarray:
 
 
 def _support(w: _Work, scene: RayScene, kernel: np.ndarray, config: FilterConfig) -> None:
-    """Filter 'support': enough of the window lies on scanned surface close to the perch plane."""
+    """Filter 'support': enough of the window lies on scanned surface close to its perch plane."""
     import cv2
 
     under = cv2.dilate(w.alive.astype(np.uint8), kernel).astype(bool)
-    supported, distance = cell_support(scene, w.raster, under, config.plane_tolerance)
-    window = window_support(supported, distance, kernel)
+    depth = first_surface_depth(scene, w.raster, under, w.band + config.cell)
+    window = local_window_support(depth, kernel, config.plane_tolerance + config.max_support_rms,
+                                  config.plane_tolerance, SUPPORT_BIN * config.plane_tolerance)
     ok = (window.share >= config.min_support - 1e-6) & (window.rms <= config.max_support_rms)
     w.removal.support = float((w.alive & ~ok).sum() * w.raster.cell_area)
     w.alive &= ok

@@ -92,8 +92,9 @@ def evaluate(scene: GeneratedScene, surfaces: list, result, spec: Spec, seed: in
 
 def above_furniture(scene: GeneratedScene, oracle: SceneOracle, plane_id: int, points: np.ndarray,
                     spec: Spec) -> np.ndarray:
-    """Wall points with furniture surface in their fall corridor (+-rho wide, 2 rho deep) less than
-    h_min below them, from dense random samples of the furniture faces."""
+    """Wall points with furniture surface in their fall corridor (the window grown by the approach
+    margin wide, 2 rho deep) less than h_min below them, from dense random samples of the furniture
+    faces."""
     if oracle.plane_class(plane_id) != "wall":
         return np.zeros(len(points), bool)
     furniture = _furniture_points(scene)
@@ -106,7 +107,7 @@ def above_furniture(scene: GeneratedScene, oracle: SceneOracle, plane_id: int, p
     for k, p in enumerate(points):
         d = furniture - p
         below = d @ up
-        bad[k] = bool(np.any((np.abs(d @ side) <= spec.drone_radius) & (below < 0)
+        bad[k] = bool(np.any((np.abs(d @ side) <= spec.window_width / 2 + spec.approach_margin) & (below < 0)
                              & (below >= -spec.min_recovery_height)))
     return bad
 

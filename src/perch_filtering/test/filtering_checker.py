@@ -5,13 +5,17 @@ and direct geometric tests on the mesh (ray casts, closest points, exact triangl
 perch centre by perch centre:
   class      plane class from the ground-truth normal (angle to up) is enabled;
   on plane   the centre lies on its ground-truth plane;
-  recovery   every point of the perch window is at least h_min above the floor with nothing in its
-             fall corridor: walls, the box [0, 2 rho] deep and +-rho wide in front of the wall from
-             the point's height down h_min; ceilings, the +-rho square column below it, h_min deep;
+  recovery   the perch window is at least h_min above the floor (walls: its bottom edge) and no
+             triangle of other geometry overlaps its fall corridor (separating-axis test): walls,
+             the box (window width + 2 approach_margin) x [TOL, 2 rho] in front of the wall from
+             h_min below the window's bottom to its top; ceilings, the column (window +
+             approach_margin on every side) x [TOL, h_min] below it;
   approach   no triangle of other geometry overlaps the prism (window grown by the lateral margin)
              x [TOL, approach_distance] along the normal (separating-axis test);
-  support    of a 21 x 21 grid over the window, at least min_support find mesh within
-             plane_tolerance of the plane along the normal, with RMS distance <= max_support_rms;
+  support    of a 21 x 21 grid over the window, at least min_support find their first mesh hit
+             (cast from surface_depth + 2 cm in front) within plane_tolerance of the window's perch
+             plane, the plane moved to the median of the hits within plane_tolerance +
+             max_support_rms of it; RMS distance to that plane <= max_support_rms;
   sight      at least min_visible_share of the target's sample points (the filter's count and seed:
              the target's definition, not the model) are in front of the plane and the segment from
              the centre (offset 2 cm) to them misses the mesh;
@@ -32,8 +36,6 @@ from perch_common.scene_generator import GeneratedScene, SemanticClass
 from perch_common.types import PlaneFrame
 
 TOL = 0.01          # m: geometry closer to a plane than this is the plane itself
-CORRIDOR_RAYS = 6   # per side of the corridor's top face (5 along the depth of a wall's corridor)
-WINDOW_POINTS = 7   # per side of the perch window (recovery)
 SUPPORT_POINTS = 21  # per side of the perch window (support: cell centres of a 21 x 21 grid)
 
 
@@ -62,6 +64,7 @@ class Spec:
     drone_radius: float = 0.35
     standoff: float = 0.5
     plane_tolerance: float = 0.03
+    surface_depth: float = 0.06
     min_support: float = 0.9
     max_support_rms: float = 0.02
     min_visible_share: float = 0.2
@@ -78,7 +81,7 @@ class SceneOracle:
         self.target_points = scene.target.sample(spec.visibility_points, seed=spec.seed)
         floors = [p for p in scene.planes if p.semantic_class == SemanticClass.FLOOR]
         self.floor_z = min(float(p.centroid @ self.up) for p in floors)
-        self._others: dict[int, RayScene] = {}
+        self._others: dict = {}
         self.drone_free = self._reachable_voxels()
 
     # --- per plane -----------------------------------------------------------------------------
@@ -97,22 +100,47 @@ class SceneOracle:
         p = self.scene.planes[plane_id]
         return PlaneFrame.from_normal(p.centroid, p.normal, self.up)
 
-    def _other_geometry(self, plane_id: int) -> RayScene | None:
-        """Faces of other planes reaching more than TOL in front of this plane (none behind it)."""
-        if plane_id not in self._others:
-            p = self.scene.planes[plane_id]
-            depth = (self.mesh.triangles() - p.centroid) @ p.normal
-            keep = (self.scene.face_plane != plane_id) & (depth.max(axis=1) > TOL) & (depth.min(axis=1) > -TOL)
-            self._others[plane_id] = RayScene(self.mesh.submesh(keep)) if keep.any() else None
-        return self._others[plane_id]
-
     # --- tests ---------------------------------------------------------------------------------
     def recovery_ok(self, plane_id: int, points: np.ndarray) -> np.ndarray:
-        """Floor height and fall corridor for points on one plane (False where the class is disabled)."""
+        """Floor height and fall corridor of the windows centred on the points (False where the class
+        is disabled)."""
         points = np.asarray(points, np.float64).reshape(-1, 3)
         if not self.enabled(plane_id) or len(points) == 0:
             return np.zeros(len(points), bool)
-        return self._recovery(plane_id, points)
+        s, up = self.spec, self.up
+        kind = self.plane_class(plane_id)
+        if kind == "floor":
+            return np.ones(len(points), bool)
+        f = self.frame(plane_id)
+        h, rho, margin = s.min_recovery_height, s.drone_radius, s.approach_margin
+        axes = np.stack([f.axis_u, f.axis_v, f.normal])
+        if kind == "ceiling":
+            ok = points @ up >= self.floor_z + h
+            half = np.array([s.window_width / 2 + margin, s.window_height / 2 + margin, (h - TOL) / 2])
+            offset = f.normal * (TOL + h) / 2
+        else:
+            ok = points @ up - s.window_height / 2 * float(f.axis_v @ up) >= self.floor_z + h
+            half = np.array([s.window_width / 2 + margin, (s.window_height + h) / 2, (2 * rho - TOL) / 2])
+            offset = f.axis_v * (-h / 2) + f.normal * (TOL + 2 * rho) / 2
+        tris = self._corridor_triangles(plane_id)
+        if len(tris) == 0:
+            return ok
+        centroids = tris.mean(axis=1)
+        reach = np.linalg.norm(half) + np.linalg.norm(tris - centroids[:, None], axis=2).max(axis=1)
+        for k in np.flatnonzero(ok):
+            centre = points[k] + offset
+            near = np.linalg.norm(centroids - centre, axis=1) <= reach
+            if near.any():
+                local = np.einsum("fvk,ak->fva", tris[near] - centre, axes)
+                ok[k] = not triangles_overlap_box(local, half).any()
+        return ok
+
+    def _corridor_triangles(self, plane_id: int) -> np.ndarray:
+        """Triangles of other planes (the fall corridor and column lie in front of and below this one)."""
+        key = ("corridor", plane_id)
+        if key not in self._others:
+            self._others[key] = self.mesh.triangles()[self.scene.face_plane != plane_id]
+        return self._others[key]
 
     def on_plane(self, plane_id: int, points: np.ndarray) -> np.ndarray:
         """Points whose ray along the inverted normal meets their own ground-truth plane right there."""
@@ -120,27 +148,6 @@ class SceneOracle:
         hits = self.rays.cast(points + 0.05 * n, np.repeat(-n[None], len(points), axis=0))
         plane = np.where(hits.hit, self.scene.face_plane[np.maximum(hits.face, 0)], -1)
         return (plane == plane_id) & (np.abs(hits.distance - 0.05) < 0.01)
-
-    def _recovery(self, plane_id: int, points: np.ndarray) -> np.ndarray:
-        s, up = self.spec, self.up
-        kind = self.plane_class(plane_id)
-        ok = points @ up >= self.floor_z + s.min_recovery_height
-        if kind == "floor":
-            return np.ones(len(points), bool)
-        f = self.frame(plane_id)
-        a = np.linspace(-s.drone_radius, s.drone_radius, CORRIDOR_RAYS)
-        if kind == "ceiling":
-            grid = [(x, y) for x in a for y in a]
-            tops = np.concatenate([points + x * f.axis_u + y * f.axis_v - TOL * up for x, y in grid])
-        else:  # in front of the wall: lateral +-rho, depth 0..2 rho (TOL off the wall)
-            side = np.cross(up, f.normal)
-            side /= np.linalg.norm(side)
-            depth = np.linspace(TOL, 2 * s.drone_radius, CORRIDOR_RAYS - 1)
-            tops = np.concatenate([points + x * side + d * f.normal for x in a for d in depth])
-        down = np.repeat(-up[None], len(tops), axis=0)
-        hits = self.rays.cast(tops, down)
-        blocked = (hits.distance < s.min_recovery_height) | self._solid(tops)
-        return ok & ~blocked.reshape(-1, len(points)).any(axis=0)
 
     def approach_free(self, plane_id: int, points: np.ndarray) -> np.ndarray:
         """No triangle of other geometry overlaps the approach prism in front of each point."""
@@ -174,24 +181,16 @@ class SceneOracle:
         return self._others[plane_id]
 
     def support(self, plane_id: int, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Share of a grid over each window with mesh within plane_tolerance of the plane, and the RMS
-        distance of those hits to the plane."""
-        s = self.spec
+        """Share of a grid over each window whose first mesh hit lies within plane_tolerance of the
+        window's perch plane, and the RMS distance of those hits to it."""
         f = self.frame(plane_id)
         n = self.scene.planes[plane_id].normal
-        k = SUPPORT_POINTS
-        us = (np.arange(k) + 0.5) / k * s.window_width - s.window_width / 2
-        vs = (np.arange(k) + 0.5) / k * s.window_height - s.window_height / 2
-        offsets = np.array([u * f.axis_u + v * f.axis_v for u in us for v in vs])
+        offsets = window_grid(self.spec, f.axis_u, f.axis_v)
         grid = (points[None, :, :] + offsets[:, None, :]).reshape(-1, 3)
-        start = s.plane_tolerance * 1.001 + 1e-4
+        start = self.spec.surface_depth + 0.02
         hits = self.rays.cast(grid + start * n, np.repeat(-n[None], len(grid), axis=0))
-        found = hits.hit & (hits.distance <= start + s.plane_tolerance)
-        depth = np.where(found, start - hits.distance, 0.0).reshape(len(offsets), len(points))
-        found = found.reshape(len(offsets), len(points))
-        count = found.sum(axis=0)
-        rms = np.sqrt((depth ** 2).sum(axis=0) / np.maximum(count, 1))
-        return count / len(offsets), np.where(count > 0, rms, np.inf)
+        depth = np.where(hits.hit, start - hits.distance, np.inf).reshape(len(offsets), len(points))
+        return local_plane_support(depth, self.spec)[:2]
 
     def visible_share(self, points: np.ndarray, normal: np.ndarray) -> np.ndarray:
         """Share of the target's sample points each point sees."""
@@ -203,30 +202,12 @@ class SceneOracle:
         seen[facing] = ~self.rays.occluded(origins[facing], targets[facing])
         return seen.reshape(len(points), len(t)).mean(axis=1)
 
-    def window_recovery(self, plane_id: int, points: np.ndarray) -> np.ndarray:
-        """Every point of the perch window around each point passes the recovery test."""
-        f = self.frame(plane_id)
-        s = self.spec
-        us = np.linspace(-s.window_width / 2, s.window_width / 2, WINDOW_POINTS)
-        vs = np.linspace(-s.window_height / 2, s.window_height / 2, WINDOW_POINTS)
-        offsets = [u * f.axis_u + v * f.axis_v for u in us for v in vs]
-        around = np.concatenate([points + o for o in offsets])
-        return self.recovery_ok(plane_id, around).reshape(len(offsets), len(points)).all(axis=0)
-
     def _voxel(self, points: np.ndarray) -> np.ndarray:
         """Ground-truth voxel index of world points (written out: BLAS matmul is slow under load)."""
         grid = self.scene.free_space
         inv = np.linalg.inv(grid.world_from_grid)
         local = sum(points[:, k, None] * inv[:3, k] for k in range(3)) + inv[:3, 3]
         return np.floor((local - grid.origin) / grid.voxel_size).astype(np.int64)
-
-    def _solid(self, points: np.ndarray) -> np.ndarray:
-        occupied = self.scene.free_space.occupied
-        idx = self._voxel(points)
-        inside = np.all((idx >= 0) & (idx < occupied.shape), axis=1)
-        out = np.ones(len(points), bool)
-        out[inside] = occupied[tuple(idx[inside].T)]
-        return out
 
     def reachable(self, plane_id: int, points: np.ndarray) -> np.ndarray:
         stand = points + self.spec.standoff * self.scene.planes[plane_id].normal
@@ -246,8 +227,8 @@ class SceneOracle:
             return np.zeros(len(points), bool)
         s = self.spec
         n = self.scene.planes[plane_id].normal
-        ok = self.on_plane(plane_id, points) & self.recovery_ok(plane_id, points)
-        for test in (lambda p: self.reachable(plane_id, p), lambda p: self.window_recovery(plane_id, p),
+        ok = self.on_plane(plane_id, points)
+        for test in (lambda p: self.reachable(plane_id, p), lambda p: self.recovery_ok(plane_id, p),
                      lambda p: self._supported(plane_id, p),
                      lambda p: self.visible_share(p, n) >= s.min_visible_share - 1e-9,
                      lambda p: self.approach_free(plane_id, p)):
@@ -270,6 +251,29 @@ class SceneOracle:
         idx = idx[np.all((idx >= 0) & (idx < fits.shape), axis=1)]
         ids = np.unique(labels[tuple(idx.T)])
         return np.isin(labels, ids[ids > 0])
+
+
+def window_grid(spec: Spec, axis_u: np.ndarray, axis_v: np.ndarray) -> np.ndarray:
+    """(K*K, 3) offsets of the cell centres of a K x K grid over the perch window."""
+    k = SUPPORT_POINTS
+    us = (np.arange(k) + 0.5) / k * spec.window_width - spec.window_width / 2
+    vs = (np.arange(k) + 0.5) / k * spec.window_height - spec.window_height / 2
+    return np.array([u * axis_u + v * axis_v for u in us for v in vs])
+
+
+def local_plane_support(depth: np.ndarray, spec: Spec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Support of windows from their grid's first-hit depths (K, windows; inf: no hit): the perch plane
+    at the median of the depths within plane_tolerance + max_support_rms, the share of the grid
+    within plane_tolerance of it, the RMS distance of those and the plane's offset (the median)."""
+    band = np.abs(depth) <= spec.plane_tolerance + spec.max_support_rms
+    median = np.zeros(depth.shape[1])
+    some = band.any(axis=0)
+    median[some] = [np.median(column[inside]) for column, inside in zip(depth[:, some].T, band[:, some].T)]
+    found = band & (np.abs(depth - median) <= spec.plane_tolerance)
+    count = found.sum(axis=0)
+    squares = np.where(found, (depth - median) ** 2, 0.0).sum(axis=0)
+    rms = np.sqrt(squares / np.maximum(count, 1))
+    return count / depth.shape[0], np.where(count > 0, rms, np.inf), median
 
 
 def triangles_overlap_box(tris: np.ndarray, half: np.ndarray) -> np.ndarray:

@@ -4,24 +4,28 @@ Perch centres on a plane (point, unit normal into free space) are judged by dire
 on the mesh alone: exact triangle-box overlap (separating axes) for the approach prism and the fall
 corridor, ray casts for support and visibility, closest points for the standoff clearance.
   approach  no triangle overlaps window + approach_margin x [START, approach_distance] along the normal;
-  fall      walls: no triangle in the corridor (window width + 2 rho) x [START, 2 rho] out x from
-            min_recovery_height below the window's bottom to its top; ceilings: none in the column
-            (window + rho on every side) x [START, min_recovery_height] below; the window's bottom
-            (walls) or the perch (ceilings) at least min_recovery_height above the floor;
-  support   of a 21 x 21 grid over the window, at least min_support - SUPPORT_SLACK find mesh within
-            plane_tolerance of the plane along the normal, RMS distance <= max_support_rms (the slack:
-            two grids of 21 and 25 steps over one ragged window disagree by up to ~3 points);
-  sight     at least min_visible_share of the target's sample points seen (not behind the plane);
-  reach     the standoff point is at least a drone radius from the mesh.
-START (6 cm): geometry nearer the plane than plane_tolerance + max_support_rms (5 cm) is taken for the
-scanned surface itself (the support test bounds what the window's own surface may do), plus 1 cm for
-faces that cross a box's side between the filter's mesh samples (5 cm apart).
+  fall      walls: no triangle in the corridor (window width + 2 approach_margin) x [START, 2 rho]
+            out x from min_recovery_height below the window's bottom to its top; ceilings: none in
+            the column (window + approach_margin on every side) x [START, min_recovery_height] below;
+            the window's bottom (walls) or the perch (ceilings) at least min_recovery_height above
+            the floor;
+  support   of a 21 x 21 grid over the window, at least min_support - SUPPORT_SLACK find their first
+            mesh hit (cast from START + 1 cm) within plane_tolerance of the window's perch plane (at
+            the median of the hits within plane_tolerance + max_support_rms of the plane), RMS
+            distance to it <= max_support_rms (the slack: two grids of 21 and 25 steps over one
+            ragged window disagree by up to ~3 points);
+  sight     at least min_visible_share of the target's sample points seen (not behind the plane) from
+            the perch seated on its perch plane;
+  reach     the standoff point in front of the seated perch is at least a drone radius from the mesh.
+START (7 cm): geometry nearer the plane than surface_depth (6 cm) is taken for the scanned surface
+itself (the support test bounds what the window's own surface may do), plus 1 cm for faces that
+cross a box's side between the filter's mesh samples (5 cm apart).
 """
 
 from __future__ import annotations
 
 import numpy as np
-from filtering_checker import SUPPORT_POINTS, Spec, surface_kind, triangles_overlap_box
+from filtering_checker import Spec, local_plane_support, surface_kind, triangles_overlap_box, window_grid
 
 from perch_common.mesh import Mesh
 from perch_common.raycast import RayScene
@@ -42,7 +46,7 @@ class ScanOracle:
         self.radii = np.linalg.norm(self.tris - self.centroids[:, None], axis=2).max(axis=1)
         self.floor = float(np.percentile(mesh.vertices @ self.up, 1.0))  # the scan's floor level
         self.target_points = target.sample(spec.visibility_points, seed=spec.seed)
-        self.start = spec.plane_tolerance + spec.max_support_rms + 0.01
+        self.start = spec.surface_depth + 0.01
 
     def frame(self, normal: np.ndarray) -> np.ndarray:
         """Rows u, v, n: v along up projected on the plane (walls), else any in-plane pair."""
@@ -78,32 +82,28 @@ class ScanOracle:
         kind = self.kind(normal)
         if kind == "floor":
             return True
-        rho, h = s.drone_radius, s.min_recovery_height
+        rho, h, margin = s.drone_radius, s.min_recovery_height, s.approach_margin
         if kind == "wall":
             if point @ self.up - s.window_height / 2 - h < self.floor:
                 return False
-            half = np.array([s.window_width / 2 + rho, (s.window_height + h) / 2, (2 * rho - self.start) / 2])
+            half = np.array([s.window_width / 2 + margin, (s.window_height + h) / 2, (2 * rho - self.start) / 2])
             centre = point + axes[1] * (-h / 2) + axes[2] * (self.start + 2 * rho) / 2
             return self.box_free(centre, axes, half)
         if point @ self.up - h < self.floor:
             return False
-        half = np.array([s.window_width / 2 + rho, s.window_height / 2 + rho, (h - self.start) / 2])
+        half = np.array([s.window_width / 2 + margin, s.window_height / 2 + margin, (h - self.start) / 2])
         return self.box_free(point + axes[2] * (self.start + h) / 2, axes, half)
 
-    def support(self, point: np.ndarray, normal: np.ndarray) -> tuple[float, float]:
-        """Share of the window grid with mesh within plane_tolerance along the normal, RMS of those hits."""
-        s, axes = self.spec, self.frame(normal)
-        k = SUPPORT_POINTS
-        us = (np.arange(k) + 0.5) / k * s.window_width - s.window_width / 2
-        vs = (np.arange(k) + 0.5) / k * s.window_height - s.window_height / 2
-        grid = point + np.array([u * axes[0] + v * axes[1] for u in us for v in vs])
-        start = s.plane_tolerance * 1.001 + 1e-4
+    def support(self, point: np.ndarray, normal: np.ndarray) -> tuple[float, float, float]:
+        """Share of the window grid whose first hit lies on the window's perch plane, RMS of those hits
+        and the perch plane's offset along the normal (where the drone touches the scan)."""
+        axes = self.frame(normal)
+        grid = point + window_grid(self.spec, axes[0], axes[1])
+        start = self.start + 0.01
         hits = self.rays.cast(grid + start * axes[2], np.repeat(-axes[2][None], len(grid), axis=0))
-        found = hits.hit & (hits.distance <= start + s.plane_tolerance)
-        if not found.any():
-            return 0.0, float("inf")
-        depth = start - hits.distance[found]
-        return float(found.mean()), float(np.sqrt(np.mean(depth ** 2)))
+        depth = np.where(hits.hit, start - hits.distance, np.inf)[:, None]
+        share, rms, offset = local_plane_support(depth, self.spec)
+        return float(share[0]), float(rms[0]), float(offset[0])
 
     def visible_share(self, point: np.ndarray, normal: np.ndarray) -> float:
         """Share of the target's sample points seen from 2 cm in front of the perch."""
@@ -123,11 +123,12 @@ class ScanOracle:
             out.append("approach")
         if not self.fall_free(point, normal):
             out.append("fall")
-        share, rms = self.support(point, normal)
+        share, rms, offset = self.support(point, normal)
         if share < s.min_support - SUPPORT_SLACK or rms > s.max_support_rms + 1e-9:
             out.append(f"support {share:.2f} rms {rms:.3f}")
-        if self.visible_share(point, normal) < s.min_visible_share - 1e-9:
+        seated = point + offset * normal  # the drone sits on the scan, at the window's perch plane
+        if self.visible_share(seated, normal) < s.min_visible_share - 1e-9:
             out.append("sight")
-        if self.rays.closest_points((point + s.standoff * normal)[None])[2][0] < s.drone_radius:
+        if self.rays.closest_points((seated + s.standoff * normal)[None])[2][0] < s.drone_radius:
             out.append("reach")
         return out

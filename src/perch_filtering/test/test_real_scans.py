@@ -58,14 +58,16 @@ def test_regions_and_placements_pass_the_scan_checker(name, up):
         points, _ = sample_mesh_surface(region.mesh, max(5, int(region.area * 100)), rng)
         failing += sum(bool(oracle.failures(p, region.frame.normal)) for p in points)
         total += len(points)
-    assert failing / total <= 0.03, (failing, total)  # measured 0.5-2.6 % (region borders)
+    assert failing / total <= 0.01, (failing, total)  # measured 0-0.2 % (region borders)
     placed = optimise(mesh, result.regions, target, 5)
     for p in placed.placements:
         assert oracle.failures(p.drone_pose[:3, 3], p.drone_pose[:3, 2]) == [], p.drone_index
-    if name != "apartment.ply":  # the ICL rooms hold 5 safe perches 1 m apart; the apartment does not
+    if name != "apartment.ply":  # the ICL rooms hold 5 safe perches 1 m apart
         assert len(placed.placements) == 5, placed.message
-    else:
-        assert placed.message.startswith(f"{len(placed.placements)} of 5 cameras: "), placed.message
+    else:  # the apartment's regions (whole scan segmented) hold 4 drones 1 m apart, and 4 are placed
+        assert len(placed.placements) == 4, placed.message
+        assert placed.message.startswith("4 of 5 cameras: the 3 perch regions"), placed.message
+        assert "hold 4 drone(s) 1 m apart" in placed.message, placed.message
 
 
 @pytest.mark.slow

@@ -82,7 +82,7 @@ def _candidate_key(perches: Perches, evaluator: Evaluator, spacing: float, angle
                 h.update(np.ascontiguousarray(ring, np.float64).tobytes())
     h.update(evaluator.points.tobytes())
     h.update(repr((evaluator.camera, evaluator.epsilon, perches.drone, perches.up.tolist(),
-                   perches.target_centre.tolist(), spacing, angles)).encode())
+                   perches.target_centre.tolist(), perches.border_margin, spacing, angles)).encode())
     return h.hexdigest()
 
 

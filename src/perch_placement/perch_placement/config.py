@@ -145,6 +145,11 @@ class PlacementConfig:
     reference_spacing: float = param(0.05, "exhaustive reference grid spacing", "m", low=0.005, high=10.0)
     reference_angles: int = param(13, "exhaustive reference pan and tilt steps (each)", low=1, high=64)
     compute_bound: bool = param(True, "report the greedy online optimality bound")
+    border_margin: float = param(0.03, "perches keep this far inside their region's outline (outlines are exact to "
+                                 "a raster cell; 0: up to the outline)", "m", low=0.0, high=1.0)
+    seat_depth: float = param(0.05, "placed perches move along their normal onto the median of the scanned surface "
+                              "under the drone, searched this far either side of the region's plane (0: off)", "m",
+                              low=0.0, high=0.5)
     camera_profile: str = param("",
         "named camera profile (d435, d455, d405, zed2) overriding camera.*; empty: use camera.*",
         choices=("",) + tuple(CAMERA_PROFILES))

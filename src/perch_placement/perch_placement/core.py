@@ -22,7 +22,7 @@ from perch_common.types import CameraPlacement, ExclusionZone, PerchRegion
 from perch_placement.cache import PlacementCache, mesh_digest
 from perch_placement.config import PlacementConfig
 from perch_placement.fitness import Evaluator, placement_cameras
-from perch_placement.perches import Perch, Perches
+from perch_placement.perches import Perch, Perches, seat_on_scan
 from perch_placement.search import METHODS, SearchContext
 from perch_placement.shortfall import shortfall_sentence
 
@@ -75,7 +75,7 @@ def optimise(mesh: Mesh, regions: list[PerchRegion], target: TargetVolume, num_c
     scene = cache.scene(mesh, digest)  # validates the mesh when it is new
     evaluator = Evaluator(scene, points, cfg.camera, cfg.occlusion_epsilon)
     perches = Perches(regions, target.centroid(), cfg.drone, parse_up_axis(cfg.up_axis), cfg.encoding,
-                      cfg.camera.max_zoom)
+                      cfg.camera.max_zoom, cfg.border_margin)
     if fixed:
         evaluator.commit(*placement_cameras(fixed))
     fixed_state = evaluator.info, evaluator.seen  # replaced, never modified in place, by the searches
@@ -86,6 +86,8 @@ def optimise(mesh: Mesh, regions: list[PerchRegion], target: TargetVolume, num_c
     else:
         outcome = METHODS[method](ctx, num_cameras)
         outcome_perches, reason = outcome.perches, outcome.stop_reason
+    if cfg.seat_depth > 0:
+        outcome_perches = [seat_on_scan(p, scene, cfg.drone.radius, cfg.seat_depth) for p in outcome_perches]
     placements = _placements(evaluator, perches, outcome_perches, fixed_state, len(fixed))
     score = evaluator.current()
     bound = float("nan")
@@ -95,8 +97,9 @@ def optimise(mesh: Mesh, regions: list[PerchRegion], target: TargetVolume, num_c
     return PlacementResult(placements, float(score.fitness), float(score.coverage),
                            float(score.mean_uncertainty), bound, evaluator.evaluations, seconds,
                            _message(method, num_cameras, placements, score, bound,
-                                    shortfall_sentence(regions, num_cameras, len(placements),
-                                                       cfg.drone.min_spacing, reason) or reason),
+                                    shortfall_sentence(regions, num_cameras, len(placements), cfg.drone.min_spacing,
+                                                       reason, _capacity(perches, cfg, len(placements), num_cameras))
+                                    or reason),
                            evaluator.ray_tests, evaluator.candidate_evaluations, points,
                            time.process_time() - cpu_start)
 
@@ -129,6 +132,12 @@ def _placements(evaluator: Evaluator, perches: Perches, chosen: list[Perch], fix
             coverage=float(scores.coverage[i]), mean_uncertainty=float(scores.mean_uncertainty[i])))
         before = fitness
     return out
+
+
+def _capacity(perches: Perches, cfg: PlacementConfig, placed: int, asked: int) -> int | None:
+    """How many drones the regions hold as placement sees them (border_margin inside their outlines);
+    None when nothing is missing."""
+    return len(perches.packing(cfg.drone.min_spacing)[0]) if placed < asked else None
 
 
 def _matrix(rotation: np.ndarray, position: np.ndarray) -> np.ndarray:

@@ -47,19 +47,29 @@ class Perches:
     """The perch regions prepared for decoding, gridding and feasibility tests."""
 
     def __init__(self, regions: list[PerchRegion], target_centre: np.ndarray, drone: DroneSpec,
-                 up: np.ndarray = np.array([0.0, 0.0, 1.0]), encoding: str = "plane", max_zoom: float = 1.0):
+                 up: np.ndarray = np.array([0.0, 0.0, 1.0]), encoding: str = "plane", max_zoom: float = 1.0,
+                 border_margin: float = 0.0):
         if not regions:
             raise ValueError("no perch regions given: nothing to place cameras on")
-        self.regions = list(regions)
+        for region in regions:
+            if to_shapely(region.polygons).is_empty:
+                raise ValueError(f"perch region {region.id} has no polygon")
+        # Perches keep border_margin inside their region's outline (plane encoding): outlines are exact
+        # to a raster cell and the filter's geometry samples lie centimetres apart.
+        shapes = [to_shapely(r.polygons).buffer(-border_margin) if border_margin > 0 else to_shapely(r.polygons)
+                  for r in regions]
+        keep = [not shape.is_empty for shape in shapes]
+        if not any(keep):
+            raise ValueError(f"no perch region is wider than 2 x border_margin ({2 * border_margin:g} m): "
+                             "nothing to place cameras on")
+        self.regions = [r for r, k in zip(regions, keep) if k]
+        self.border_margin = float(border_margin)
         self.drone = drone
         self.up = np.asarray(up, np.float64) / np.linalg.norm(up)
         self.target_centre = np.asarray(target_centre, np.float64)
         self.encoding = encoding
         self.max_zoom = float(max_zoom)
-        self.shapes = [to_shapely(r.polygons) for r in self.regions]
-        for shape, region in zip(self.shapes, self.regions):
-            if shape.is_empty:
-                raise ValueError(f"perch region {region.id} has no polygon")
+        self.shapes = [shape for shape, k in zip(shapes, keep) if k]
         import shapely
 
         for shape in self.shapes:
@@ -115,6 +125,14 @@ class Perches:
         import shapely
 
         return shapely.intersects_xy(self.shapes[r], uv[:, 0], uv[:, 1])
+
+    def packing(self, min_spacing: float) -> tuple[np.ndarray, np.ndarray]:
+        """Region indices and world points of drones at least `min_spacing` apart on the regions (as
+        far inside as border_margin, and 1 mm more so that decoded positions stay inside), as many as
+        a packing finds (shortfall.packing)."""
+        from perch_placement.shortfall import packing
+
+        return packing([s.buffer(-1e-3) for s in self.shapes], [r.frame for r in self.regions], min_spacing)
 
     def grid(self, spacing: float) -> tuple[np.ndarray, np.ndarray]:
         """Region indices and world points of a grid (cell centres) inside every region."""
@@ -218,6 +236,38 @@ class Perches:
         for zone in exclusions:
             ok &= np.linalg.norm(perch.drone_position - np.asarray(zone.center), axis=1) >= zone.radius
         return ok
+
+
+SEAT_RAYS = 7  # per side of the drone's footprint: rays that find the scanned surface under a perch
+SEAT_NOISE = 1e-4  # m, smaller seat shifts are left out
+
+
+def seat_on_scan(perch: Perch, scene, half_width: float, depth: float) -> Perch:
+    """The perches moved along their normal onto the scanned surface under the drone.
+
+    A region's plane is fitted to a whole surface; on a noisy scan the surface under one drone lies
+    centimetres in front of or behind it (the filter judged support against that local plane). The
+    perch moves to the median depth of the first hits of SEAT_RAYS x SEAT_RAYS rays over the drone's
+    footprint (+-half_width) that land within `depth` of the plane; the camera moves with it. Perches
+    with fewer than half their rays landing stay where they are."""
+    normal = perch.drone_rotation[:, :, 2]
+    axes_x, axes_y = perch.drone_rotation[:, :, 0], perch.drone_rotation[:, :, 1]
+    steps = np.linspace(-half_width, half_width, SEAT_RAYS)
+    a, b = (g.ravel() for g in np.meshgrid(steps, steps))
+    foot = (perch.drone_position[:, None] + a[None, :, None] * axes_x[:, None] + b[None, :, None] * axes_y[:, None])
+    origins = (foot + depth * normal[:, None]).reshape(-1, 3)
+    hits = scene.cast(origins, np.repeat(-normal, len(a), axis=0))
+    offset = np.where(hits.hit & (hits.distance <= 2 * depth), depth - hits.distance, np.nan).reshape(len(perch), -1)
+    landed = np.isfinite(offset).sum(axis=1) >= 0.5 * len(a)
+    shift = np.zeros(len(perch))
+    if landed.any():
+        shift[landed] = np.nanmedian(offset[landed], axis=1)
+    shift[np.abs(shift) < SEAT_NOISE] = 0.0  # single-precision ray casting, not the scan
+    move = shift[:, None] * normal
+    seated = perch.take(slice(None))
+    seated.drone_position = perch.drone_position + move
+    seated.camera_position = perch.camera_position + move
+    return seated
 
 
 def gimbal_rotation(pan: np.ndarray, tilt: np.ndarray) -> np.ndarray:

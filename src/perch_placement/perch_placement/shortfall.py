@@ -10,52 +10,67 @@ PACKING_GRID = 0.05  # m, grid of candidate drone positions on the regions for t
 
 
 def region_capacity(regions: list[PerchRegion], min_spacing: float) -> int:
-    """Drones that fit on the regions at least `min_spacing` apart: the better of two packings of a
-    5 cm grid of region points, farthest-point and greedy along the points' principal axis (a lower
-    bound on the true maximum; the greedy one is exact on strips)."""
+    """Drones that fit on the regions at least `min_spacing` apart (a lower bound on the true maximum,
+    see `packing`)."""
+    from perch_common.polygons import to_shapely
+
+    return len(packing([to_shapely(r.polygons) for r in regions], [r.frame for r in regions], min_spacing)[0])
+
+
+def packing(shapes: list, frames: list, min_spacing: float) -> tuple[np.ndarray, np.ndarray]:
+    """Drone positions at least `min_spacing` apart on the shapes (shapely, plane coordinates of
+    `frames`): region index (M,) and world points (M,3) of the better of two packings of a 5 cm grid
+    of region points and outline vertices, farthest-point and greedy along the points' principal
+    axis (a lower bound on the true maximum; the greedy one is exact on strips)."""
     import shapely
 
-    points = []
-    for r in regions:
-        for rings in r.polygons:
-            poly = shapely.Polygon(rings[0], rings[1:])
-            lo, hi = np.min(rings[0], axis=0), np.max(rings[0], axis=0)
+    region, points = [], []
+    for r, (shape, frame) in enumerate(zip(shapes, frames)):
+        for poly in getattr(shape, "geoms", [shape]):
+            if poly.is_empty or poly.geom_type != "Polygon":
+                continue
+            ring = np.asarray(poly.exterior.coords, float)
+            lo, hi = ring.min(axis=0), ring.max(axis=0)
             u, v = np.meshgrid(np.arange(lo[0], hi[0] + PACKING_GRID, PACKING_GRID),
                                np.arange(lo[1], hi[1] + PACKING_GRID, PACKING_GRID))
             uv = np.column_stack([u.ravel(), v.ravel()])
-            uv = np.concatenate([uv[shapely.intersects_xy(poly, uv[:, 0], uv[:, 1])], np.asarray(rings[0], float)])
-            points.append(r.frame.to_world(uv))
+            uv = np.concatenate([uv[shapely.intersects_xy(poly, uv[:, 0], uv[:, 1])], ring])
+            region.append(np.full(len(uv), r))
+            points.append(frame.to_world(uv))
     if not points:
-        return 0
-    cloud = np.concatenate(points)
-    return max(_farthest_point_packing(cloud, min_spacing), _greedy_packing(cloud, min_spacing))
+        return np.zeros(0, np.int64), np.zeros((0, 3))
+    owner, cloud = np.concatenate(region), np.concatenate(points)
+    picks = max((_farthest_point_packing(cloud, min_spacing), _greedy_packing(cloud, min_spacing)), key=len)
+    return owner[picks], cloud[picks]
 
 
-def _greedy_packing(cloud: np.ndarray, min_spacing: float) -> int:
-    """Points taken in order along the principal axis, each at least min_spacing from those taken."""
+def _greedy_packing(cloud: np.ndarray, min_spacing: float) -> np.ndarray:
+    """Points taken in order along the principal axis, each at least min_spacing from those taken
+    (indices into cloud)."""
     centred = cloud - cloud.mean(axis=0)
     axis = np.linalg.svd(centred, full_matrices=False)[2][0]
-    taken = np.zeros((0, 3))
-    for p in cloud[np.argsort(centred @ axis)]:
-        if not len(taken) or np.min(np.linalg.norm(taken - p, axis=1)) >= min_spacing - 1e-9:
-            taken = np.vstack([taken, p])
-    return len(taken)
+    taken: list[int] = []
+    for i in np.argsort(centred @ axis, kind="stable"):
+        if not taken or np.min(np.linalg.norm(cloud[taken] - cloud[i], axis=1)) >= min_spacing - 1e-9:
+            taken.append(int(i))
+    return np.array(taken, np.int64)
 
 
-def _farthest_point_packing(cloud: np.ndarray, min_spacing: float) -> int:
-    """Farthest-point sampling from the point farthest from the centroid, while min_spacing holds."""
+def _farthest_point_packing(cloud: np.ndarray, min_spacing: float) -> np.ndarray:
+    """Farthest-point sampling from the point farthest from the centroid, while min_spacing holds
+    (indices into cloud)."""
     nearest = np.linalg.norm(cloud - cloud.mean(axis=0), axis=1)
-    count = 0
-    while len(cloud) and nearest.max() >= (min_spacing - 1e-9 if count else 0.0):
-        chosen = cloud[int(np.argmax(nearest))]
-        count += 1
-        nearest = np.minimum(nearest, np.linalg.norm(cloud - chosen, axis=1)) if count > 1 else \
-            np.linalg.norm(cloud - chosen, axis=1)
-    return count
+    taken: list[int] = []
+    while len(cloud) and nearest.max() >= (min_spacing - 1e-9 if taken else 0.0):
+        chosen = int(np.argmax(nearest))
+        distance = np.linalg.norm(cloud - cloud[chosen], axis=1)
+        nearest = np.minimum(nearest, distance) if taken else distance
+        taken.append(chosen)
+    return np.array(taken, np.int64)
 
 
 def shortfall_sentence(regions: list[PerchRegion], asked: int, placed: int, min_spacing: float,
-                       reason: str = "") -> str:
+                       reason: str = "", capacity: int | None = None) -> str:
     """'3 of 5 cameras: the only perch region, 0.80 m^2, holds 3 drones 1.0 m apart' ("" if none short)."""
     if placed >= asked:
         return ""
@@ -63,7 +78,9 @@ def shortfall_sentence(regions: list[PerchRegion], asked: int, placed: int, min_
     if not regions:
         return f"{head}: the filter left no perch region"
     area = sum(r.area for r in regions)
-    capacity = max(region_capacity(regions, min_spacing), placed)  # the placed drones are a packing too
+    if capacity is None:
+        capacity = region_capacity(regions, min_spacing)
+    capacity = max(capacity, placed)  # the placed drones are a packing too
     where = (f"the only perch region, {area:.2f} m^2," if len(regions) == 1 else
              f"the {len(regions)} perch regions, {area:.2f} m^2 in all (largest {max(r.area for r in regions):.2f} m^2),")
     holds = "holds" if len(regions) == 1 else "hold"

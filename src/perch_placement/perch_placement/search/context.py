@@ -39,7 +39,7 @@ class SearchContext:
         if self._plane is None:
             p = self.perches
             self._plane = p if p.encoding == "plane" else Perches(
-                p.regions, p.target_centre, p.drone, p.up, "plane", p.max_zoom)
+                p.regions, p.target_centre, p.drone, p.up, "plane", p.max_zoom, self.config.border_margin)
         return self._plane
 
     def candidates(self) -> CandidateSet:
@@ -73,22 +73,83 @@ class SearchOutcome:
     stop_reason: str = ""           # why fewer cameras than asked were placed ("" if all)
 
 
+SPACING_SLACK = 1e-3  # m added to the packing's spacing: decoded positions round by far less
+
 # One camera's search: the best encoding found (None if none) and its fitness.
 CameraSearch = Callable[[SearchContext], tuple[np.ndarray | None, float]]
 
 
 def greedy(ctx: SearchContext, k: int, best_camera: CameraSearch) -> SearchOutcome:
-    """One camera at a time, each search seeing the ones placed before; stops when none adds fitness."""
-    chosen = []
+    """One camera at a time, each search seeing the ones placed before; stops when none adds fitness.
+    When that leaves cameras unplaced although the regions hold more drones, `packed_greedy` tries
+    again on a packing of the regions and its answer is taken if it places more cameras."""
+    base = (ctx.evaluator.info, ctx.evaluator.seen, list(ctx.others))
+    chosen: list[Perch] = []
     for _ in range(k):
         before = float(ctx.evaluator.current().fitness)
         x, f = best_camera(ctx)
         if x is None or not f > before + 1e-12:
+            packed = packed_greedy(ctx, k, base)
+            if len(packed) > len(chosen):
+                return SearchOutcome(packed, no_gain_reason(ctx, len(packed)) if len(packed) < k else "")
+            _restore(ctx, base, chosen)
             return SearchOutcome(chosen, no_gain_reason(ctx, len(chosen)))
         perch = ctx.perches.decode(x)
         commit(ctx, perch)
         chosen.append(perch)
     return SearchOutcome(chosen)
+
+
+def packed_greedy(ctx: SearchContext, k: int, base: tuple) -> list[Perch]:
+    """Up to k cameras on the positions of a packing of the regions (min_spacing apart), chosen
+    greedily by fitness with the best of candidate_angles x candidate_angles gimbal settings, each
+    polished in its gimbal, then each polished in position and gimbal with the others fixed.
+
+    Greedy placement under a minimum spacing can strand room: on a small region the first drones
+    sit where each alone sees best and leave no spot min_spacing from all of them, although the
+    region holds more. Starting from a packing keeps room for every camera. Leaves the evaluator
+    holding the answer (plane encoding only; [] otherwise)."""
+    if ctx.perches.encoding != "plane":
+        return []
+    plane, cfg = ctx.perches, ctx.config
+    region, points = plane.packing(cfg.drone.min_spacing + SPACING_SLACK)
+    steps = np.linspace(0.0, 1.0, cfg.candidate_angles) if cfg.candidate_angles > 1 else np.array([0.5])
+    gimbal = np.array([(a, b) for a in steps for b in steps])
+    if plane.max_zoom > 1:
+        gimbal = np.column_stack([gimbal, np.zeros(len(gimbal))])
+    positions = np.array([plane.encode_position(int(r), p) for r, p in zip(region, points)]).reshape(-1, 3)
+    _restore(ctx, base, [])
+    encodings: list[np.ndarray] = []
+    free = np.ones(len(positions), bool)
+    while len(encodings) < k and free.any():
+        spots = np.flatnonzero(free)
+        x = np.column_stack([np.repeat(positions[spots], len(gimbal), axis=0), np.tile(gimbal, (len(spots), 1))])
+        f = ctx.objective(x)
+        j = int(np.argmax(f))
+        if not f[j] > float(ctx.evaluator.current().fitness) + 1e-12:
+            break
+        best, fitness, _ = polish(ctx.objective, x[j], float(f[j]), ctx.rng, cfg.pso.polish_rounds,
+                                  cfg.pso.polish_samples, cfg.pso.polish_step, fixed=3)
+        commit(ctx, plane.decode(best))
+        encodings.append(best)
+        free[spots[j // len(gimbal)]] = False
+    for i in range(len(encodings)):  # each camera polished with the others fixed
+        _restore(ctx, base, [plane.decode(e) for n, e in enumerate(encodings) if n != i])
+        f0 = float(ctx.objective(encodings[i][None])[0])
+        encodings[i], _, _ = polish(ctx.objective, encodings[i], f0, ctx.rng, cfg.pso.polish_rounds,
+                                    cfg.pso.polish_samples, cfg.pso.polish_step)
+    chosen = [plane.decode(e) for e in encodings]
+    _restore(ctx, base, chosen)
+    return chosen
+
+
+def _restore(ctx: SearchContext, base: tuple, placed: list[Perch]) -> None:
+    """Evaluator and spacing constraint holding the state before the search plus `placed`."""
+    info, seen, others = base
+    ctx.evaluator.set_state(info, seen)
+    ctx.others[:] = others
+    for perch in placed:
+        commit(ctx, perch)
 
 
 def commit(ctx: SearchContext, perch: Perch) -> None:
@@ -111,13 +172,14 @@ def per_camera_budget(cfg: PlacementConfig) -> int:
 
 
 def polish(objective, x: np.ndarray, fitness: float, rng: np.random.Generator, rounds: int,
-           samples: int, step: float) -> tuple[np.ndarray, float, int]:
-    """Batched hill climbing from x (region selector kept): Gaussian steps in [0,1]^D, the step
-    halving whenever a round brings no gain. Returns (x, fitness, evaluations)."""
+           samples: int, step: float, fixed: int = 1) -> tuple[np.ndarray, float, int]:
+    """Batched hill climbing from x with its first `fixed` coordinates kept (1: the region selector;
+    3 in the plane encoding: the position too): Gaussian steps in [0,1]^D, the step halving whenever
+    a round brings no gain. Returns (x, fitness, evaluations)."""
     evaluations = 0
     for _ in range(rounds):
         trial = np.clip(x + rng.normal(0.0, step, (samples, len(x))), 0.0, 1.0)
-        trial[:, 0] = x[0]  # stay on the same region
+        trial[:, :fixed] = x[:fixed]  # stay on the same region (and position)
         f = objective(trial)
         evaluations += samples
         j = int(np.argmax(f))
