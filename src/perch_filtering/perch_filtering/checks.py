@@ -1,7 +1,8 @@
 """The safety model's geometric measures on one surface raster: free fall and approach clearance.
 
-Both measure the mesh samples in front of the surface, beyond the depth that counts as the scanned
-surface itself (`surface_depth`: nearer geometry is judged by support). Samples are up to `spacing`
+Both measure the mesh samples in front of the surface, beyond the band that counts as the scanned
+surface itself (nearer geometry is judged by support; the surface's own faces get at least
+plane_tolerance + max_support_rms, so that its warp is not its own obstacle). Samples are up to `spacing`
 apart and are snapped to the nearest cell, so every radius is widened by a share of the spacing
 (GAP) and of a cell (SNAP). Tuned on generated scenes against the independent checker in test/: these margins
 keep precision >= 0.99 while the full worst-case margins cost ~5 points of recall.
@@ -30,10 +31,11 @@ class NearbyGeometry:
     height: np.ndarray
 
 
-def geometry_in_front(samples: MeshSamples, index: SampleIndex, raster: SurfaceRaster, up: np.ndarray,
-                      min_depth: float, max_depth: float, margin: float) -> NearbyGeometry:
+def geometry_in_front(samples: MeshSamples, index: SampleIndex, raster: SurfaceRaster, own_faces: np.ndarray,
+                      up: np.ndarray, min_depth: float, max_depth: float, margin: float,
+                      own_min_depth: float | None = None) -> NearbyGeometry:
     """Samples with min_depth < depth <= max_depth whose plane coordinates lie within `margin` of the
-    raster (the surface's own faces included: its bumps beyond min_depth block like any geometry)."""
+    raster; samples on the surface's own faces only beyond `own_min_depth` (never when None)."""
     f = raster.frame
     rows, cols = raster.shape
     u_lo, u_hi = raster.u0 - margin, raster.u0 + (cols - 1) * raster.cell + margin
@@ -44,6 +46,14 @@ def geometry_in_front(samples: MeshSamples, index: SampleIndex, raster: SurfaceR
     local = project(samples.points[candidates], np.stack([f.normal, f.axis_u, f.axis_v]), f.origin)
     keep = (local[:, 0] > min_depth) & (local[:, 0] <= max_depth)
     keep &= (local[:, 1] >= u_lo) & (local[:, 1] <= u_hi) & (local[:, 2] >= v_lo) & (local[:, 2] <= v_hi)
+    if len(own_faces):
+        own = np.zeros(int(own_faces.max()) + 1, bool)
+        own[own_faces[own_faces < len(own)]] = True
+        candidate = np.flatnonzero(keep)
+        face = samples.face[candidates[candidate]]
+        inside = face < len(own)
+        mine = candidate[inside][own[face[inside]]]
+        keep[mine] = local[mine, 0] > own_min_depth if own_min_depth is not None else False
     sel = local[keep]
     return NearbyGeometry(sel[:, 0], sel[:, 1:], project(samples.points[candidates[keep]], up)[:, 0])
 

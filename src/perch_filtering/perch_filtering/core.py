@@ -156,11 +156,13 @@ def _raster_filters(surface: Surface, mesh: Mesh, samples, index: SampleIndex, s
     spacing = samples.spacing
     roughness = _roughness(surface, mesh)
     # Geometry within the surface band of the plane is the scanned surface (support judges it under the
-    # window); beyond it, anything blocks the approach and the fall, the surface's own bumps included.
+    # window); beyond it, anything blocks the approach and the fall. The surface's own faces may reach
+    # as far as a window's surface may (plane_tolerance + max_support_rms): a scan's warp is no obstacle.
     band = surface_band(scan_noise(scene, raster, config.surface_depth + config.cell), config)
     lookahead = config.lookahead
     margin = max(prism_half, lookahead) + spacing + 2 * config.cell
-    near = geometry_in_front(samples, index, raster, up, band, lookahead + spacing, margin)
+    near = geometry_in_front(samples, index, raster, surface.face_indices, up, band, lookahead + spacing, margin,
+                             max(band, config.plane_tolerance + config.max_support_rms))
     fall = free_fall(raster, near, up, floor_height, lookahead, config.approach_margin, 2 * config.drone_radius,
                      spacing, surface.surface_class)
     fall_ok = fall >= config.min_recovery_height

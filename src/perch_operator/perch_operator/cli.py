@@ -228,6 +228,8 @@ def _mission_and_outputs(node, goal, args, describe: dict, started: float) -> in
         raise PerchError(f"mission failed: {result.message} (reason in {args.out}/FAILED, recording {outputs.mcap})")
     print(f"\n{describe.get('source', 'mission')}: {result.message}")
     print(summary_table(result))
+    if outputs.perches:
+        print(outputs.perches)
     if outputs.removals:
         print(outputs.removals)
     print(f"outputs in {args.out}/: waypoints.yaml, run.mcap, run.rrd, report.html  "

@@ -68,6 +68,24 @@ def removal_text(data: MissionData, count: int = LARGEST_SURFACES) -> str:
     return "\n".join(lines)
 
 
+def perch_text(data: MissionData) -> str:
+    """Each accepted perch, where it is (input frame) and its safety evidence, as text lines ("" if none)."""
+    from perch_operator.cli_operator import evidence_text
+
+    if not data.placements:
+        return ""
+    where = {w.get("drone_index"): w.get("position") for w in data.waypoints}
+    lines = ["perches (safety evidence: the worst values over each perch's region):"]
+    for p in data.placements:
+        region = next((r for r in data.regions if r.id == p.region_id), None)
+        kind = region.surface_class.name.lower() if region is not None else "?"
+        pos = where.get(p.drone_index)
+        at = f"({pos[0]:.2f}, {pos[1]:.2f}, {pos[2]:.2f}) m" if pos is not None else "(?)"
+        evidence = evidence_text(region.evidence) if region is not None else "evidence not measured"
+        lines.append(f"  drone {p.drone_index}  {kind:<7}  at {at}  {evidence}")
+    return "\n".join(lines)
+
+
 def removal_picture(data: MissionData, count: int = LARGEST_SURFACES) -> np.ndarray:
     """Stacked bars (BGR image), one per largest surface: its area coloured by the filter that removed
     it (FILTER_COLOURS) and green for the area kept."""

@@ -39,6 +39,7 @@ class PlanOutputs:
     staged: Path | None = None          # staging folder until the outputs are moved into out_dir
     goal: PlanPerches.Goal | None = None
     removals: str = ""                  # text table: area each filter removed on the largest surfaces
+    perches: str = ""                   # text: each accepted perch with its safety evidence
 
 
 @contextlib.contextmanager
@@ -351,12 +352,13 @@ def write_outputs(outputs: PlanOutputs, out=sys.stderr) -> PlanOutputs:
 def _write_success(outputs: PlanOutputs, out) -> None:
     from perch_operator.mission_data import mission_data_from_result, write_waypoints_yaml
     from perch_operator.render import camera_views
-    from perch_operator.report import removal_text, write_report
+    from perch_operator.report import perch_text, removal_text, write_report
     from perch_operator.rerun_log import write_rrd
 
     staged = outputs.staged
     data = mission_data_from_result(outputs.mcap, outputs.result, outputs.goal)
     outputs.removals = removal_text(data)
+    outputs.perches = perch_text(data)
     write_waypoints_yaml(staged / "waypoints.yaml", data.waypoints)
     if data.mesh is None:
         out.write("perch: neither the goal nor the recording holds the mesh (a bag mission without stage "

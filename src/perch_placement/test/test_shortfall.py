@@ -36,3 +36,28 @@ def test_sentence_names_area_capacity_and_spacing():
     assert text.endswith("but no further perch adds fitness (no feasible perch adds fitness)")
     assert shortfall_sentence([one], 3, 3, 1.0) == ""
     assert shortfall_sentence([], 2, 0, 1.0) == "0 of 2 cameras: the filter left no perch region"
+
+
+def test_greedy_that_strands_room_is_completed_on_a_packing():
+    """A 2.2 m ceiling strip holds 3 drones 1 m apart (2.14 m inside the 3 cm border margin), but the
+    best single perch lies above the target, 0.6 m from the strip's end: greedy placement then fits
+    only 2. The packing completion places all 3, 1 m apart and inside the border margin."""
+    from placement_rooms import box_mesh, rectangle_region
+
+    from perch_common.target import TargetVolume
+    from perch_placement.core import optimise
+
+    mesh = box_mesh((0, 0, 0), (6, 5, 3))
+    strip = rectangle_region(0, (3.0, 2.5, 3.0), (0, 0, -1), 2.2, 0.3, SurfaceClass.CEILING)
+    target = TargetVolume(center=[2.6, 2.5, 1.0], size=[1.0, 1.0, 1.0])
+    placed = optimise(mesh, [strip], target, 3)
+    assert len(placed.placements) == 3, placed.message
+    at = np.array([p.drone_pose[:3, 3] for p in placed.placements])
+    gaps = np.linalg.norm(at[:, None] - at[None], axis=-1)[np.triu_indices(3, 1)]
+    assert gaps.min() >= 1.0 - 1e-9
+    assert at[:, 0].min() >= 1.9 + 0.03 - 1e-6 and at[:, 0].max() <= 4.1 - 0.03 + 1e-6  # border margin kept
+    assert np.all(np.abs(at[:, 1] - 2.5) <= 0.15 - 0.03 + 1e-6)
+    assert placed.message.startswith("placed 3 of 3")
+    one_more = optimise(mesh, [strip], target, 4)
+    assert len(one_more.placements) == 3
+    assert one_more.message.startswith("3 of 4 cameras: the only perch region, 0.66 m^2, holds 3 drone(s) 1 m apart")
