@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from filtering_scenes import Builder, structure
+from filtering_scenes import structure
 from test_filter_cases import TARGET, TOL, kept_points, names_by_id, room, run
 
 from perch_common.mesh import Mesh
