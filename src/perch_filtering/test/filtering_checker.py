@@ -122,17 +122,7 @@ class SceneOracle:
             ok = points @ up - s.window_height / 2 * float(f.axis_v @ up) >= self.floor_z + h
             half = np.array([s.window_width / 2 + margin, (s.window_height + h) / 2, (2 * rho - TOL) / 2])
             offset = f.axis_v * (-h / 2) + f.normal * (TOL + 2 * rho) / 2
-        tris = self._corridor_triangles(plane_id)
-        if len(tris) == 0:
-            return ok
-        centroids = tris.mean(axis=1)
-        reach = np.linalg.norm(half) + np.linalg.norm(tris - centroids[:, None], axis=2).max(axis=1)
-        for k in np.flatnonzero(ok):
-            centre = points[k] + offset
-            near = np.linalg.norm(centroids - centre, axis=1) <= reach
-            if near.any():
-                local = np.einsum("fvk,ak->fva", tris[near] - centre, axes)
-                ok[k] = not triangles_overlap_box(local, half).any()
+        ok[ok] = boxes_free(self._corridor_triangles(plane_id), points[ok] + offset, axes, half)
         return ok
 
     def _corridor_triangles(self, plane_id: int) -> np.ndarray:
@@ -157,18 +147,7 @@ class SceneOracle:
         half = np.array([s.window_width / 2 + s.approach_margin, s.window_height / 2 + s.approach_margin,
                          (s.approach_distance - TOL) / 2])
         axes = np.stack([f.axis_u, f.axis_v, f.normal])
-        out = np.ones(len(points), bool)
-        if len(tris) == 0:
-            return out
-        reach = np.linalg.norm(half) + np.linalg.norm(tris - tris.mean(axis=1, keepdims=True), axis=2).max(axis=1)
-        centroids = tris.mean(axis=1)
-        for k, p in enumerate(points):
-            centre = p + f.normal * (TOL + s.approach_distance) / 2
-            near = np.linalg.norm(centroids - centre, axis=1) <= reach
-            if near.any():
-                local = np.einsum("fvk,ak->fva", tris[near] - centre, axes)
-                out[k] = not triangles_overlap_box(local, half).any()
-        return out
+        return boxes_free(tris, points + f.normal * (TOL + s.approach_distance) / 2, axes, half)
 
     def _other_triangles(self, plane_id: int) -> np.ndarray:
         """Triangles of other planes reaching more than TOL in front of this plane."""
@@ -274,6 +253,21 @@ def local_plane_support(depth: np.ndarray, spec: Spec) -> tuple[np.ndarray, np.n
     squares = np.where(found, (depth - median) ** 2, 0.0).sum(axis=0)
     rms = np.sqrt(squares / np.maximum(count, 1))
     return count / depth.shape[0], np.where(count > 0, rms, np.inf), median
+
+
+def boxes_free(tris: np.ndarray, centres: np.ndarray, axes: np.ndarray, half: np.ndarray) -> np.ndarray:
+    """For each centre (M,3): no triangle (F,3,3) overlaps the box centre + axes.T @ [-half, half]."""
+    out = np.ones(len(centres), bool)
+    if len(tris) == 0:
+        return out
+    centroids = tris.mean(axis=1)
+    reach = np.linalg.norm(half) + np.linalg.norm(tris - centroids[:, None], axis=2).max(axis=1)
+    for k, centre in enumerate(centres):
+        near = np.linalg.norm(centroids - centre, axis=1) <= reach
+        if near.any():
+            local = np.einsum("fvk,ak->fva", tris[near] - centre, axes)
+            out[k] = not triangles_overlap_box(local, half).any()
+    return out
 
 
 def triangles_overlap_box(tris: np.ndarray, half: np.ndarray) -> np.ndarray:
