@@ -132,6 +132,8 @@ def _collapsed_into(mesh: Mesh, faces: np.ndarray, out_faces: np.ndarray, collap
         from fast_simplification import replay_simplification
 
         return replay_simplification(np.asarray(mesh.vertices, np.float32), faces, collapses)[2]
+    if len(kept) == 0:
+        return np.full(mesh.num_vertices, -1)
     index = np.minimum(np.searchsorted(kept, survivor), len(kept) - 1)
     return np.where(kept[index] == survivor, index, -1)
 
