@@ -51,8 +51,11 @@ def mesh_content_id(mesh: Mesh) -> str:
 
 
 def _mesh_bytes(mesh: Mesh) -> int:
-    arrays = (mesh.vertices, mesh.faces, mesh.vertex_colors, mesh.vertex_normals)
-    return sum(a.nbytes for a in arrays if a is not None)
+    """Every array the mesh holds: its own and the per-face data stages derive and keep with it
+    (face cross products, 24 B per face, once face areas or normals were asked for)."""
+    derived = tuple(mesh._cache.values())   # one C-level copy: another thread may be adding to it
+    arrays = (mesh.vertices, mesh.faces, mesh.vertex_colors, mesh.vertex_normals, *derived)
+    return sum(a.nbytes for a in arrays if isinstance(a, np.ndarray))
 
 
 class MeshCache:
@@ -65,33 +68,42 @@ class MeshCache:
     def __init__(self, budget_bytes: int):
         self.budget_bytes = int(budget_bytes)
         self.hosts: set[str] = set()
-        self._items: OrderedDict[str, tuple[Mesh, int]] = OrderedDict()
+        # Sizes are measured afresh at every put and get: a held mesh grows when a stage derives
+        # per-face data from it (the copies requests get share that data with the held mesh).
+        self._items: OrderedDict[str, Mesh] = OrderedDict()
         self._lock = threading.Lock()
-        self.used_bytes = 0
+
+    @property
+    def used_bytes(self) -> int:
+        """Bytes of every array the held meshes hold now."""
+        with self._lock:
+            return sum(_mesh_bytes(m) for m in self._items.values())
+
+    def _evict(self) -> None:
+        """Drop the least recently used meshes until the rest fit the budget (call with the lock held)."""
+        used = sum(_mesh_bytes(m) for m in self._items.values())
+        while used > self.budget_bytes and self._items:
+            _, dropped = self._items.popitem(last=False)
+            used -= _mesh_bytes(dropped)
 
     def put(self, key: str, mesh: Mesh) -> None:
         """Keep `mesh` under `key` (a mesh larger than the whole budget is not kept)."""
-        size = _mesh_bytes(mesh)
         with self._lock:
             if key in self._items:
                 self._items.move_to_end(key)
-                return
-            if size > self.budget_bytes:
-                return
-            self._items[key] = (mesh, size)
-            self.used_bytes += size
-            while self.used_bytes > self.budget_bytes:
-                _, (_, dropped) = self._items.popitem(last=False)
-                self.used_bytes -= dropped
+            elif _mesh_bytes(mesh) <= self.budget_bytes:
+                self._items[key] = mesh
+            self._evict()
 
     def get(self, key: str) -> Mesh | None:
         """The mesh under `key` (now the most recently used), or None."""
         with self._lock:
-            item = self._items.get(key)
-            if item is None:
+            mesh = self._items.get(key)
+            if mesh is None:
                 return None
             self._items.move_to_end(key)
-            return item[0]
+            self._evict()   # it may have grown beyond the budget itself: this request still gets it
+            return mesh
 
     def __contains__(self, key: str) -> bool:
         with self._lock:
@@ -104,7 +116,6 @@ class MeshCache:
         """Drop every mesh."""
         with self._lock:
             self._items.clear()
-            self.used_bytes = 0
 
 
 def _budget_from_env() -> int:

@@ -43,6 +43,26 @@ def test_lru_drops_least_recently_used_beyond_its_budget():
     assert "huge" not in cache and len(cache) == 2
 
 
+def test_budget_counts_the_face_data_stages_derive_from_a_held_mesh():
+    """A held mesh whose face areas a stage computed (24 B per face of cross products, kept with the
+    mesh and shared by the copies requests get) counts them: the cache stays within its budget."""
+    import copy
+
+    meshes = [_mesh(1000, i) for i in range(2)]
+    arrays = meshes[0].vertices.nbytes + meshes[0].faces.nbytes
+    cache = MeshCache(budget_bytes=int(2.5 * arrays))
+    cache.put("a", meshes[0])
+    cache.put("b", meshes[1])
+    assert cache.used_bytes == 2 * arrays
+    for key in ("a", "b"):
+        copy.copy(cache.get(key)).face_areas()   # what a stage does with the mesh of a request
+    derived = 24 * meshes[0].num_faces
+    assert cache.used_bytes <= cache.budget_bytes and "b" in cache and "a" not in cache
+    assert cache.used_bytes == arrays + derived
+    cache.put("c", _mesh(1000, 2))                # the next put evicts by what the meshes hold now
+    assert cache.used_bytes <= cache.budget_bytes
+
+
 def test_book_sends_ids_only_where_held_and_forgets_on_a_miss():
     book = MeshBook()
     assert not book.send_id_only("/perch/segment", "m1")
