@@ -21,11 +21,12 @@ from perch_common.cancellation import checkpoint
 from perch_segmentation import stats as st
 from perch_segmentation.adjacency import unique_edges
 
-# Priorities are compared at this many decimals (of their bound): coplanar neighbours, which scans and
-# plane-optimised meshes have many of, all have energy ~0 to float rounding; rounded, they tie, and the
-# tie goes to the larger edge index instead of to rounding noise, which differs when the same mesh is
-# given in another orientation.
-PRIORITY_DECIMALS = 6
+# Priorities are compared at this many decimals (of their bound; energy to 4e-7 m^2, 0.6 mm RMS):
+# coplanar neighbours, which scans and plane-optimised meshes have many of, have energy ~0 to float
+# rounding, and a mesh given in another orientation moves its vertices by float32 rounding (~5e-7 m),
+# which changes small faces' energies in the 5th digit. Rounded, such pairs tie and the tie goes to the
+# larger edge index, not to the rounding (6 decimals still let the ICL living room's tilted copy differ).
+PRIORITY_DECIMALS = 3
 
 
 @dataclass
