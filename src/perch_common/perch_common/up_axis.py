@@ -302,7 +302,8 @@ def choose_up(text: str, mesh, convention: str = "+z", option: str = "--up",
     """The up axis for `mesh` given the user's setting `text` ("auto", "+z", "-y", "x y z").
 
     auto: the estimate when confident, else `convention` (the file format's, see file_convention)
-    with a warning. A given axis the mesh contradicts raises UpAxisError naming the axis the mesh
+    with a warning; when the estimate's axis is clear and lies more than 10 deg from the convention's,
+    that axis with the convention's sign. A given axis the mesh contradicts raises UpAxisError naming the axis the mesh
     suggests and `option`.
     """
     estimate = estimate_mesh_up(mesh, down_hint, gravity)
@@ -310,7 +311,10 @@ def choose_up(text: str, mesh, convention: str = "+z", option: str = "--up",
         if estimate.confident:
             return UpChoice(estimate.up, estimate.source if estimate.source == "gravity" else "estimate", estimate)
         fallback = parse_up_axis(convention)
-        if estimate.axis_confidence >= CONFIDENT:  # only the sign is in doubt: the convention picks it
+        # The convention's axis itself, unless the estimate clearly found another vertical (more than
+        # 10 deg from it): then that axis, the convention choosing only its sign. An unsure estimate a
+        # few degrees off the convention must not tilt the plan.
+        if estimate.axis_confidence >= CONFIDENT and abs(estimate.up @ fallback) < COS_10:
             fallback = estimate.toward(fallback)
         return UpChoice(fallback, "file convention", estimate, [
             f"up axis: the estimate ({estimate.axis_name()}) is not confident ({estimate.confidence:.2f}); using "

@@ -97,6 +97,21 @@ def test_empty_box_says_the_sign_is_weak_and_auto_falls_back_to_the_convention()
     assert choose_up("auto", y_vertical, file_convention("room.ply")).up @ [0, 1, 0] > 0.999  # axis clear, sign from +z: nearest
 
 
+def test_an_unsure_estimate_a_few_degrees_off_the_convention_gives_the_convention_exactly():
+    """The box tilted by 3 deg: the estimate follows the tilt but is not confident; auto then plans on
+    the file's +z exactly, not on the tilted axis (issue 10: fall back to the file's convention)."""
+    from scipy.spatial.transform import Rotation
+
+    tilt = np.eye(4)
+    tilt[:3, :3] = Rotation.from_euler("x", 3.0, degrees=True).as_matrix()
+    tilted = box_room().transformed(tilt)
+    estimate = estimate_mesh_up(tilted)
+    assert not estimate.confident and 2.5 < angle_deg(np.abs(estimate.up), [0, 0, 1]) < 3.5
+    choice = choose_up("auto", tilted, file_convention("room.ply"))
+    assert choice.source == "file convention" and choice.up.tolist() == [0, 0, 1]
+    assert "not confident" in choice.warnings[0]
+
+
 def test_file_conventions():
     assert file_convention("scan.GLB") == "+y" and file_convention("a.gltf") == "+y"
     assert file_convention("a.ply") == "+z" and file_convention(None) == "+z"
