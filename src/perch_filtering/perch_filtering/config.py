@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from perch_common.config import base_config, param
+from perch_common.config import StageNodeConfig, param
 from perch_common.transforms import parse_up_axis
 
 
@@ -105,18 +105,13 @@ class FilterConfig:
 
 
 @dataclass
-class FilterNodeConfig(FilterConfig):
+class FilterNodeConfig(FilterConfig, StageNodeConfig[FilterConfig]):
     """The perch_filtering node's parameters: the filter settings plus the node's own."""
 
     up_axis: str = param("+z", "up axis when a request leaves `up` zero")
-    introspection: bool = param(True, "publish service events (recorder)")
-
-    def filter_config(self) -> FilterConfig:
-        """The filter settings alone."""
-        return base_config(self, FilterConfig)
 
     def validate(self) -> "FilterNodeConfig":
         """Raise ValueError naming every absurd value, the up axis included."""
-        self.filter_config().validate()
+        self.stage_config().validate()
         parse_up_axis(self.up_axis)
         return self

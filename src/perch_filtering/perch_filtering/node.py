@@ -66,7 +66,7 @@ class FilterNode(Node):
     def _filter(self, request: srv.Filter.Request, response: srv.Filter.Response) -> srv.Filter.Response:
         node_config = read_config(self, FilterNodeConfig)
         try:
-            config = config_from_spec(request.spec, node_config.filter_config()).validate()
+            config = config_from_spec(request.spec, node_config.stage_config()).validate()
         except ValueError as exc:
             raise ValueError(f"perch spec: {exc}") from exc
         target = target_from_msg(request.target)
