@@ -12,6 +12,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from io import StringIO
 
+# Imported with this module, before any mission: a signal (SIGTERM, SIGINT) that interrupts the first
+# import of ruamel.yaml mid-way leaves it half-initialised, and the recording could not be closed.
+from ruamel.yaml import YAML
+
 ROSBAG2_VERSION = 9
 ROSBAG2_METADATA = "rosbag2"  # metadata record name and its one key, as rosbag2's MCAP plugin writes them
 SERIALIZED_METADATA = "serialized_metadata"
@@ -31,8 +35,6 @@ def qos_profile(reliable: bool = True, transient_local: bool = False, depth: int
 
 
 def _yaml(data) -> str:
-    from ruamel.yaml import YAML
-
     yaml = YAML(typ="safe")
     yaml.default_flow_style = False
     stream = StringIO()
