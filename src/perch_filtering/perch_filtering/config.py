@@ -43,7 +43,7 @@ class FilterConfig:
     plane_tolerance: float = param(0.03, "scanned surface within this of a window's perch plane supports it", "m",
                                    low=0.0, high=1.0)
     surface_depth: float = param(0.06, "most depth in front of a surface's plane that counts as the scanned surface "
-                                 "itself (plane_tolerance plus 3 x the surface's roughness, capped here; support "
+                                 "itself (plane_tolerance plus 3 sigma of the surface's scan noise, capped here; support "
                                  "judges it under the window); farther geometry is an obstacle to the approach "
                                  "prism and the fall corridor", "m", low=0.0, high=1.0)
     floor_merge_tolerance: float = param(0.1, "floor pieces within this height of the lowest are one floor", "m",

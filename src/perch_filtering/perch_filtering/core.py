@@ -202,13 +202,19 @@ def _support(w: _Work, scene: RayScene, kernel: np.ndarray, config: FilterConfig
     import cv2
 
     under = cv2.dilate(w.alive.astype(np.uint8), kernel).astype(bool)
-    depth = first_surface_depth(scene, w.raster, under, w.band + config.cell)
-    window = local_window_support(depth, kernel, config.plane_tolerance + config.max_support_rms,
-                                  config.plane_tolerance, SUPPORT_BIN * config.plane_tolerance)
-    ok = (window.share >= config.min_support - 1e-6) & (window.rms <= config.max_support_rms)
+    share = np.zeros(w.raster.shape, np.float32)
+    rms = np.full(w.raster.shape, np.inf, np.float32)
+    if under.any():  # the statistics on the part of the raster the live windows cover
+        rows, cols = np.nonzero(under)
+        box = (slice(rows.min(), rows.max() + 1), slice(cols.min(), cols.max() + 1))
+        depth = first_surface_depth(scene, w.raster, under, w.band + config.cell)[box]
+        window = local_window_support(depth, kernel, config.plane_tolerance + config.max_support_rms,
+                                      config.plane_tolerance, SUPPORT_BIN * config.plane_tolerance)
+        share[box], rms[box] = window.share, window.rms
+    ok = (share >= config.min_support - 1e-6) & (rms <= config.max_support_rms)
     w.removal.support = float((w.alive & ~ok).sum() * w.raster.cell_area)
     w.alive &= ok
-    w.evidence.update(support_share=window.share, flatness_rms=window.rms)
+    w.evidence.update(support_share=share, flatness_rms=rms)
 
 
 def _reachability(w: _Work, grid: FlightGrid, scene: RayScene, config: FilterConfig) -> np.ndarray:

@@ -85,26 +85,27 @@ def local_window_support(depth: np.ndarray, kernel: np.ndarray, band: float, tol
     d = np.where(valid, depth, 0.0).astype(np.float32)
     edges = np.arange(-band, band + bin_width, bin_width)
     bins = np.clip(np.floor((d + band) / bin_width).astype(np.int64), 0, len(edges) - 2)
-    occupied = [b for b in np.unique(bins[valid])]
     area = float(kernel.sum())
     half = 0.5 * _box_sum(valid, kernel)
     below = np.zeros(shape, np.float32)
     median = np.full(shape, np.nan, np.float32)
-    for b in occupied:
-        counts = _box_sum(valid & (bins == b), kernel)
-        crossed = np.isnan(median) & (below + counts >= half) & (half > 0)
-        position = np.clip((half - below) / np.maximum(counts, 1e-6), 0.0, 1.0)
+    counts = {}  # bin -> window counts, kept for the second pass
+    for b in np.unique(bins[valid]):
+        mine = valid & (bins == b)
+        counts[b] = (mine, _box_sum(mine, kernel))
+        crossed = np.isnan(median) & (below + counts[b][1] >= half) & (half > 0)
+        position = np.clip((half - below) / np.maximum(counts[b][1], 1e-6), 0.0, 1.0)
         median[crossed] = (edges[b] + position * bin_width)[crossed]
-        below += counts
+        below += counts[b][1]
     m = np.nan_to_num(median, nan=0.0)
     count = np.zeros(shape, np.float32)
     squares = np.zeros(shape, np.float32)
-    for b in occupied:
+    for b, (mine, n) in counts.items():
         near = np.abs(edges[b] + 0.5 * bin_width - m) <= tolerance
         if not near.any():
             continue
-        mine = (valid & (bins == b)).astype(np.float32)
-        n, s1, s2 = _box_sum(mine, kernel), _box_sum(mine * d, kernel), _box_sum(mine * d * d, kernel)
+        dm = np.where(mine, d, 0.0)
+        s1, s2 = _box_sum(dm, kernel), _box_sum(dm * dm, kernel)
         count += np.where(near, n, 0.0)
         squares += np.where(near, s2 - 2.0 * m * s1 + m * m * n, 0.0)
     with np.errstate(divide="ignore", invalid="ignore"):

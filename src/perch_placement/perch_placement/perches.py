@@ -51,13 +51,13 @@ class Perches:
                  border_margin: float = 0.0):
         if not regions:
             raise ValueError("no perch regions given: nothing to place cameras on")
-        for region in regions:
-            if to_shapely(region.polygons).is_empty:
+        outlines = [to_shapely(r.polygons) for r in regions]
+        for region, outline in zip(regions, outlines):
+            if outline.is_empty:
                 raise ValueError(f"perch region {region.id} has no polygon")
         # Perches keep border_margin inside their region's outline (plane encoding): outlines are exact
         # to a raster cell and the filter's geometry samples lie centimetres apart.
-        shapes = [to_shapely(r.polygons).buffer(-border_margin) if border_margin > 0 else to_shapely(r.polygons)
-                  for r in regions]
+        shapes = [o.buffer(-border_margin) if border_margin > 0 else o for o in outlines]
         keep = [not shape.is_empty for shape in shapes]
         if not any(keep):
             raise ValueError(f"no perch region is wider than 2 x border_margin ({2 * border_margin:g} m): "

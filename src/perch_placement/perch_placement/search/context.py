@@ -89,7 +89,7 @@ def greedy(ctx: SearchContext, k: int, best_camera: CameraSearch) -> SearchOutco
         before = float(ctx.evaluator.current().fitness)
         x, f = best_camera(ctx)
         if x is None or not f > before + 1e-12:
-            packed = packed_greedy(ctx, k, base)
+            packed = packed_greedy(ctx, k, base, len(chosen))
             if len(packed) > len(chosen):
                 return SearchOutcome(packed, no_gain_reason(ctx, len(packed)) if len(packed) < k else "")
             _restore(ctx, base, chosen)
@@ -100,7 +100,7 @@ def greedy(ctx: SearchContext, k: int, best_camera: CameraSearch) -> SearchOutco
     return SearchOutcome(chosen)
 
 
-def packed_greedy(ctx: SearchContext, k: int, base: tuple) -> list[Perch]:
+def packed_greedy(ctx: SearchContext, k: int, base: tuple, placed: int = 0) -> list[Perch]:
     """Up to k cameras on the positions of a packing of the regions (min_spacing apart), chosen
     greedily by fitness with the best of candidate_angles x candidate_angles gimbal settings, each
     polished in its gimbal, then each polished in position and gimbal with the others fixed.
@@ -108,11 +108,14 @@ def packed_greedy(ctx: SearchContext, k: int, base: tuple) -> list[Perch]:
     Greedy placement under a minimum spacing can strand room: on a small region the first drones
     sit where each alone sees best and leave no spot min_spacing from all of them, although the
     region holds more. Starting from a packing keeps room for every camera. Leaves the evaluator
-    holding the answer (plane encoding only; [] otherwise)."""
+    holding the answer (plane encoding only; [] otherwise, and [] without touching the evaluator when
+    the packing holds no more than the `placed` cameras greedy found)."""
     if ctx.perches.encoding != "plane":
         return []
     plane, cfg = ctx.perches, ctx.config
     region, points = plane.packing(cfg.drone.min_spacing + SPACING_SLACK)
+    if len(points) <= placed:
+        return []
     steps = np.linspace(0.0, 1.0, cfg.candidate_angles) if cfg.candidate_angles > 1 else np.array([0.5])
     gimbal = np.array([(a, b) for a in steps for b in steps])
     if plane.max_zoom > 1:
