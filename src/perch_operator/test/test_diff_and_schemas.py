@@ -62,7 +62,8 @@ def test_limit_caps_the_output():
 
 
 @pytest.mark.parametrize("type_name", ["perch_interfaces/msg/Proposal", "perch_interfaces/msg/PerchWaypoint",
-                                       "geometry_msgs/msg/PoseArray", "perch_interfaces/msg/PerchRegion"])
+                                       "geometry_msgs/msg/PoseArray", "perch_interfaces/msg/PerchRegion",
+                                       "perch_interfaces/msg/ReconstructionProgress"])
 def test_topic_schemas_decode_with_mcap_ros2(type_name):
     from mcap_ros2._dynamic import generate_dynamic
     from rclpy.serialization import serialize_message
@@ -71,10 +72,14 @@ def test_topic_schemas_decode_with_mcap_ros2(type_name):
     if type_name.endswith("Proposal"):
         message.id, message.reason = 42, "too close to the lamp"
         message.placement.drone_pose.position.z = 2.5
+    if type_name.endswith("ReconstructionProgress"):
+        message.mode, message.dropped_reasons, message.dropped_counts = message.MODE_LIVE, ["queue_full"], [3]
     decoded = generate_dynamic(type_name, full_definition(type_name))[type_name](serialize_message(message))
     if type_name.endswith("Proposal"):
         assert decoded.id == 42 and decoded.reason == "too close to the lamp"
         assert decoded.placement.drone_pose.position.z == 2.5
+    if type_name.endswith("ReconstructionProgress"):
+        assert decoded.mode == "live" and decoded.dropped_reasons == ["queue_full"] and list(decoded.dropped_counts) == [3]
 
 
 PRIMITIVES = {"bool", "byte", "char", "float32", "float64", "int8", "uint8", "int16", "uint16", "int32",

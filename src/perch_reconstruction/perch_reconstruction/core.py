@@ -178,6 +178,7 @@ def reconstruct_frames(frames: Iterable[RGBDFrame], intrinsics: Intrinsics, conf
                        frame_id: str = "map") -> tuple[Mesh, ReconstructionStats]:
     """Integrate `frames` and finish (extract, clean); the input frame is named `frame_id`."""
     recon = Reconstructor(config, use_poses)
+    recon.stats.frame_id = frame_id  # known before the first frame: progress reports name it
     for i, frame in enumerate(frames):
         checkpoint(f"frame {i}")
         recon.add_frame(frame, intrinsics)

@@ -15,10 +15,12 @@ from typing import Callable
 import numpy as np
 
 from perch_common.errors import PerchError
+from perch_common.frames import aligned_frame_name
 from perch_common.mesh import Mesh
 from perch_reconstruction.config import ReconstructionNodeConfig
 from perch_reconstruction.core import ReconstructionStats, Reconstructor
 from perch_reconstruction.frames import Intrinsics, RGBDFrame
+from perch_reconstruction.progress import MODE_LIVE, NO_CAMERA_INFO, QUEUE_FULL, UNPAIRED, ReconstructionProgress
 from perch_reconstruction.sync import FrameAssembler, PoseBuffer
 
 QUIET_S = 0.5
@@ -81,12 +83,12 @@ class LiveIngest:
             before = self.assembler.unpaired_dropped
             frame = pair()
             if self.assembler.unpaired_dropped > before:
-                self.dropped["unpaired"] += self.assembler.unpaired_dropped - before
+                self.dropped[UNPAIRED] += self.assembler.unpaired_dropped - before
             if frame is None:
                 return
             if len(self._queue) >= self.config.queue_size:
                 self._queue.popleft()
-                self.dropped["queue_full"] += 1
+                self.dropped[QUEUE_FULL] += 1
             self._queue.append(frame)
             self._wake.notify_all()
 
@@ -122,7 +124,7 @@ class LiveIngest:
                 self._wake.wait(0.05)
             intrinsics = self.intrinsics
             if intrinsics is None:
-                self.dropped["no_camera_info"] += 1
+                self.dropped[NO_CAMERA_INFO] += 1
                 message = (f"no camera info on {c.camera_info_topic} within {c.camera_info_timeout:.1f} s of the "
                            "first image; publish the depth camera's sensor_msgs/CameraInfo there or set "
                            "camera_info_topic")
@@ -199,15 +201,12 @@ class LiveIngest:
         with self._lock, self._volume_lock:
             self._reset_state()
 
-    def status(self) -> dict:
-        """Progress counters for the progress topic."""
+    def status(self) -> ReconstructionProgress:
+        """Progress counters for the progress topic; the frame is the finished mesh's (gravity-aligned frame_id)."""
         with self._lock:
-            stats = self.recon.stats
-            return {"frames_received": stats.frames_received, "frames_integrated": stats.frames_integrated,
-                    "frames_dropped": self.frames_dropped, "dropped": dict(self.dropped),
-                    "frames_without_pose": stats.frames_without_pose, "frames_lost": stats.frames_lost,
-                    "frames_over_budget": stats.frames_over_budget, "queued": len(self._queue),
-                    "blocks": stats.blocks, "last_error": self.last_error}
+            return ReconstructionProgress.from_stats(
+                MODE_LIVE, self.recon.stats, frame_id=aligned_frame_name(self.config.frame_id),
+                dropped=self.dropped, queued=len(self._queue), last_error=self.last_error)
 
     def stop(self) -> None:
         """Stop the integration thread."""

@@ -2,20 +2,18 @@
 
 Services: /perch/reconstruct (perch_interfaces/srv/Reconstruct), /perch/reconstruct/reset
 (std_srvs/Trigger), /perch/clean_mesh (perch_interfaces/srv/CleanMesh).
-Progress: /perch/reconstruct/progress (std_msgs/String, JSON) every progress_period seconds.
+Progress: /perch/reconstruct/progress (perch_interfaces/msg/ReconstructionProgress) every progress_period seconds.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
 import sys
 
 import numpy as np
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from perch_common.conventions import STAGE_SERVICES
@@ -26,6 +24,7 @@ from perch_common.ros.node_main import run_node
 from perch_common.ros.params import declare_config
 from perch_common.ros.service import answering, create_stage_service
 from perch_common.ros.static_transforms import StaticTransformPublisher, alignment_to_msg
+from perch_interfaces import msg as pm
 from perch_interfaces import srv
 from perch_reconstruction import images
 from perch_reconstruction.bag_write import BagTopics
@@ -33,6 +32,23 @@ from perch_reconstruction.cleaning import CleanReport, clean_mesh_with_report
 from perch_reconstruction.config import ReconstructionNodeConfig
 from perch_reconstruction.core import reconstruct_bag
 from perch_reconstruction.live import LiveIngest
+from perch_reconstruction.progress import ReconstructionProgress, bag_progress
+
+# ReconstructionProgress fields copied by name (uint32 counters, float64 seconds)
+_COUNTERS = ("frames_received", "frames_integrated", "frames_dropped", "frames_without_pose", "frames_lost",
+             "frames_over_budget", "queued", "blocks", "faces_raw", "faces")
+_SECONDS = ("seconds_integrate", "seconds_track", "seconds_clean")
+
+
+def progress_to_msg(progress: ReconstructionProgress, stamp) -> pm.ReconstructionProgress:
+    """perch_interfaces/msg/ReconstructionProgress of a progress report, stamped `stamp`."""
+    msg = pm.ReconstructionProgress(
+        mode=progress.mode, bag_path=progress.bag_path, last_error=progress.last_error,
+        dropped_reasons=list(progress.dropped), dropped_counts=[int(n) for n in progress.dropped.values()],
+        **{name: int(getattr(progress, name)) for name in _COUNTERS},
+        **{name: float(getattr(progress, name)) for name in _SECONDS})
+    msg.header.stamp, msg.header.frame_id = stamp, progress.frame_id
+    return msg
 
 
 def input_qos(lossless: bool, depth: int) -> QoSProfile:
@@ -75,10 +91,10 @@ class ReconstructionNode(Node):
                 from geometry_msgs.msg import PoseStamped as PoseType
             self.create_subscription(PoseType, c.pose_topic, self._on_pose, input_qos(c.lossless_replay, 100),
                                      callback_group=meta)
-        self.progress = self.create_publisher(String, "perch/reconstruct/progress", 10)
+        self.progress = self.create_publisher(pm.ReconstructionProgress, "perch/reconstruct/progress", 10)
         self.static_transforms = StaticTransformPublisher(self)
         self.create_timer(c.progress_period, self._publish_status, callback_group=meta)
-        self._offline_status: dict | None = None
+        self._offline_status: ReconstructionProgress | None = None  # the bag a Reconstruct call works on
         self._frame_ids: dict[str, str] = {}
         self._frame_warned = False
         for srv_type, name, callback in ((srv.Reconstruct, STAGE_SERVICES["reconstruct"], self._reconstruct),
@@ -125,8 +141,8 @@ class ReconstructionNode(Node):
         self.ingest.on_pose(images.stamp_ns(msg), images.pose_from_msg(msg))
 
     def _publish_status(self) -> None:
-        status = self._offline_status or {"mode": "live", **self.ingest.status()}
-        self.progress.publish(String(data=json.dumps(status)))
+        status = self._offline_status or self.ingest.status()
+        self.progress.publish(progress_to_msg(status, self.get_clock().now().to_msg()))
 
     # --- services -------------------------------------------------------------------------------
     @answering
@@ -164,7 +180,9 @@ class ReconstructionNode(Node):
         topics = BagTopics(c.color_topic, c.depth_topic, c.camera_info_topic, c.pose_topic)
 
         def progress(stats) -> None:
-            self._offline_status = {"mode": "bag", "bag": request.bag_path, **stats.summary()}
+            self._offline_status = bag_progress(request.bag_path, stats)
+
+        self._offline_status = bag_progress(request.bag_path)  # reading the bag: counters at zero, frame unknown
 
         return reconstruct_bag(request.bag_path, config, bool(request.use_poses), topics, progress=progress)
 

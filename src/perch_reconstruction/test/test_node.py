@@ -28,7 +28,7 @@ def ros(tmp_path_factory):
     log = tmp_path_factory.mktemp("node") / "node.log"
     with ros_context():
         client = rclpy.create_node("perch_reconstruction_test")
-        params = {"lossless_replay": True, "queue_size": 200, "gravity": "[0.0, 0.0, -1.0]", "progress_period": 0.5}
+        params = {"lossless_replay": True, "queue_size": 200, "gravity": "[0.0, 0.0, -1.0]", "progress_period": 0.1}
         with node_process("perch_reconstruction.node", params=params, log_path=log) as proc:
             yield client, proc, log
         client.destroy_node()
@@ -41,21 +41,22 @@ def _reconstruct(client, bag_path: str = "", use_poses: bool = True, timeout: fl
                         Reconstruct.Request(bag_path=bag_path, use_poses=use_poses), timeout=timeout)
 
 
-def _progress(client, until=lambda status: True, timeout: float = 60.0) -> list[dict]:
-    """Messages on /perch/reconstruct/progress until one satisfies `until` (or the timeout)."""
+def _progress(client, until=lambda status: True, timeout: float = 60.0) -> list:
+    """ReconstructionProgress messages on /perch/reconstruct/progress until one satisfies `until` (or the timeout)."""
     import time
 
     import rclpy
-    from std_msgs.msg import String
+
+    from perch_interfaces.msg import ReconstructionProgress
 
     received = []
-    sub = client.create_subscription(String, "/perch/reconstruct/progress", lambda m: received.append(m.data), 10)
+    sub = client.create_subscription(ReconstructionProgress, "/perch/reconstruct/progress", received.append, 10)
     deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline and not (received and until(json.loads(received[-1]))):
+    while time.monotonic() < deadline and not (received and until(received[-1])):
         rclpy.spin_once(client, timeout_sec=0.1)
     client.destroy_subscription(sub)
     assert received, f"no progress message within {timeout} s"
-    return [json.loads(r) for r in received]
+    return received
 
 
 def test_live_replay_matches_offline(ros, synthetic_bag):
@@ -71,9 +72,13 @@ def test_live_replay_matches_offline(ros, synthetic_bag):
                            "--rate", "1", "--wait-subscribers", "20"], capture_output=True, text=True, timeout=120)
     assert play.returncode == 0, play.stderr
     assert json.loads(play.stdout.strip().splitlines()[-1])["published"]["/camera/color/image_raw"] == 40
-    progress = _progress(client, until=lambda status: status["frames_integrated"] == 40)
-    assert all(p["mode"] == "live" for p in progress) and progress[-1]["frames_integrated"] == 40
-    assert progress[-1]["frames_dropped"] == 0 and progress[-1]["last_error"] == ""
+    progress = _progress(client, until=lambda status: status.frames_integrated == 40)
+    assert all(p.mode == p.MODE_LIVE and p.header.frame_id == "map_gravity_aligned" for p in progress)
+    last = progress[-1]
+    assert (last.frames_received, last.frames_integrated, last.frames_dropped, last.queued) == (40, 40, 0, 0)
+    assert list(last.dropped_reasons) == ["queue_full", "unpaired", "no_camera_info"]
+    assert list(last.dropped_counts) == [0, 0, 0] and last.last_error == ""
+    assert last.blocks > 0 and last.seconds_integrate > 0 and last.header.stamp.sec > 0
     reply = _reconstruct(client)
     assert reply.success, reply.message + "\n" + log.read_text()
     assert reply.frames_integrated == offline_stats.frames_integrated == 40, reply.message + "\n" + log.read_text()
@@ -93,10 +98,19 @@ def test_live_replay_matches_offline(ros, synthetic_bag):
 
 def test_offline_bag_through_the_service(ros, synthetic_bag):
     from perch_common.ros.conversions import mesh_from_msg
+    from perch_interfaces.msg import ReconstructionProgress
 
     client, proc, _ = ros
-    reply = _reconstruct(client, str(synthetic_bag), use_poses=True)
+    received = []
+    sub = client.create_subscription(ReconstructionProgress, "/perch/reconstruct/progress", received.append, 10)
+    reply = _reconstruct(client, str(synthetic_bag), use_poses=True)  # spins the client: progress arrives meanwhile
+    client.destroy_subscription(sub)
     assert reply.success, reply.message
+    # While the bag is read its report is zeros with no frame yet; once integrating, the bag's pose frame.
+    bag = [p for p in received if p.mode == ReconstructionProgress.MODE_BAG]
+    assert bag and all(p.bag_path == str(synthetic_bag) for p in bag), [(p.mode, p.bag_path) for p in received]
+    assert all(p.header.frame_id == ("map_gravity_aligned" if p.frames_received else "") for p in bag)
+    assert [p.frames_received for p in bag] == sorted(p.frames_received for p in bag) and bag[-1].frames_received <= 40
     offline, _ = reconstruct_bag(synthetic_bag, ReconstructionConfig(), use_poses=True)
     assert abs(mesh_from_msg(reply.mesh).num_faces - offline.num_faces) <= 0.01 * offline.num_faces
     assert "up from gravity" in reply.message
