@@ -155,3 +155,49 @@ def test_clean_mesh_service(ros, synthetic):
     assert reply.mesh.header.frame_id == "map_gravity_aligned" and reply.up_source == "gravity"
     back = cleaned.transformed(alignment_from_msg(reply.alignment).to_input())
     np.testing.assert_allclose(back.bounds(), scene.mesh.bounds(), atol=0.15)
+
+
+def _progress_during(client, call) -> tuple:
+    """(reply of `call()`, the progress messages that arrived while it ran: the call spins the client)."""
+    from perch_interfaces.msg import ReconstructionProgress
+
+    received = []
+    sub = client.create_subscription(ReconstructionProgress, "/perch/reconstruct/progress", received.append, 10)
+    try:
+        return call(), received
+    finally:
+        client.destroy_subscription(sub)
+
+
+def test_real_kitchen_progress_live_and_bag_in_the_pose_and_odometry_frames(ros, kitchen_dir, tmp_path):
+    """The real 7-Scenes frames: played live, then reconstructed as a bag with its poses and with odometry."""
+    from std_srvs.srv import Trigger
+
+    from perch_interfaces.msg import ReconstructionProgress
+
+    client, proc, log = ros
+    bag = tmp_path / "kitchen.mcap"
+    done = subprocess.run([sys.executable, "-m", "perch_common.cli", "bag", "from-frames", str(kitchen_dir),
+                           "-o", str(bag), "--limit", "30"], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert call_service(client, Trigger, "/perch/reconstruct/reset", Trigger.Request()).success
+    play = subprocess.run([sys.executable, "-m", "perch_common.cli", "bag", "play", str(bag), "--rate", "1",
+                           "--wait-subscribers", "20"], capture_output=True, text=True, timeout=120)
+    assert play.returncode == 0, play.stderr
+    live = _progress(client, until=lambda status: status.frames_integrated == 30)[-1]
+    assert live.mode == live.MODE_LIVE and live.header.frame_id == "map_gravity_aligned", log.read_text()
+    assert (live.frames_received, live.frames_integrated, live.frames_dropped, live.frames_without_pose) == (30, 30, 0, 0)
+    assert list(live.dropped_counts) == [0, 0, 0] and live.blocks > 0 and live.faces == 0
+    for use_poses, frame in ((True, "map_gravity_aligned"), (False, "odom_gravity_aligned")):
+        reply, received = _progress_during(client, lambda: _reconstruct(client, str(bag), use_poses=use_poses))
+        assert reply.success and reply.frames_integrated == 30, reply.message
+        assert reply.mesh.header.frame_id == frame
+        reports = [p for p in received if p.mode == ReconstructionProgress.MODE_BAG]
+        assert reports and all(p.bag_path == str(bag) for p in reports)
+        assert all(p.header.frame_id == (frame if p.frames_received else "") for p in reports)
+        assert all(p.frames_received <= 30 and p.frames_lost == 0 for p in reports)
+    # The call over, the topic reports the live integration again, unchanged by the bags.
+    after = _progress(client)[-1]
+    assert after.mode == after.MODE_LIVE and after.frames_integrated == 30 and after.bag_path == ""
+    assert call_service(client, Trigger, "/perch/reconstruct/reset", Trigger.Request()).success
+    assert proc.poll() is None
