@@ -78,11 +78,13 @@ class Mesh:
         """(F,3) triangle centroids."""
         return self.triangles().mean(axis=1)
 
-    def face_colors(self) -> np.ndarray | None:
-        """(F,3) mean vertex colour in [0,1], or None without colours."""
+    def face_colors(self, which: np.ndarray | None = None) -> np.ndarray | None:
+        """(F,3) mean vertex colour in [0,1] of every face (or of the faces `which` indexes), or None
+        without colours."""
         if self.vertex_colors is None:
             return None
-        return self.vertex_colors[self.faces].astype(np.float64).mean(axis=1) / 255.0
+        faces = self.faces if which is None else self.faces[which]
+        return self.vertex_colors[faces].astype(np.float64).mean(axis=1) / 255.0
 
     def bounds(self) -> np.ndarray:
         """(2,3) min and max corner."""

@@ -179,17 +179,13 @@ def removal_label(surface: pm.Surface, removal: pm.FilterRemoval, to_input: np.n
     return marker
 
 
-def mission_markers(proposals: list[pm.Proposal], regions: list[pm.PerchRegion], target: pm.TargetVolume,
-                    camera: pm.CameraSpec, to_input: np.ndarray, frame_id: str, stamp,
-                    surfaces: list[pm.Surface] = (), removals: list[pm.FilterRemoval] = ()) -> MarkerArray:
-    """The whole current picture: DELETEALL, then regions, target and every proposal (input frame).
+def scene_markers(regions: list[pm.PerchRegion], target: pm.TargetVolume, to_input: np.ndarray, frame_id: str,
+                  stamp, surfaces: list[pm.Surface] = (), removals: list[pm.FilterRemoval] = ()) -> list[Marker]:
+    """What stays the same through a mission: surfaces, removal labels, regions and the target (input frame).
 
-    regions and target are in the stages' gravity-aligned frame (`to_input` takes them to the input
-    frame); proposals are the published ones (already in the input frame).
+    regions and target are in the stages' gravity-aligned frame; `to_input` takes them to the input frame.
     """
-    clear = Marker(action=Marker.DELETEALL)
-    clear.header.frame_id, clear.header.stamp = frame_id, stamp
-    markers = [clear]
+    markers = []
     for surface in surfaces:  # every segmented surface, outlined in its class colour
         rgb = CLASS_COLOURS.get(surface.surface_class, CLASS_COLOURS[pm.Surface.CLASS_UNKNOWN])
         markers.append(surface_outline(surface, to_input, frame_id, stamp, rgb, "surfaces", 0.02))
@@ -199,8 +195,29 @@ def mission_markers(proposals: list[pm.Proposal], regions: list[pm.PerchRegion],
             markers.append(removal_label(by_id[removal.surface_id], removal, to_input, frame_id, stamp,
                                          FILTER_NAMES, FILTER_COLOURS))
     markers += [m for m in (region_marker(r, to_input, frame_id, stamp) for r in regions) if m is not None]
-    target_msg = target_marker(target, to_input, frame_id, stamp)
-    markers += [target_msg] if target_msg is not None else []
+    markers.append(target_marker(target, to_input, frame_id, stamp))
+    return [m for m in markers if m is not None]
+
+
+def mission_markers(proposals: list[pm.Proposal], regions: list[pm.PerchRegion], target: pm.TargetVolume,
+                    camera: pm.CameraSpec, to_input: np.ndarray, frame_id: str, stamp,
+                    surfaces: list[pm.Surface] = (), removals: list[pm.FilterRemoval] = (),
+                    scene: list[Marker] | None = None) -> MarkerArray:
+    """The whole current picture: DELETEALL, then surfaces, regions, target and every proposal (input frame).
+
+    regions and target are in the stages' gravity-aligned frame (`to_input` takes them to the input
+    frame); proposals are the published ones (already in the input frame). `scene`: the mission's
+    scene_markers built once (re-stamped here; regions, target, surfaces and removals are then unused),
+    because re-building a few hundred outlines for every proposal event costs more than the rest.
+    """
+    clear = Marker(action=Marker.DELETEALL)
+    clear.header.frame_id, clear.header.stamp = frame_id, stamp
+    if scene is None:
+        scene = scene_markers(regions, target, to_input, frame_id, stamp, surfaces, removals)
+    elif stamp is not None:
+        for marker in scene:
+            marker.header.stamp = stamp
+    markers = [clear, *scene]
     for proposal in proposals:
         markers += proposal_markers(proposal, camera, frame_id, stamp)
     return MarkerArray(markers=[m for m in markers if m is not None])

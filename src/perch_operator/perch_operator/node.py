@@ -42,7 +42,7 @@ from perch_interfaces.action import PlanPerches
 from perch_operator.config import OperatorConfig
 from perch_operator.crop import crop_mesh
 from perch_operator.goal_watch import GoalWatch
-from perch_operator.markers import camera_frame, mission_markers
+from perch_operator.markers import camera_frame, mission_markers, scene_markers
 from perch_operator.messages import box_from_ros, pose_array_msg, proposal_msg, waypoint_msg, waypoint_set_msg
 from perch_operator.mission import Mission, MissionOptions, Operator, decide
 from perch_operator.mission_data import placement_config
@@ -86,6 +86,7 @@ class OperatorNode(Node):
         self.markers_pub = self.create_publisher(MarkerArray, "perch/markers", LATCHED_LAST)
         self._shown: dict[int, pm.Proposal] = {}  # the current mission's proposals as last published
         self._camera = None
+        self._scene_markers: tuple[tuple, list] | None = None   # (what they show, markers): built once a mission
         # Each proposal's simulated view (latched, one per proposal: a late viewer gets them all).
         self.view_pub = self.create_publisher(Image, "perch/views/image", LATCHED)
         self.view_info_pub = self.create_publisher(CameraInfo, "perch/views/camera_info", LATCHED)
@@ -140,7 +141,7 @@ class OperatorNode(Node):
     def _run_mission(self, goal_handle) -> PlanPerches.Result:
         config = read_config(self, OperatorConfig)
         self._mission_id = UUID(uuid=goal_handle.goal_id.uuid)
-        self._shown, self._camera, self._view_scene = {}, None, None
+        self._shown, self._camera, self._view_scene, self._scene_markers = {}, None, None, None
         self.waypoint_set_pub.publish(waypoint_set_msg(self._mission_id, [], self._frame_id(),
                                                        self.get_clock().now().to_msg()))
         options = MissionOptions(
@@ -256,23 +257,28 @@ class OperatorNode(Node):
         if self._camera is None:  # the camera the placement stage used: the request's, else its configuration
             self._camera = request.camera if request.camera.specified else placement_config().camera
         self._shown[published.id] = published
+        operator, stamp = self.operator, self.get_clock().now().to_msg()
+        shown = (request, operator.alignment, operator.surfaces, operator.removals)  # the same objects all mission
+        if self._scene_markers is None or any(a is not b for a, b in zip(self._scene_markers[0], shown)):
+            self._scene_markers = shown, scene_markers(list(request.regions), request.target,
+                                                       operator.alignment.to_input(), operator.alignment.input_frame,
+                                                       stamp, operator.surfaces, operator.removals)
         self.markers_pub.publish(mission_markers(
-            list(self._shown.values()), list(request.regions), request.target, self._camera,
-            self.operator.alignment.to_input(), self.operator.alignment.input_frame, self.get_clock().now().to_msg(),
-            self.operator.surfaces, self.operator.removals))
+            list(self._shown.values()), [], request.target, self._camera, operator.alignment.to_input(),
+            operator.alignment.input_frame, stamp, scene=self._scene_markers[1]))
 
     def _publish_view(self, proposal: Proposal) -> None:
         """The new proposal's simulated camera view (Image + CameraInfo in its drone's camera frame)."""
         request = self.operator.optimise_request
         camera = placement_config().camera  # the renderer's camera model (what the placement stage assumes)
         try:
-            mesh = mesh_from_request(request.mesh, "mission mesh")
-            if self._view_scene is None:
+            if self._view_scene is None or self._view_scene[0] is not request:   # one mesh and BVH per request
                 from perch_placement.core import scene_for
 
-                self._view_scene = scene_for(mesh)
-            rgb = render_proposal_view(mesh, self._view_scene, proposal.placement, camera,
-                                       target_from_msg(request.target))
+                mesh = mesh_from_request(request.mesh, "mission mesh")
+                self._view_scene = request, mesh, scene_for(mesh)
+            _, mesh, scene = self._view_scene
+            rgb = render_proposal_view(mesh, scene, proposal.placement, camera, target_from_msg(request.target))
         except (PerchError, MeshError, ValueError) as exc:  # a view is a picture: the mission goes on
             self.get_logger().warning(f"no simulated view for proposal {proposal.id}: {exc}")
             return

@@ -34,6 +34,8 @@ def undistort(xd: np.ndarray, yd: np.ndarray, coeffs, iterations: int = 20) -> t
     """Invert `distort` by fixed-point iteration (as OpenCV's undistortPoints)."""
     k1, k2, p1, p2, k3 = (float(c) for c in coeffs)
     x, y = xd.copy(), yd.copy()
+    if not (k1 or k2 or p1 or p2 or k3):   # no distortion (the default camera): the iteration is the identity
+        return x, y
     for _ in range(iterations):
         r2 = x * x + y * y
         radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))

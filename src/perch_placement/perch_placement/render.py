@@ -56,8 +56,9 @@ def _shade(mesh: Mesh, hits, dirs: np.ndarray, hit: np.ndarray) -> np.ndarray:
     """Face colour (grey without colours) times a head-light Lambert term; black sky."""
     out = np.zeros((len(dirs), 3))
     faces = hits.face[hit]
-    base = mesh.face_colors()
-    albedo = base[faces] if base is not None else np.full((len(faces), 3), 0.75)
+    albedo = mesh.face_colors(faces)   # the hit faces' only: a view hits far fewer faces than a building has
+    if albedo is None:
+        albedo = np.full((len(faces), 3), 0.75)
     unit = dirs[hit] / np.linalg.norm(dirs[hit], axis=1, keepdims=True)
     lambert = np.abs((hits.normal[hit] * unit).sum(axis=1))
     out[hit] = albedo * (0.35 + 0.65 * lambert)[:, None]
