@@ -29,7 +29,8 @@ class RayScene:
     """A mesh prepared for ray queries; build once, query many times."""
 
     def __init__(self, mesh: Mesh):
-        import open3d as o3d
+        from perch_common.open3d_loader import open3d
+        o3d = open3d()
 
         self.mesh = mesh
         self._scene = o3d.t.geometry.RaycastingScene()

@@ -73,7 +73,8 @@ def refine_alignment(source: Mesh, target: Mesh, initial: np.ndarray, max_distan
 
     The trajectory alignment fixes the gauge only up to how well positions constrain rotation;
     comparing surfaces needs the surfaces aligned (as in standard reconstruction evaluation)."""
-    import open3d as o3d
+    from perch_common.open3d_loader import open3d
+    o3d = open3d()
 
     def cloud(mesh: Mesh, s: int) -> "o3d.geometry.PointCloud":
         pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(sample_surface(mesh, samples, s)))

@@ -26,7 +26,8 @@ def depth_mm(depth_m: np.ndarray) -> np.ndarray:
 
 
 def _o3d():
-    import open3d as o3d
+    from perch_common.open3d_loader import open3d
+    o3d = open3d()
 
     # Open3D logs warnings on stdout (per frame from the SLAM model), which would corrupt JSON output.
     o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)

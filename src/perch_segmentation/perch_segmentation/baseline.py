@@ -17,7 +17,8 @@ from perch_common.types import PlaneFrame, Surface
 
 
 def _point_cloud(mesh: Mesh):
-    import open3d as o3d
+    from perch_common.open3d_loader import open3d
+    o3d = open3d()
 
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(mesh.vertices))
     normals = np.zeros_like(mesh.vertices)
@@ -67,7 +68,8 @@ def planar_patches(mesh: Mesh) -> tuple[float, np.ndarray, list[Surface]]:
 def ransac(mesh: Mesh, distance: float = 0.02, min_points: int = 200, max_planes: int = 60,
            seed: int = 0) -> tuple[float, np.ndarray, list[Surface]]:
     """(seconds, face labels, surfaces) of sequential RANSAC plane extraction (seeded)."""
-    import open3d as o3d
+    from perch_common.open3d_loader import open3d
+    o3d = open3d()
 
     o3d.utility.random.seed(seed)
     pcd = _point_cloud(mesh)
