@@ -27,6 +27,12 @@ def _nodes(context):
 def generate_launch_description():
     """The launch arguments, the Fast DDS liveliness profile and the graph's nodes."""
     share = get_package_share_directory("perch_operator")
+    # Perch's profile frees each message's buffers with it once rmw_fastrtps takes the profile's QoS;
+    # a user's own profile (FASTRTPS_DEFAULT_PROFILES_FILE set) is used as rmw_fastrtps always does.
+    own_profile = "FASTRTPS_DEFAULT_PROFILES_FILE" in os.environ
+    memory_policy = [] if own_profile else [
+        SetEnvironmentVariable("RMW_FASTRTPS_USE_QOS_FROM_XML",
+                               EnvironmentVariable("RMW_FASTRTPS_USE_QOS_FROM_XML", default_value="1"))]
     return LaunchDescription([
         DeclareLaunchArgument("params_file", default_value=os.path.join(share, "config", "perch.yaml"),
                               description="ROS parameter file (node_name: ros__parameters: ...)"),
@@ -36,8 +42,6 @@ def generate_launch_description():
         SetEnvironmentVariable("FASTRTPS_DEFAULT_PROFILES_FILE",
                                EnvironmentVariable("FASTRTPS_DEFAULT_PROFILES_FILE",
                                                    default_value=os.path.join(share, "config", "fastdds.xml"))),
-        # ... and its memory policy applies (each message's buffers freed with it).
-        SetEnvironmentVariable("RMW_FASTRTPS_USE_QOS_FROM_XML",
-                               EnvironmentVariable("RMW_FASTRTPS_USE_QOS_FROM_XML", default_value="1")),
+        *memory_policy,
         OpaqueFunction(function=_nodes),
     ])

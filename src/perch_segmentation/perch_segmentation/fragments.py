@@ -59,7 +59,10 @@ def absorb_fragments(table: np.ndarray, edges: np.ndarray, min_area: float, max_
         ok &= ~guarded | (np.abs(np.einsum("ij,ij->i", frag_normal, host_normal)) >= guard_cos)
         # And its faces must mostly face the host's way (RMS cosine, blind to the flipped faces of
         # crumpled scan patches): a crumb of a rough wall does, a strip of a box's side does not.
-        facing2 = st.quadratic_form(table[frag, st.NORMAL2], host_normal) / table[frag, st.AREA]
+        # (a zero-area fragment, from degenerate faces, faces nothing: it stays apart, as NaN did)
+        area = table[frag, st.AREA]
+        facing2 = np.divide(st.quadratic_form(table[frag, st.NORMAL2], host_normal), area,
+                            out=np.zeros(len(frag)), where=area > 0)
         ok &= facing2 >= _MIN_FACING ** 2
         if not ok.any():
             break
