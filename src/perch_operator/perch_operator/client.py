@@ -36,7 +36,13 @@ def run_mission(node, goal: PlanPerches.Goal, timeout: float = 600.0, server_wai
         deadline = time.monotonic() + timeout
         sent = client.send_goal_async(
             goal, feedback_callback=(lambda m: on_feedback(m.feedback)) if on_feedback else None)
-        _spin_until(node, sent, deadline, "sending the goal")
+        # The coordinator answers a goal at once (accepted or refused); no answer means it never got it.
+        try:
+            _spin_until(node, sent, min(deadline, time.monotonic() + server_wait), "sending the goal")
+        except TimeoutError:
+            raise TimeoutError(f"the coordinator did not answer the goal within {server_wait:.0f} s (another "
+                               "process on this ROS domain may serve the action without running it: "
+                               "`ros2 action info` lists the servers, a restart of the graph clears it)") from None
         handle = sent.result()
         if not handle.accepted:
             raise GoalRejected("the coordinator rejected the goal: another mission is running (wait for it, "

@@ -98,6 +98,13 @@ class OperatorNode(Node):
         self._next_proposal_id = 1
         self.get_logger().info("ready: /perch/crop, /perch/plan_perches, /perch/confirm, /perch/review_surfaces")
 
+    def destroy_node(self) -> None:
+        """Destroy the action server too: rclpy's destroy_node leaves action servers alive, and a
+        destroyed coordinator's server (in a process that goes on, e.g. after a one-process graph
+        stopped) would keep accepting goals from the graph that nobody serves."""
+        self.action.destroy()
+        super().destroy_node()
+
     # --- crop ---------------------------------------------------------------------------------
 
     @answering

@@ -288,7 +288,7 @@ def run_recorded_mission(node, goal: PlanPerches.Goal, out_dir: Path, progress: 
         recorder.close()
         finished = outputs.result.message
         if isinstance(exc, TimeoutError):
-            reason = f"mission {exc}; cancelled"
+            reason = f"{exc}; cancelled"
         elif finished:
             reason = f"interrupted (SIGINT) before the outputs were written; the mission itself ended: {finished}"
         else:
