@@ -8,7 +8,6 @@ its descriptor, so a file, the command line and a running node are checked alike
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 import math
 import os
@@ -110,28 +109,19 @@ def default_config_path() -> Path:
     raise ConfigError("config/perch.yaml not found; set PERCH_CONFIG to your parameter file")
 
 
-# Parsed parameter files by (path, mtime, size): a mission reads config/perch.yaml several times
-# (views, markers, outputs), each parse ~50 ms in pure Python; an edited file is read again.
-_parsed: dict[tuple[str, int, int], dict] = {}
-_SafeLoader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)   # libyaml when PyYAML has it
+_SafeLoader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)   # libyaml (~5x faster) when PyYAML has it
 
 
 def load_yaml(path: str | Path) -> dict:
-    """The mapping in a YAML parameter file (raises ConfigError naming the file); a fresh copy per call."""
+    """The mapping in a YAML parameter file (raises ConfigError naming the file)."""
     path = Path(path)
     try:
-        stat = path.stat()
-        key = (str(path.resolve()), stat.st_mtime_ns, stat.st_size)
-        if key not in _parsed:
-            if len(_parsed) >= 32:
-                _parsed.clear()
-            _parsed[key] = yaml.load(path.read_text(), Loader=_SafeLoader) or {}
-        data = _parsed[key]
+        data = yaml.load(path.read_text(), Loader=_SafeLoader) or {}
     except (OSError, yaml.YAMLError) as exc:
         raise ConfigError(f"{path}: cannot read parameters ({exc})") from exc
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: expected a mapping of node names to ros__parameters")
-    return copy.deepcopy(data)
+    return data
 
 
 def node_names(path: str | Path | None = None) -> list[str]:

@@ -201,22 +201,24 @@ def scene_markers(regions: list[pm.PerchRegion], target: pm.TargetVolume, to_inp
 
 def mission_markers(proposals: list[pm.Proposal], regions: list[pm.PerchRegion], target: pm.TargetVolume,
                     camera: pm.CameraSpec, to_input: np.ndarray, frame_id: str, stamp,
-                    surfaces: list[pm.Surface] = (), removals: list[pm.FilterRemoval] = (),
-                    scene: list[Marker] | None = None) -> MarkerArray:
+                    surfaces: list[pm.Surface] = (), removals: list[pm.FilterRemoval] = ()) -> MarkerArray:
     """The whole current picture: DELETEALL, then surfaces, regions, target and every proposal (input frame).
 
     regions and target are in the stages' gravity-aligned frame (`to_input` takes them to the input
-    frame); proposals are the published ones (already in the input frame). `scene`: the mission's
-    scene_markers built once (re-stamped here; regions, target, surfaces and removals are then unused),
-    because re-building a few hundred outlines for every proposal event costs more than the rest.
+    frame); proposals are the published ones (already in the input frame).
     """
+    return current_picture(proposals, camera, frame_id, stamp,
+                           scene_markers(regions, target, to_input, frame_id, stamp, surfaces, removals))
+
+
+def current_picture(proposals: list[pm.Proposal], camera: pm.CameraSpec, frame_id: str, stamp,
+                    scene: list[Marker]) -> MarkerArray:
+    """DELETEALL, the mission's `scene` (scene_markers, re-stamped: a node builds them once a mission,
+    not for every proposal event) and every proposal."""
     clear = Marker(action=Marker.DELETEALL)
     clear.header.frame_id, clear.header.stamp = frame_id, stamp
-    if scene is None:
-        scene = scene_markers(regions, target, to_input, frame_id, stamp, surfaces, removals)
-    elif stamp is not None:
-        for marker in scene:
-            marker.header.stamp = stamp
+    for marker in scene:
+        marker.header.stamp = stamp
     markers = [clear, *scene]
     for proposal in proposals:
         markers += proposal_markers(proposal, camera, frame_id, stamp)

@@ -42,7 +42,7 @@ from perch_interfaces.action import PlanPerches
 from perch_operator.config import OperatorConfig
 from perch_operator.crop import crop_mesh
 from perch_operator.goal_watch import GoalWatch
-from perch_operator.markers import camera_frame, mission_markers, scene_markers
+from perch_operator.markers import camera_frame, current_picture, scene_markers
 from perch_operator.messages import box_from_ros, pose_array_msg, proposal_msg, waypoint_msg, waypoint_set_msg
 from perch_operator.mission import Mission, MissionOptions, Operator, decide
 from perch_operator.mission_data import placement_config
@@ -270,9 +270,8 @@ class OperatorNode(Node):
             self._scene_markers = shown, scene_markers(list(request.regions), request.target,
                                                        operator.alignment.to_input(), operator.alignment.input_frame,
                                                        stamp, operator.surfaces, operator.removals)
-        self.markers_pub.publish(mission_markers(
-            list(self._shown.values()), [], request.target, self._camera, operator.alignment.to_input(),
-            operator.alignment.input_frame, stamp, scene=self._scene_markers[1]))
+        self.markers_pub.publish(current_picture(list(self._shown.values()), self._camera,
+                                                 operator.alignment.input_frame, stamp, self._scene_markers[1]))
 
     def _publish_view(self, proposal: Proposal) -> None:
         """The new proposal's simulated camera view (Image + CameraInfo in its drone's camera frame)."""

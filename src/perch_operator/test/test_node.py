@@ -79,4 +79,3 @@ def test_mission_with_a_missing_stage_names_it(ros, room_msg):
     assert not result.success
     assert "stage segment (/perch/segment)" in result.message and "not available" in result.message
     assert result.stage_names == ["crop"]
-
