@@ -105,4 +105,8 @@ if ! fresh python "$py"; then
     || die "pip install -e of the Perch packages failed"
   mark python "$py"
 fi
+# 7. Bytecode for the sources: an interpreter run with PYTHONDONTWRITEBYTECODE (common in CI and
+# containers) writes none and compiles every Perch module afresh on each start (~0.5 s of a plan).
+# Only changed files are compiled; stale .pyc files are ignored by Python anyway.
+"$VENV/bin/python" -m compileall -q -j 0 src >/dev/null || die "compiling the Perch sources failed"
 say "ready: .venv/bin/perch --help"

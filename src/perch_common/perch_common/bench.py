@@ -16,7 +16,7 @@ def register(sub) -> None:
     benches = parser.add_subparsers(dest="bench", metavar="BENCHMARK")
     from perch_common.cli import load_plugins
 
-    load_plugins("perch.benchmarks", benches)
+    load_plugins("perch.benchmarks", benches, level=1)
     parser.set_defaults(func=lambda args: parser.print_help() or 2)
 
 

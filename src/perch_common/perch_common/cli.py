@@ -15,9 +15,34 @@ from perch_common.errors import report_errors
 from perch_common.namespace import NAMESPACE_ENV, normalise
 from perch_common.threads import limit_threads
 
+# The command words of the argv being parsed (`perch bench mission ...` -> ["bench", "mission"]):
+# plugins load only the named subcommand's module when one is named (see load_plugins).
+_requested: list[str] = []
 
-def build_parser() -> argparse.ArgumentParser:
-    """The `perch` argument parser with every installed command (entry points perch.commands)."""
+
+def command_words(argv: list[str]) -> list[str]:
+    """The leading positional words of a `perch` command line (the global --namespace skipped);
+    empty when an option comes first (e.g. `perch --help`)."""
+    words: list[str] = []
+    tokens = iter(argv)
+    for token in tokens:
+        if token == "--namespace":
+            next(tokens, None)
+        elif token.startswith("--namespace="):
+            continue
+        elif token.startswith("-"):
+            break
+        else:
+            words.append(token)
+    return words
+
+
+def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
+    """The `perch` argument parser (entry points perch.commands). Given the argv it will parse, it
+    loads only the command that argv names (importing every command's module costs half a second);
+    without argv, or with none or an unknown one named, every command (for the help and the error's
+    choices)."""
+    _requested[:] = command_words(argv or [])
     parser = argparse.ArgumentParser(
         prog="perch",
         description="Perch: where should each camera drone perch? Stages: reconstruct, crop, segment, "
@@ -25,13 +50,20 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--namespace", metavar="NS", default=None,
                         help="ROS namespace of the graph to run or talk to (default: $PERCH_NAMESPACE, else none)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    load_plugins("perch.commands", sub)
+    load_plugins("perch.commands", sub, level=0)
     return parser
 
 
-def load_plugins(group: str, subparsers) -> None:
-    """Call every `register(subparsers)` of an entry-point group; a broken plugin only warns."""
-    for ep in sorted(entry_points(group=group), key=lambda e: e.name):
+def load_plugins(group: str, subparsers, level: int | None = None) -> None:
+    """Call the `register(subparsers)` of an entry-point group; a broken plugin only warns.
+
+    With `level`, and the command word at that depth naming one of the group's entries, only that
+    entry is loaded; otherwise all of them."""
+    plugins = sorted(entry_points(group=group), key=lambda e: e.name)
+    if level is not None and level < len(_requested):
+        named = [ep for ep in plugins if ep.name == _requested[level]]
+        plugins = named or plugins
+    for ep in plugins:
         try:
             ep.load()(subparsers)
         except Exception as exc:  # one broken package must not take the whole CLI down
@@ -41,7 +73,8 @@ def load_plugins(group: str, subparsers) -> None:
 def main(argv: list[str] | None = None) -> int:
     """Run the `perch` command line; returns the exit code."""
     limit_threads()
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(argv)
     args = parser.parse_args(argv)
     if args.namespace is not None:
         try:

@@ -40,3 +40,16 @@ def release_memory() -> None:
     libc = _libc()
     if libc is not None:
         libc.malloc_trim(0)
+
+
+def freeze_startup_objects() -> None:
+    """Exempt what exists once the nodes are up (modules, classes, message types: ~100k objects)
+    from every later garbage collection.
+
+    A full collection traverses every tracked object: with the imports of a graph that is 70 ms,
+    paid after each stage's reply (`release_memory`) and at every automatic full collection, on
+    the mission's critical path in a one-process graph. Garbage is collected first, so only live
+    start-up objects are frozen; everything created later is collected as before.
+    """
+    gc.collect()
+    gc.freeze()

@@ -24,6 +24,31 @@ def test_help_lists_core_commands():
         assert command in out.stdout
 
 
+def _commands(parser) -> set[str]:
+    import argparse
+
+    action = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return set(action.choices)
+
+
+def test_a_named_command_loads_only_its_own_plugin():
+    from perch_common.cli import build_parser, command_words
+
+    assert command_words(["--namespace", "site_a", "bench", "up", "--json"]) == ["bench", "up"]
+    assert command_words(["--namespace=site_a", "plan", "--mesh", "m.ply"]) == ["plan"]
+    assert command_words(["--help", "plan"]) == []
+    assert _commands(build_parser(["plan", "--mesh", "m.ply"])) == {"plan"}
+    bench = build_parser(["bench", "up", "--json"])
+    assert _commands(bench) == {"bench"}
+    assert _commands(bench._subparsers._group_actions[0].choices["bench"]) == {"up"}
+    # No command, or an unknown one: every command, so that help and the error list them all.
+    everything = _commands(build_parser())
+    assert {"plan", "mesh", "bench", "launch", "operator"} <= everything
+    assert _commands(build_parser(["plam"])) == everything
+    out = run("plam")
+    assert out.returncode == 2 and "'plan'" in out.stderr and "'mesh'" in out.stderr
+
+
 def test_scene_generate_writes_mesh_and_labels(tmp_path):
     import numpy as np
 

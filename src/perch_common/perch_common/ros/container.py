@@ -16,7 +16,7 @@ import threading
 
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 
-from perch_common.memory import limit_heap_growth
+from perch_common.memory import freeze_startup_objects, limit_heap_growth
 from perch_common.mesh_cache import PROCESS_CACHE
 from perch_common.threads import limit_threads
 
@@ -58,6 +58,7 @@ class NodeContainer:
             PROCESS_CACHE.hosts.add(node.get_name())
             self.nodes.append(node)
             self.executor.add_node(node)
+        freeze_startup_objects()
         return self
 
     def spin(self) -> None:

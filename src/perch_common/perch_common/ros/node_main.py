@@ -11,7 +11,7 @@ from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 
 from perch_common.config import ConfigError
-from perch_common.memory import limit_heap_growth
+from perch_common.memory import freeze_startup_objects, limit_heap_growth
 from perch_common.mesh_cache import PROCESS_CACHE
 from perch_common.threads import limit_threads
 
@@ -40,6 +40,7 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None, threads
             print(f"error: {exc}", file=sys.stderr, flush=True)
             return 2
         PROCESS_CACHE.hosts.add(node.get_name())   # requests it reads may name this process's meshes by id
+        freeze_startup_objects()
         executor = MultiThreadedExecutor(num_threads=threads)
         executor.add_node(node)
         try:
