@@ -15,13 +15,11 @@ PYTHON_PACKAGES = ("perch_common", "perch_reconstruction", "perch_segmentation",
 # keys install from PyPI); None: no key exists, the module comes from requirements.in only.
 ROSDEP_KEYS = {"numpy": "python3-numpy", "scipy": "python3-scipy", "shapely": "python3-shapely",
                "yaml": "python3-yaml", "psutil": "python3-psutil", "cv2": "python3-opencv",
-               "ruamel": None, "trimesh": "python3-trimesh-pip", "open3d": "python3-open3d-pip",
+               "trimesh": "python3-trimesh-pip", "open3d": "python3-open3d-pip",
                "mapbox_earcut": "python3-mapbox-earcut-pip", "rosbags": "python3-rosbags-pip",
                "mcap": "mcap-ros2-support", "mcap_ros2": "mcap-ros2-support", "fast_simplification": None, "rerun": None,
                "threadpoolctl": None}
-# ruamel.yaml: its rosdep key has no Debian bookworm entry; rosbags (python3-rosbags-pip) brings it.
-PYPI_NAMES = {"fast_simplification": "fast-simplification", "rerun": "rerun-sdk", "ruamel": "rosbags",
-              "threadpoolctl": "threadpoolctl"}
+PYPI_NAMES = {"fast_simplification": "fast-simplification", "rerun": "rerun-sdk", "threadpoolctl": "threadpoolctl"}
 # ROS packages imported under their own name (resolved by rosdep from the Jazzy distribution).
 ROS_PACKAGES = {"rclpy", "rcl_interfaces", "std_msgs", "std_srvs", "geometry_msgs", "sensor_msgs", "nav_msgs",
                 "visualization_msgs", "tf2_msgs", "service_msgs", "action_msgs", "unique_identifier_msgs",

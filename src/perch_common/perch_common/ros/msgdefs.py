@@ -21,6 +21,7 @@ from typing import Any, Callable
 
 SEPARATOR = "=" * 80
 _PARTS_SPLIT = re.compile(r"^---[ \t]*$", re.M)
+_COMMENT_LINES = re.compile(r"^[ \t]*(#.*)?\n", re.M)   # whole-line comments and blank lines
 _SRV_PARTS = ("Request", "Response", "Event")
 _ACTION_PARTS = ("Goal", "Result", "Feedback", "FeedbackMessage")
 
@@ -62,23 +63,31 @@ def _split_parts(path: Path, count: int) -> list[str]:
     return parts
 
 
-def _package_texts(package: str) -> dict[str, str]:
-    """Store name -> .msg text of every message, service part and action part the package installs."""
+def _type_text(store_name: str) -> str:
+    """The .msg text of one type in the rosbags store's naming (a message, a service part or event,
+    an action part or feedback message), from its package's installed definition files; raises
+    ValueError when the package installs no such type."""
+    package, kind, *_, name = store_name.split("/")
     share = _share(package)
-    texts: dict[str, str] = {}
-    for path in sorted(share.glob("msg/*.msg")):
-        texts[f"{package}/msg/{path.stem}"] = path.read_text()
-    for path in sorted(share.glob("srv/*.srv")):
-        base = f"{package}/srv/msg/{path.stem}"
-        texts[f"{base}_Request"], texts[f"{base}_Response"] = _split_parts(path, 2)
-        # rosidl's service event: who/when, then the request or the reply (at most one of each)
-        texts[f"{base}_Event"] = (f"service_msgs/msg/ServiceEventInfo info\n{base}_Request[<=1] request\n"
-                                  f"{base}_Response[<=1] response\n")
-    for path in sorted(share.glob("action/*.action")):
-        base = f"{package}/action/msg/{path.stem}"
-        texts[f"{base}_Goal"], texts[f"{base}_Result"], texts[f"{base}_Feedback"] = _split_parts(path, 3)
-        texts[f"{base}_FeedbackMessage"] = f"unique_identifier_msgs/msg/UUID goal_id\n{base}_Feedback feedback\n"
-    return texts
+    base, _, part = name.rpartition("_")
+    prefix = f"{package}/{kind}/msg/{base}"
+    if kind == "msg":
+        path = share / "msg" / f"{name}.msg"
+    elif kind == "srv" and part == "Event":   # rosidl's service event: who/when, then the request or the reply
+        return (f"service_msgs/msg/ServiceEventInfo info\n{prefix}_Request[<=1] request\n"
+                f"{prefix}_Response[<=1] response\n")
+    elif kind == "action" and part == "FeedbackMessage":
+        return f"unique_identifier_msgs/msg/UUID goal_id\n{prefix}_Feedback feedback\n"
+    else:
+        parts = _SRV_PARTS[:2] if kind == "srv" else _ACTION_PARTS[:3]
+        path = share / kind / f"{base}.{kind}"
+        if part not in parts:
+            raise ValueError(f"no message definition for {store_name}: a {kind} type is one of its parts "
+                             f"({', '.join(parts)})")
+    if not path.is_file():
+        raise ValueError(f"no message definition for {store_name} in {share}")
+    text = path.read_text()
+    return text if kind == "msg" else _split_parts(path, len(parts))[parts.index(part)]
 
 
 def _references(field_type: tuple) -> list[str]:
@@ -100,39 +109,34 @@ def _typestore():
     return get_typestore(Stores.EMPTY)
 
 
-_loaded: set[str] = set()
-
-
-def _load_package(package: str) -> None:
-    """Parse and register the package's definitions, then those of every package they use."""
+def _load_type(store_name: str) -> None:
+    """Parse and register a type and every type it uses that the store lacks (only those: a whole
+    package is several times more parsing than one mission's topics need)."""
     from rosbags.typesys import get_types_from_msg
 
-    if package in _loaded:
-        return
-    _loaded.add(package)
-    types: dict = {}
-    for name, text in _package_texts(package).items():
+    store, parsed = _typestore(), {}
+    pending = [store_name]
+    while pending:
+        name = pending.pop()
+        if name in parsed or name in store.fielddefs:
+            continue
+        text = _COMMENT_LINES.sub("", _type_text(name))   # ~half of the parsing time; schemas carry no comments
         # Parsed as if in pkg/msg/, so that bare field types (`Proposal`) resolve to the package's
         # messages as rosidl resolves them; then registered under the part's own name.
-        parsed_as = f"{package}/msg/{name.rsplit('/', 1)[1]}"
-        [(_, definition)] = get_types_from_msg(text, parsed_as).items()
-        types[name] = definition
-    _typestore().register(types)
-    for _, fields in types.values():
-        for _, field_type in fields:
-            for ref in _references(field_type):
-                _load_package(ref.split("/")[0])
+        package, short = name.split("/")[0], name.rsplit("/", 1)[1]
+        [(_, definition)] = get_types_from_msg(text, f"{package}/msg/{short}").items()
+        parsed[name] = definition
+        for _, field_type in definition[1]:
+            pending += _references(field_type)
+    if parsed:
+        store.register(parsed)
 
 
 @lru_cache(maxsize=None)
 def full_definition(type_name: str) -> str:
     """The ros2msg schema text of a message, service part/event or action part (rosbags-generated)."""
-    package = split_type(type_name)[0]
-    _load_package(package)
-    store_name = _store_name(type_name)
-    if store_name not in _typestore().fielddefs:
-        raise ValueError(f"no message definition for {type_name} in {_share(package)}")
-    text, _ = _typestore().generate_msgdef(store_name, ros_version=2)
+    _load_type(_store_name(type_name))
+    text, _ = _typestore().generate_msgdef(_store_name(type_name), ros_version=2)
     return text
 
 
