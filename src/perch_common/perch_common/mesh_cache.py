@@ -51,11 +51,11 @@ def mesh_content_id(mesh: Mesh) -> str:
 
 
 def _mesh_bytes(mesh: Mesh) -> int:
-    """Every array the mesh holds: its own and the per-face data stages derive and keep with it
-    (face cross products, 24 B per face, once face areas or normals were asked for)."""
+    """Every array the mesh holds and what stages derive and keep with it (face cross products,
+    24 B per face, once face areas or normals were asked for; its ray-cast scene, ~64 B per face)."""
     derived = tuple(mesh._cache.values())   # one C-level copy: another thread may be adding to it
     arrays = (mesh.vertices, mesh.faces, mesh.vertex_colors, mesh.vertex_normals, *derived)
-    return sum(a.nbytes for a in arrays if isinstance(a, np.ndarray))
+    return sum(int(getattr(a, "nbytes", 0)) for a in arrays if a is not None)
 
 
 class MeshCache:

@@ -9,6 +9,7 @@ import numpy as np
 from perch_common.mesh import Mesh
 
 MISS = -1
+SCENE_BYTES_PER_FACE = 64   # Open3D 0.20's Embree BVH: ~61 B a face (measured on 957k faces)
 
 
 @dataclass
@@ -38,6 +39,11 @@ class RayScene:
             o3d.core.Tensor(np.ascontiguousarray(mesh.vertices, dtype=np.float32)),
             o3d.core.Tensor(np.ascontiguousarray(mesh.faces, dtype=np.uint32)))
         self._o3d = o3d
+
+    @property
+    def nbytes(self) -> int:
+        """Estimated memory of the scene (what a mesh cache counts when the scene is kept with its mesh)."""
+        return SCENE_BYTES_PER_FACE * self.mesh.num_faces
 
     def _rays(self, origins: np.ndarray, directions: np.ndarray):
         rays = np.concatenate([np.asarray(origins, np.float32).reshape(-1, 3),
@@ -86,3 +92,10 @@ class RayScene:
         if len(origins) == 0:
             return np.zeros(0, np.int64)
         return self._scene.count_intersections(self._rays(origins, directions)).numpy().astype(np.int64)
+
+
+def ray_scene(mesh: Mesh) -> RayScene:
+    """The mesh's ray-cast scene, built once and kept with the mesh (`Mesh.derived`): in a one-process
+    graph the filter, placement and the operator's views query one BVH (60 ms on 100k faces, 1.5 s
+    on a building) instead of building three."""
+    return mesh.derived("ray_scene", lambda: RayScene(mesh))

@@ -13,6 +13,7 @@ from perch_common.mesh_cache import (
     is_mesh_not_cached,
     mesh_content_id,
 )
+from perch_common.raycast import RayScene
 
 
 def _mesh(n: int, shift: float = 0.0) -> Mesh:
@@ -61,6 +62,26 @@ def test_budget_counts_the_face_data_stages_derive_from_a_held_mesh():
     assert cache.used_bytes == arrays + derived
     cache.put("c", _mesh(1000, 2))                # the next put evicts by what the meshes hold now
     assert cache.used_bytes <= cache.budget_bytes
+
+
+def test_a_held_mesh_has_one_ray_scene_for_every_stage_and_the_budget_counts_it():
+    """Stages in one process get copies of a held mesh: they share one ray-cast scene (one BVH
+    build), and the cache counts the scene's memory with the mesh."""
+    import copy
+
+    from perch_common.raycast import SCENE_BYTES_PER_FACE, ray_scene
+
+    mesh = _mesh(1000)
+    cache = MeshCache(budget_bytes=10**9)
+    cache.put("a", mesh)
+    first, second = copy.copy(cache.get("a")), copy.copy(cache.get("a"))   # two stages' requests
+    scene = ray_scene(first)
+    assert ray_scene(second) is scene
+    assert ray_scene(_mesh(1000)) is not scene                            # another mesh, its own scene
+    assert cache.used_bytes == mesh.vertices.nbytes + mesh.faces.nbytes + SCENE_BYTES_PER_FACE * mesh.num_faces
+    origin, target = mesh.vertices.mean(axis=0) + [0, 0, 5], mesh.vertices.mean(axis=0) - [0, 0, 5]
+    assert scene.occluded(origin[None], target[None]).tolist() == RayScene(mesh).occluded(origin[None],
+                                                                                         target[None]).tolist()
 
 
 def test_book_sends_ids_only_where_held_and_forgets_on_a_miss():

@@ -30,6 +30,7 @@ from perch_common.conventions import FILTER_NAMES, is_wall
 from perch_common.mesh import Mesh, validate_mesh
 from perch_common.polygons import faces_outline, from_shapely
 from perch_common.raycast import RayScene
+from perch_common.raycast import ray_scene as shared_ray_scene
 from perch_common.target import TargetVolume
 from perch_common.timing import Laps
 from perch_common.types import NOT_MEASURED, FilterRemoval, PerchEvidence, PerchRegion, Surface
@@ -103,7 +104,7 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
                              config.max_voxels, config.seed)
     index = SampleIndex(samples, rotation)
     clock.lap("grid")
-    scene = ray_scene if ray_scene is not None else RayScene(mesh)
+    scene = ray_scene if ray_scene is not None else shared_ray_scene(mesh)
     centre = target.centroid()
     clock.lap("ray_scene")
     orientations = orient(winding_votes(mesh, surfaces),

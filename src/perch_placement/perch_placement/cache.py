@@ -14,7 +14,7 @@ from typing import Callable
 import numpy as np
 
 from perch_common.mesh import Mesh, validate_mesh
-from perch_common.raycast import RayScene
+from perch_common.raycast import RayScene, ray_scene
 
 
 def mesh_digest(mesh: Mesh) -> str:
@@ -50,7 +50,7 @@ class PlacementCache:
         if key in self._scenes:
             self._scenes.move_to_end(key)
             return self._scenes[key]
-        scene = RayScene(validate_mesh(mesh, "environment mesh"))
+        scene = ray_scene(validate_mesh(mesh, "environment mesh"))   # the mesh's own, when a stage built it
         if self.max_scene_faces is not None and mesh.num_faces > self.max_scene_faces:
             return scene   # too large to keep
         self._scenes[key], self._scene_faces[key] = scene, mesh.num_faces

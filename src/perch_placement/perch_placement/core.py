@@ -15,7 +15,7 @@ import numpy as np
 
 from perch_common.errors import PerchError
 from perch_common.mesh import Mesh, validate_mesh
-from perch_common.raycast import RayScene
+from perch_common.raycast import RayScene, ray_scene
 from perch_common.target import TargetVolume
 from perch_common.transforms import parse_up_axis
 from perch_common.types import CameraPlacement, ExclusionZone, PerchRegion
@@ -48,8 +48,9 @@ class PlacementResult:
 
 
 def scene_for(mesh: Mesh) -> RayScene:
-    """The ray-cast scene of a mesh, validated first (raises MeshError for an unusable mesh)."""
-    return RayScene(validate_mesh(mesh, "environment mesh"))
+    """The ray-cast scene of a mesh, validated first (raises MeshError for an unusable mesh); built
+    once per mesh (perch_common.raycast.ray_scene)."""
+    return ray_scene(validate_mesh(mesh, "environment mesh"))
 
 
 def optimise(mesh: Mesh, regions: list[PerchRegion], target: TargetVolume, num_cameras: int,
