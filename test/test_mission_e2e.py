@@ -147,8 +147,15 @@ def test_recording_decodes_with_rosbags_and_foxglove_and_keeps_rosbag2_metadata(
     assert {t["topic_metadata"]["name"]: t["message_count"] for t in described["topics_with_message_count"]} == counts
     # `ros2 bag play` re-offers the waypoints transient local, as the operator publishes them.
     assert {q.durability.name for q in qos["/perch/waypoints"]} == {"TRANSIENT_LOCAL"}
-    # What a viewer needs: the mission's markers, its accepted waypoint set and the camera frames.
-    assert counts["/perch/markers"] >= 2 * CAMERAS and counts["/perch/mission_waypoints"] >= CAMERAS
+    # What a viewer needs: the mission's picture, published once for the auto-accepted set (not after
+    # each of its 2 x CAMERAS events) with every perch accepted; the waypoint set emptied when the
+    # mission starts, then its accepted set; and the camera frames.
+    assert counts["/perch/markers"] == 1 and counts["/perch/mission_waypoints"] == 2
+    [picture] = [m for _, m, _ in iter_messages(recorded.mcap, ["/perch/markers"])]
+    perches = [m for m in picture.markers if m.ns == "perch_proposals"]
+    assert len(perches) == CAMERAS and all(m.color.g > 0.5 > m.color.r for m in perches)   # accepted: green
+    waypoint_sets = [m for _, m, _ in iter_messages(recorded.mcap, ["/perch/mission_waypoints"])]
+    assert [len(m.waypoints) for m in waypoint_sets] == [0, CAMERAS]
     # one simulated view (Image + CameraInfo) per proposal: the auto-accepted mission made CAMERAS of them
     assert counts["/perch/views/image"] == counts["/perch/views/camera_info"] == CAMERAS
     [view] = [m for _, m, _ in iter_messages(recorded.mcap, ["/perch/views/image"])][:1]

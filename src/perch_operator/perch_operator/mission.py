@@ -7,6 +7,7 @@ which outlives the mission so that a perch failing in flight can still be re-pla
 
 from __future__ import annotations
 
+import copy
 import time
 from dataclasses import dataclass, field
 from typing import Callable
@@ -78,7 +79,7 @@ class Mission:
 
     def __init__(self, caller: StageCaller, options: MissionOptions, first_proposal_id: int,
                  feedback: Callable[[str, float, str], None], cancelled: Callable[[], bool],
-                 on_proposal: Callable[[Proposal], None], on_operator: Callable[[Operator], None],
+                 on_proposal: Callable[..., None], on_operator: Callable[[Operator], None],
                  review: Callable[[list], set[int]] | None = None,
                  on_alignment: Callable[[Alignment], None] | None = None):
         self.caller = caller
@@ -86,7 +87,7 @@ class Mission:
         self.first_proposal_id = first_proposal_id
         self.feedback = feedback
         self.cancelled = cancelled
-        self.on_proposal = on_proposal
+        self.on_proposal = on_proposal  # publishes proposal events, in order, given together when made together
         self.on_operator = on_operator
         self.review = review  # publishes surfaces for review, returns the rejected ids once decided
         self.on_alignment = on_alignment  # told the input frame -> gravity-aligned frame once known
@@ -220,11 +221,15 @@ class Mission:
         started = time.monotonic()
         self.feedback("confirm", self._fraction(), f"proposing {len(placements)} perch(es)"
                       + (" (auto_accept)" if operator.auto_accept else ""))
+        events = []
         for slot, placement in enumerate(placements):
             proposal = operator.book.propose(slot, placement_from_msg(placement))
-            self.on_proposal(proposal)
+            events.append(copy.copy(proposal))   # as proposed: deciding changes the book's own
             if operator.auto_accept:
-                self.on_proposal(operator.book.decide(proposal.id, Decision.ACCEPT, "auto_accept policy"))
+                events.append(operator.book.decide(proposal.id, Decision.ACCEPT, "auto_accept policy"))
+        # Together: a viewer's picture (markers, accepted poses, the mission's waypoint set) is
+        # published once for the whole set instead of after each of its events.
+        self.on_proposal(*events)
         timeout = self.options.confirm_timeout
         # Feedback only when the open proposals change, or every few seconds: a steady 4 Hz stream
         # tells a waiting client nothing new and crowds its short feedback queue.

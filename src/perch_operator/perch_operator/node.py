@@ -238,32 +238,39 @@ class OperatorNode(Node):
         self.get_logger().info(response.message)
         return response
 
-    def _publish_proposal(self, proposal: Proposal) -> None:
+    def _publish_proposal(self, *proposals: Proposal) -> None:
+        """Publish proposal events (in order): each proposal, a new one's view, an accepted one's
+        camera frame and waypoint; then, once for them all, the picture and the accepted set."""
         # Proposals exist only once optimise has run, so the mission's operator (and its alignment) is set.
-        alignment = self.operator.alignment
-        published = proposal_msg(proposal, alignment, self.operator.optimise_request.regions)
-        self.proposals_pub.publish(published)
-        if published.id not in self._shown:
-            self._publish_view(proposal)
-        self._publish_markers(published)
-        if proposal.status == Status.ACCEPTED:
-            # the accepted camera's optical frame (z forward, x right, y down) for tf users and viewers
-            self.static_transforms.send(transform_msg(alignment.input_frame, camera_frame(proposal.slot),
-                                                      pose_to_matrix(published.placement.camera_pose)))
-            self.waypoints_pub.publish(self._waypoint(proposal))
+        alignment, config = self.operator.alignment, read_config(self, OperatorConfig)
+        regions = self.operator.optimise_request.regions
+        cameras = []
+        for proposal in proposals:
+            published = proposal_msg(proposal, alignment, regions)
+            self.proposals_pub.publish(published)
+            if published.id not in self._shown:
+                self._publish_view(proposal)
+            self._shown[published.id] = published
+            if proposal.status == Status.ACCEPTED:
+                # the accepted camera's optical frame (z forward, x right, y down) for tf users and viewers
+                cameras.append(transform_msg(alignment.input_frame, camera_frame(proposal.slot),
+                                             pose_to_matrix(published.placement.camera_pose)))
+                self.waypoints_pub.publish(self._waypoint(proposal, config))
+        self._publish_markers()
+        if cameras:
+            self.static_transforms.send(*cameras)
             stamp = self.get_clock().now().to_msg()
             self.poses_pub.publish(pose_array_msg(self.operator.book.accepted(), alignment, stamp))
-        if proposal.status != Status.PENDING:  # the accepted set may have gained or lost a perch
+        if any(p.status != Status.PENDING for p in proposals):  # the accepted set may have gained or lost a perch
             self.waypoint_set_pub.publish(waypoint_set_msg(
-                self._mission_id, [self._waypoint(p) for p in self.operator.book.accepted()], alignment.input_frame,
-                self.get_clock().now().to_msg()))
+                self._mission_id, [self._waypoint(p, config) for p in self.operator.book.accepted()],
+                alignment.input_frame, self.get_clock().now().to_msg()))
 
-    def _publish_markers(self, published: pm.Proposal) -> None:
+    def _publish_markers(self) -> None:
         """The whole current picture (regions, target, every proposal with frustum and label)."""
         request = self.operator.optimise_request
         if self._camera is None:  # the camera the placement stage used: the request's, else its configuration
             self._camera = request.camera if request.camera.specified else placement_config().camera
-        self._shown[published.id] = published
         operator, stamp = self.operator, self.get_clock().now().to_msg()
         shown = (request, operator.alignment, operator.surfaces, operator.removals)  # the same objects all mission
         if self._scene_markers is None or any(a is not b for a, b in zip(self._scene_markers[0], shown)):
@@ -276,14 +283,14 @@ class OperatorNode(Node):
     def _publish_view(self, proposal: Proposal) -> None:
         """The new proposal's simulated camera view (Image + CameraInfo in its drone's camera frame)."""
         request = self.operator.optimise_request
-        camera = placement_config().camera  # the renderer's camera model (what the placement stage assumes)
         try:
             if self._view_scene is None or self._view_scene[0] is not request:   # one mesh and BVH per request
                 from perch_placement.core import scene_for
 
                 mesh = mesh_from_request(request.mesh, "mission mesh")
-                self._view_scene = request, mesh, scene_for(mesh)
-            _, mesh, scene = self._view_scene
+                # the renderer's camera model (what the placement stage assumes), read once per request
+                self._view_scene = request, mesh, scene_for(mesh), placement_config().camera
+            _, mesh, scene, camera = self._view_scene
             rgb = render_proposal_view(mesh, scene, proposal.placement, camera, target_from_msg(request.target))
         except (PerchError, MeshError, ValueError) as exc:  # a view is a picture: the mission goes on
             self.get_logger().warning(f"no simulated view for proposal {proposal.id}: {exc}")
@@ -292,8 +299,8 @@ class OperatorNode(Node):
         self.view_info_pub.publish(camera_info_msg(camera, rgb.shape[1], rgb.shape[0], frame, stamp))
         self.view_pub.publish(image_msg(rgb, frame, stamp))
 
-    def _waypoint(self, proposal: Proposal) -> pm.PerchWaypoint:
-        config = read_config(self, OperatorConfig)
+    def _waypoint(self, proposal: Proposal, config: OperatorConfig | None = None) -> pm.PerchWaypoint:
+        config = config or read_config(self, OperatorConfig)
         return waypoint_msg(proposal, config.approach_distance, self.operator.alignment,
                             self.get_clock().now().to_msg(), self._mission_id)
 

@@ -66,7 +66,7 @@ def options(auto: bool = True) -> MissionOptions:
 def run(stages, goal, auto=True):
     feedback, proposals, operators = [], [], []
     mission = Mission(stages, options(auto), 5, lambda *f: feedback.append(f), lambda: False,
-                      lambda p: proposals.append((p.id, p.status)), operators.append)
+                      lambda *ps: proposals.extend((p.id, p.status) for p in ps), operators.append)
     return mission, mission.run(goal), feedback, proposals, operators
 
 
@@ -100,7 +100,7 @@ def test_stages_run_in_order_with_rising_feedback_and_times(meshes, goal):
 
 def test_a_failing_stage_ends_the_mission_with_its_name(goal):
     stages = ScriptedStages(goal.mesh, fail="segment")
-    mission = Mission(stages, options(), 1, lambda *f: None, lambda: False, lambda p: None, lambda o: None)
+    mission = Mission(stages, options(), 1, lambda *f: None, lambda: False, lambda *ps: None, lambda o: None)
     with pytest.raises(StageError, match=r"^stage segment \(/perch/segment\): failed: boom"):
         mission.run(goal)
     assert mission.stage_names == ["clean", "crop"]
@@ -161,12 +161,12 @@ def test_waiting_for_decisions_ends_on_cancel_and_on_timeout(goal):
         return calls["n"] > 2  # cancel while the proposals wait
 
     mission = Mission(ScriptedStages(goal.mesh), options(auto=False), 1, lambda *f: None, cancelled,
-                      lambda p: None, lambda o: None)
+                      lambda *ps: None, lambda o: None)
     with pytest.raises(MissionCancelled, match="waiting for operator decisions"):
         mission.run(goal)
     patient = options(auto=False)
     patient.confirm_timeout = 0.3
-    mission = Mission(ScriptedStages(goal.mesh), patient, 1, lambda *f: None, lambda: False, lambda p: None,
+    mission = Mission(ScriptedStages(goal.mesh), patient, 1, lambda *f: None, lambda: False, lambda *ps: None,
                       lambda o: None)
     with pytest.raises(TimeoutError, match=r"no operator decision on proposal\(s\) \[1, 2\] within 0.3 s"):
         mission.run(goal)
@@ -202,7 +202,7 @@ def test_a_rotated_mesh_is_planned_gravity_aligned_and_answered_in_its_own_frame
     goal.target = parse_target("box:1,-1,0.5,1,1,1")  # in the mesh's (input) frame
     stages = ScriptedStages(goal.mesh)
     aligned = []
-    mission = Mission(stages, options(), 1, lambda *f: None, lambda: False, lambda p: None, lambda o: None,
+    mission = Mission(stages, options(), 1, lambda *f: None, lambda: False, lambda *ps: None, lambda o: None,
                       on_alignment=aligned.append)
     result = mission.run(goal)
     clean = stages.requests[0][1]
@@ -230,10 +230,10 @@ def test_a_given_up_axis_the_mesh_contradicts_fails_the_mission_clearly(meshes):
     stages = ScriptedStages(goal.mesh)
     with pytest.raises(UpAxisError, match=r"^--up \+y contradicts the mesh: furniture tops face down along it\. "
                                           r"The mesh suggests up -y .*: pass --up -y \(or --up auto\)$"):
-        Mission(stages, options(), 1, lambda *f: None, lambda: False, lambda p: None, lambda o: None).run(goal)
+        Mission(stages, options(), 1, lambda *f: None, lambda: False, lambda *ps: None, lambda o: None).run(goal)
     assert stages.requests == []  # nothing ran on a misread mesh
     goal.up_axis = "-y"
-    assert Mission(ScriptedStages(goal.mesh), options(), 1, lambda *f: None, lambda: False, lambda p: None,
+    assert Mission(ScriptedStages(goal.mesh), options(), 1, lambda *f: None, lambda: False, lambda *ps: None,
                    lambda o: None).run(goal).success
 
 
@@ -250,7 +250,7 @@ def test_surfaces_under_review_are_shown_in_the_input_frame(meshes):
             return super().call(stage, request, cancelled)
 
     shown = []
-    mission = Mission(FloorSurface(goal.mesh), options(), 1, lambda *f: None, lambda: False, lambda p: None,
+    mission = Mission(FloorSurface(goal.mesh), options(), 1, lambda *f: None, lambda: False, lambda *ps: None,
                       lambda o: None, review=lambda surfaces: shown.extend(surfaces) or set())
     assert mission.run(goal).success
     assert [s.id for s in shown] == [7]
