@@ -42,8 +42,9 @@ def render_view(mesh: Mesh, placement: CameraPlacement, camera: CameraSpec, targ
     scene = scene or scene_for(mesh)
     pose = np.asarray(placement.camera_pose, np.float64)
     rays = pixel_rays(camera, width, height, max(float(placement.zoom), 1.0))
-    world_dirs = rays.reshape(-1, 3) @ pose[:3, :3].T
-    hits = scene.cast(np.repeat(pose[:3, 3][None], len(world_dirs), axis=0), world_dirs)
+    world_dirs = rotate_directions(rays.reshape(-1, 3), pose[:3, :3])
+    # One origin for every ray, broadcast rather than repeated: the cast packs rays into float32 anyway.
+    hits = scene.cast(np.broadcast_to(pose[:3, 3].astype(np.float32), world_dirs.shape), world_dirs)
     hit = hits.hit & np.isfinite(hits.distance)
     depth = np.where(hit, hits.distance, 0.0).astype(np.float32).reshape(height, width)  # z = 1 rays
     colour = _shade(mesh, hits, world_dirs, hit).reshape(height, width, 3)
@@ -52,17 +53,32 @@ def render_view(mesh: Mesh, placement: CameraPlacement, camera: CameraSpec, targ
     return colour, depth
 
 
+def rotate_directions(directions: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+    """(N,3) float32 `directions @ rotation.T`, written out column by column: numpy sends an
+    (N,3) @ (3,3) product to multi-threaded BLAS, which spins for ~80 ms a view when the other core
+    is busy (1 ms otherwise); this costs a few ms either way."""
+    d = np.asarray(directions, np.float64)
+    r = np.asarray(rotation, np.float64)
+    out = np.empty((len(d), 3), np.float32)
+    x, y, z = d[:, 0], d[:, 1], d[:, 2]
+    for k in range(3):
+        out[:, k] = x * r[k, 0] + y * r[k, 1] + z * r[k, 2]
+    return out
+
+
 def _shade(mesh: Mesh, hits, dirs: np.ndarray, hit: np.ndarray) -> np.ndarray:
-    """Face colour (grey without colours) times a head-light Lambert term; black sky."""
-    out = np.zeros((len(dirs), 3))
-    faces = hits.face[hit]
-    albedo = mesh.face_colors(faces)   # the hit faces' only: a view hits far fewer faces than a building has
-    if albedo is None:
-        albedo = np.full((len(faces), 3), 0.75)
-    unit = dirs[hit] / np.linalg.norm(dirs[hit], axis=1, keepdims=True)
-    lambert = np.abs((hits.normal[hit] * unit).sum(axis=1))
-    out[hit] = albedo * (0.35 + 0.65 * lambert)[:, None]
-    return np.clip(out * 255, 0, 255).astype(np.uint8)
+    """Face colour (grey without colours) times a head-light Lambert term; black sky.
+
+    Every ray is shaded and misses are zeroed after (cheaper than gathering the hit rows); float32
+    once the Lambert term is known, as the result is 8-bit."""
+    n, d = hits.normal, dirs
+    lambert = np.abs(n[:, 0] * d[:, 0] + n[:, 1] * d[:, 1] + n[:, 2] * d[:, 2]) / np.sqrt(np.einsum("ij,ij->i", d, d))
+    # 255 x the light on each pixel, 0 on misses; at most 255 (+ rounding), so below 256 with any albedo <= 1
+    level = np.where(hit, 0.35 * 255 + 0.65 * 255 * lambert, 0.0).astype(np.float32)[:, None]
+    table = mesh.face_color_table()   # per face, computed once per mesh for every view
+    if table is None:
+        return np.repeat((np.float32(0.75) * level).astype(np.uint8), 3, axis=1)
+    return (table[np.where(hit, hits.face, 0)] * level).astype(np.uint8)   # truncated, as before
 
 
 def draw_target(colour: np.ndarray, depth: np.ndarray, target: TargetVolume, placement: CameraPlacement,
