@@ -18,8 +18,10 @@ ROSDEP_KEYS = {"numpy": "python3-numpy", "scipy": "python3-scipy", "shapely": "p
                "trimesh": "python3-trimesh-pip", "open3d": "python3-open3d-pip",
                "mapbox_earcut": "python3-mapbox-earcut-pip", "rosbags": "python3-rosbags-pip",
                "mcap": "mcap-ros2-support", "mcap_ros2": "mcap-ros2-support", "fast_simplification": None, "rerun": None,
+               "embreex": None,
                "threadpoolctl": None}
-PYPI_NAMES = {"fast_simplification": "fast-simplification", "rerun": "rerun-sdk", "threadpoolctl": "threadpoolctl"}
+PYPI_NAMES = {"fast_simplification": "fast-simplification", "rerun": "rerun-sdk", "threadpoolctl": "threadpoolctl",
+              "embreex": "embreex"}
 # ROS packages imported under their own name (resolved by rosdep from the Jazzy distribution).
 ROS_PACKAGES = {"rclpy", "rcl_interfaces", "std_msgs", "std_srvs", "geometry_msgs", "sensor_msgs", "nav_msgs",
                 "visualization_msgs", "tf2_msgs", "service_msgs", "action_msgs", "unique_identifier_msgs",

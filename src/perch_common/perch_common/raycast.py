@@ -1,4 +1,10 @@
-"""Batched ray casting against a mesh (Open3D RaycastingScene), shared by the stages."""
+"""Batched ray casting against a mesh, shared by the stages: Embree through embreex.
+
+embreex loads in 6 ms; Open3D, whose RaycastingScene wraps the same Embree, takes ~0.45 s to import
+(its whole library and Python bindings), paid by every `perch plan` although a mesh mission needs
+nothing else of it. Both give the same hits (checked on 400k rays on the apartment scan). Open3D
+is still loaded for closest-point queries (reports, benchmarks and test checkers), on first use.
+"""
 
 from __future__ import annotations
 
@@ -9,7 +15,7 @@ import numpy as np
 from perch_common.mesh import Mesh
 
 MISS = -1
-SCENE_BYTES_PER_FACE = 64   # Open3D 0.20's Embree BVH: ~61 B a face (measured on 957k faces)
+SCENE_BYTES_PER_FACE = 64   # Embree's BVH: ~62 B a face (measured on 957k faces)
 
 
 @dataclass
@@ -26,72 +32,85 @@ class RayHits:
         return self.face != MISS
 
 
+def _float32_rows(values: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(np.asarray(values, np.float32).reshape(-1, 3))
+
+
 class RayScene:
-    """A mesh prepared for ray queries; build once, query many times."""
+    """A mesh prepared for ray queries; build once, query many times (from any thread)."""
 
     def __init__(self, mesh: Mesh):
-        from perch_common.open3d_loader import open3d
-        o3d = open3d()
+        from embreex import mesh_construction, rtcore_scene
 
         self.mesh = mesh
-        self._scene = o3d.t.geometry.RaycastingScene()
-        self._scene.add_triangles(
-            o3d.core.Tensor(np.ascontiguousarray(mesh.vertices, dtype=np.float32)),
-            o3d.core.Tensor(np.ascontiguousarray(mesh.faces, dtype=np.uint32)))
-        self._o3d = o3d
+        self._scene = None
+        self._closest = None   # Open3D's scene, for closest_points only
+        self._normals = None   # unit face normals, for cast
+        if mesh.num_faces:
+            # robust: watertight edge and vertex hits (a ray through a shared edge hits one face).
+            self._scene = rtcore_scene.EmbreeScene(robust=True)
+            self._geometry = mesh_construction.TriangleMesh(self._scene, _float32_rows(mesh.vertices),
+                                                            np.ascontiguousarray(mesh.faces, np.int32))
+            # The BVH is built by the first query: build it here, before threads share the scene.
+            self._scene.run(np.zeros((1, 3), np.float32), np.ones((1, 3), np.float32), query="OCCLUDED")
 
     @property
     def nbytes(self) -> int:
         """Estimated memory of the scene (what a mesh cache counts when the scene is kept with its mesh)."""
         return SCENE_BYTES_PER_FACE * self.mesh.num_faces
 
-    def _rays(self, origins: np.ndarray, directions: np.ndarray):
-        rays = np.concatenate([np.asarray(origins, np.float32).reshape(-1, 3),
-                               np.asarray(directions, np.float32).reshape(-1, 3)], axis=1)
-        return self._o3d.core.Tensor(np.ascontiguousarray(rays))
-
     def cast(self, origins: np.ndarray, directions: np.ndarray) -> RayHits:
-        """First hit of each ray; directions need not be unit (distance is in their units)."""
-        if len(origins) == 0:
-            return RayHits(np.zeros(0), np.zeros(0, np.int64), np.zeros((0, 3)))
-        ans = self._scene.cast_rays(self._rays(origins, directions))
-        face = ans["primitive_ids"].numpy().astype(np.int64)
-        face[face == np.iinfo(np.uint32).max] = MISS
-        distance = ans["t_hit"].numpy().astype(np.float64)
-        return RayHits(distance, face, ans["primitive_normals"].numpy().astype(np.float64))
+        """First hit of each ray; directions need not be unit (distance is in their units). The
+        normal is the hit face's right-hand-winding normal."""
+        origins, directions = _float32_rows(origins), _float32_rows(directions)
+        face = np.full(len(origins), MISS, np.int64)
+        distance = np.full(len(origins), np.inf)
+        normal = np.zeros((len(origins), 3))
+        if len(origins) and self._scene is not None:
+            ans = self._scene.run(origins, directions, output=1)
+            face = ans["primID"].astype(np.int64)
+            face[face < 0] = MISS
+            hit = face != MISS
+            distance[hit] = ans["tfar"][hit]
+            if self._normals is None:
+                self._normals = self.mesh.face_normals()
+            normal[hit] = self._normals[face[hit]]
+        return RayHits(distance, face, normal)
 
     def occluded(self, origins: np.ndarray, targets: np.ndarray, epsilon: float = 1e-3) -> np.ndarray:
         """True where the segment origin->target hits the mesh, ignoring `epsilon` metres at both ends."""
-        origins = np.asarray(origins, np.float32).reshape(-1, 3)
-        targets = np.asarray(targets, np.float32).reshape(-1, 3)
-        if len(origins) == 0:
-            return np.zeros(0, bool)
-        # Float32 throughout (what Open3D takes): the preparation must not cost more than the rays.
+        origins, targets = _float32_rows(origins), _float32_rows(targets)
+        if len(origins) == 0 or self._scene is None:
+            return np.zeros(len(origins), bool)
+        # Float32 throughout (what Embree takes): the preparation must not cost more than the rays.
         delta = targets - origins
         length = np.sqrt(np.einsum("ij,ij->i", delta, delta))
         usable = length > 2 * epsilon
         skip = np.divide(epsilon, length, out=np.zeros_like(length), where=usable)
-        rays = np.empty((len(origins), 6), np.float32)
-        rays[:, :3] = origins + delta * skip[:, None]      # start epsilon along the segment
-        rays[:, 3:] = delta * (1 - 2 * skip)[:, None]      # and stop epsilon before its end: t in [0, 1]
-        blocked = self._scene.test_occlusions(self._o3d.core.Tensor(rays), tnear=0.0, tfar=1.0).numpy()
-        return blocked.astype(bool) & usable
+        starts = np.ascontiguousarray(origins + delta * skip[:, None])      # epsilon along the segment
+        spans = np.ascontiguousarray(delta * (1 - 2 * skip)[:, None])       # to epsilon before its end: t in [0, 1]
+        blocked = self._scene.run(starts, spans, dists=np.ones(len(starts), np.float32), query="OCCLUDED") == 0
+        return blocked & usable
 
     def closest_points(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Closest mesh point, its face and the distance for each query point."""
-        pts = np.asarray(points, np.float32).reshape(-1, 3)
+        """Closest mesh point, its face and the distance for each query point (Open3D, loaded and
+        built on first use; the stages ask `perch_common.proximity.clear_of_mesh` instead)."""
+        pts = _float32_rows(points)
         if len(pts) == 0:
             return np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0)
-        ans = self._scene.compute_closest_points(self._o3d.core.Tensor(np.ascontiguousarray(pts)))
+        if self._closest is None:
+            from perch_common.open3d_loader import open3d
+
+            o3d = open3d()
+            scene = o3d.t.geometry.RaycastingScene()
+            scene.add_triangles(o3d.core.Tensor(_float32_rows(self.mesh.vertices)),
+                                o3d.core.Tensor(np.ascontiguousarray(self.mesh.faces, np.uint32)))
+            self._closest = o3d, scene
+        o3d, scene = self._closest
+        ans = scene.compute_closest_points(o3d.core.Tensor(pts))
         closest = ans["points"].numpy().astype(np.float64)
         face = ans["primitive_ids"].numpy().astype(np.int64)
         return closest, face, np.linalg.norm(closest - pts, axis=1)
-
-    def count_crossings(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
-        """Number of surface crossings along each ray (odd: origin inside a closed surface)."""
-        if len(origins) == 0:
-            return np.zeros(0, np.int64)
-        return self._scene.count_intersections(self._rays(origins, directions)).numpy().astype(np.int64)
 
 
 def ray_scene(mesh: Mesh) -> RayScene:

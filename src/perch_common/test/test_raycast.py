@@ -34,12 +34,42 @@ def test_occlusion_epsilon_ignores_target_on_surface(cube):
     assert cube.occluded(np.array([[-3.0, 0, 0]]), np.array([[-0.9, 0, 0]]), epsilon=1e-3)[0]
 
 
-def test_closest_points_and_crossings(cube):
+def test_closest_points(cube):
     closest, _, distance = cube.closest_points(np.array([[0.0, 0, 3.0], [0.0, 0.0, 0.5]]))
     assert np.allclose(closest[0], [0, 0, 1]) and distance[0] == pytest.approx(2.0)
     assert distance[1] == pytest.approx(0.5)
-    crossings = cube.count_crossings(np.array([[0.0, 0, 0], [-3.0, 0.1, 0.1]]), np.array([[1.0, 0, 0], [1.0, 0, 0]]))
-    assert crossings.tolist() == [1, 2]
+
+
+def test_the_same_hits_as_open3d_on_a_real_scan():
+    """Embree through embreex and Open3D's RaycastingScene (the ray caster before it) agree on
+    every first hit and every occlusion of random rays through the apartment scan."""
+    from perch_common.data import shared_file
+    from perch_common.mesh import load_mesh
+    from perch_common.open3d_loader import open3d
+
+    path = shared_file("meshes", "apartment.ply")
+    if path is None:
+        pytest.skip("../shared/data not found: meshes/apartment.ply")
+    mesh = load_mesh(path)
+    rng = np.random.default_rng(3)
+    low, high = mesh.bounds()
+    origins = low + rng.random((50000, 3)) * (high - low)
+    targets = low + rng.random((50000, 3)) * (high - low)
+    o3d = open3d()
+    reference = o3d.t.geometry.RaycastingScene()
+    reference.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)),
+                            o3d.core.Tensor(mesh.faces.astype(np.uint32)))
+    rays = o3d.core.Tensor(np.hstack([origins, targets - origins]).astype(np.float32))
+    expected = reference.cast_rays(rays)
+    hits = RayScene(mesh).cast(origins, targets - origins)
+    face = expected["primitive_ids"].numpy().astype(np.int64)
+    face[face == np.iinfo(np.uint32).max] = MISS
+    assert (hits.face == face).all() and hits.hit.mean() > 0.5
+    np.testing.assert_allclose(hits.distance[hits.hit], expected["t_hit"].numpy()[hits.hit], rtol=1e-5)
+    np.testing.assert_allclose(np.abs(np.einsum("ij,ij->i", hits.normal[hits.hit],
+                                                expected["primitive_normals"].numpy()[hits.hit])), 1.0, atol=1e-4)
+    blocked = reference.test_occlusions(rays, tnear=0.0, tfar=1.0).numpy().astype(bool)
+    assert (RayScene(mesh).occluded(origins, targets, epsilon=0.0) == blocked).all()
 
 
 def test_empty_batches(cube):

@@ -29,6 +29,7 @@ import numpy as np
 from perch_common.conventions import FILTER_NAMES, is_wall
 from perch_common.mesh import Mesh, validate_mesh
 from perch_common.polygons import faces_outline, from_shapely
+from perch_common.proximity import clear_of_mesh
 from perch_common.raycast import RayScene
 from perch_common.raycast import ray_scene as shared_ray_scene
 from perch_common.target import TargetVolume
@@ -224,7 +225,7 @@ def _reachability(w: _Work, grid: FlightGrid, scene: RayScene, config: FilterCon
     stand = w.raster.cell_world(w.alive) + config.standoff * w.surface.frame.normal
     near = grid.lookup(grid.reachable_near, stand)
     if near.any():
-        near[near] = scene.closest_points(stand[near])[2] >= config.drone_radius
+        near[near] = clear_of_mesh(scene.mesh, stand[near], config.drone_radius)
     kept = np.zeros(w.raster.shape, bool)
     kept[w.alive] = near
     w.removal.reachability = float((w.alive & ~kept).sum() * w.raster.cell_area)

@@ -56,7 +56,7 @@ class FilterNode(Node):
 
     @staticmethod
     def _warm_up() -> None:
-        """Open3D initialises its ray caster on first use (~0.8 s); pay that before the first request."""
+        """Load and initialise the ray caster (Embree) before the first request."""
         from perch_common.mesh import Mesh
         from perch_common.raycast import RayScene
 
