@@ -33,3 +33,21 @@ def test_repeated_bench_reports_medians_and_exits_cleanly(graph_parts):
     # Seeded: both runs plan the same cameras.
     fitness = [r["fitness"] for r in result["runs"]]
     assert median["cameras"] == 2 and fitness[0] == fitness[1] and median["fitness"] == pytest.approx(fitness[0], abs=1e-3)
+
+
+def test_recorded_bench_times_the_waypoints_and_then_every_output(graph_parts):
+    """--record runs the mission as `perch plan` does: waypoints.yaml is written when the result
+    comes in (wall_s), the recording, report and rerun file after it (outputs_s)."""
+    from pathlib import Path
+
+    if graph_parts.missing:
+        pytest.skip(f"stage node(s) not installed yet: {', '.join(graph_parts.missing)}")
+    done = subprocess.run([sys.executable, "-m", "perch_common.cli", "bench", "mission", "--scene", "2", "--kind",
+                           "room", "--cameras", "2", "--record", "--json"],
+                          capture_output=True, text=True, env=testing.isolated_ros_env(), timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    result = json.loads(done.stdout)
+    assert result["recorded"] and not result["failures"] and result["cameras"] == 2
+    assert result["outputs_s"] > result["wall_s"] > result["mission_s"] > result["stages"]["segment"] > 0
+    folder = Path(result["waypoints"]).parent
+    assert {"waypoints.yaml", "run.mcap", "run.rrd", "report.html"} <= {p.name for p in folder.iterdir()}

@@ -11,6 +11,7 @@ import time
 
 import numpy as np
 import pytest
+import yaml
 
 pytestmark = pytest.mark.ros
 
@@ -63,6 +64,10 @@ def test_auto_accept_mission_reaches_a_late_dispatcher(graph, recorded):
 
     result = recorded.result
     assert len(result.placements) == CAMERAS and len(result.waypoints) == CAMERAS
+    # waypoints.yaml went into the folder as the result came in, before the report was rendered.
+    assert recorded.waypoints_at is not None and recorded.waypoints == recorded.out_dir / "waypoints.yaml"
+    assert recorded.waypoints.stat().st_mtime <= recorded.report.stat().st_mtime
+    assert len(yaml.safe_load(recorded.waypoints.read_text())["waypoints"]) == CAMERAS
     assert result.stage_names[:5] == ["clean", "crop", "segment", "filter", "optimise"]
     assert result.stage_names[-2:] == ["confirm", "total"] and all(s >= 0 for s in result.stage_seconds)
     assert 0 < result.coverage <= 1 and 0 < result.fitness <= 1

@@ -102,9 +102,7 @@ def replace_outputs(staged: Path, out_dir: Path, names: Iterable[str], stale: It
     not produced this time, and delete the staging folder; returns the moved paths."""
     out_dir.mkdir(parents=True, exist_ok=True)
     names = [n for n in names if (staged / n).exists()]
-    for name in stale:
-        if name not in names:
-            _remove(out_dir / name)
+    remove_outputs(out_dir, [name for name in stale if name not in names])
     moved = []
     for name in names:
         target = out_dir / name
@@ -114,6 +112,12 @@ def replace_outputs(staged: Path, out_dir: Path, names: Iterable[str], stale: It
         moved.append(target)
     shutil.rmtree(staged, ignore_errors=True)
     return moved
+
+
+def remove_outputs(out_dir: Path, names: Iterable[str]) -> None:
+    """Delete these files or folders from out_dir (those absent are skipped)."""
+    for name in names:
+        _remove(Path(out_dir) / name)
 
 
 def _remove(path: Path) -> None:

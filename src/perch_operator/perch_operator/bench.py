@@ -8,6 +8,8 @@
 One run starts its own graph (one process by default, `--graph-mode per-node` for node processes),
 runs the mission with auto-accept and writes waypoints.yaml. JSON fields:
   wall_s       process start to waypoints written (interpreter, imports, scene, graph start-up);
+  outputs_s    with --record (the first mission run as `perch plan` runs it: recorded, waypoints.yaml
+               written as the result comes in): process start to run.mcap, run.rrd and report.html written;
   startup_s    graph start-up alone (nodes created, services offered);
   mission_s    goal sent to result received (first mission);
   stages       seconds each stage reported for its own work;
@@ -53,6 +55,9 @@ def register(sub) -> None:
     p.add_argument("--missions", type=int, default=1, help="consecutive missions on one graph")
     p.add_argument("--repeat", type=int, default=1, help="fresh processes to run (medians reported)")
     p.add_argument("--reject", action="store_true", help="after the first mission, time one rejection's re-plan")
+    p.add_argument("--record", action="store_true",
+                   help="run the first mission as `perch plan` does: recorded to run.mcap, waypoints.yaml written "
+                        "as the result comes in, then run.rrd and report.html (adds outputs_s)")
     p.add_argument("--config", type=Path, help="parameter file")
     p.add_argument("-p", "--param", action="append", default=[], metavar="NODE:PARAM:=VALUE")
     p.add_argument("--json", action="store_true", help="print JSON (always on; accepted for uniformity)")
@@ -135,7 +140,14 @@ def _one_run(args) -> dict:
     from perch_common.launch import use_perch_dds
     from perch_operator.client import run_mission
     from perch_operator.mission_data import waypoint_dict, write_waypoints_yaml
-    from perch_operator.runner import choose_domain, client_context, graph_ros_args, start_own_graph
+    from perch_operator.runner import (
+        choose_domain,
+        client_context,
+        graph_ros_args,
+        run_recorded_mission,
+        start_own_graph,
+        write_outputs,
+    )
 
     process_start = psutil.Process().create_time()
     use_perch_dds(network=args.network or None)
@@ -150,8 +162,18 @@ def _one_run(args) -> dict:
         try:
             with RssSampler(graph.pids()) as sampler:
                 missions, failures, stage_times = [], [], {}
+                outputs_s = None
                 for i in range(max(1, args.missions)):
                     t0 = time.monotonic()
+                    if i == 0 and args.record:
+                        outputs = run_recorded_mission(node, goal, out_dir / "plan", progress=False, timeout=1800)
+                        result = outputs.result
+                        missions.append(outputs.result_seconds)
+                        wall = (outputs.waypoints_at or time.time()) - process_start
+                        write_outputs(outputs)
+                        outputs_s = round(time.time() - process_start, 3)
+                        first = result
+                        continue
                     result = run_mission(node, goal, timeout=1800)
                     missions.append(time.monotonic() - t0)
                     if i == 0:
@@ -173,7 +195,10 @@ def _one_run(args) -> dict:
            "peak_rss_mb": round(max(sampler.peak_bytes / 2**20, peak_rss_mb()), 1),
            "cameras": len(first.placements), "coverage": first.coverage, "mean_uncertainty": first.mean_uncertainty,
            "fitness": first.fitness, "failures": failures, "dead_nodes": dead,
-           "load_average_1min": round(os.getloadavg()[0], 2), "waypoints": str(out_dir / "waypoints.yaml")}
+           "load_average_1min": round(os.getloadavg()[0], 2), "recorded": bool(args.record),
+           "waypoints": str(out_dir / "plan" / "waypoints.yaml" if args.record else out_dir / "waypoints.yaml")}
+    if outputs_s is not None:
+        out["outputs_s"] = outputs_s
     if len(missions) > 1:
         out["missions"] = len(missions)
         out["mission_s_all"] = [round(m, 3) for m in missions]
@@ -195,7 +220,8 @@ def _repeated(args) -> dict:
         if done.returncode not in (0, 1) or not done.stdout.strip():
             raise RuntimeError(f"benchmark run failed (exit {done.returncode}): {done.stderr[-2000:]}")
         runs.append(json.loads(done.stdout))
-    median = {k: round(statistics.median(r[k] for r in runs), 3) for k in FIGURES + OUTCOMES}
+    figures = FIGURES + (("outputs_s",) if all("outputs_s" in r for r in runs) else ())
+    median = {k: round(statistics.median(r[k] for r in runs), 3) for k in figures + OUTCOMES}
     stage_names = runs[0]["stages"].keys()
     median["stages"] = {n: round(statistics.median(r["stages"].get(n, float("nan")) for r in runs), 3)
                         for n in stage_names}

@@ -19,7 +19,7 @@ from pathlib import Path
 
 from perch_common.conventions import NODE_SERVICES
 from perch_common.errors import PerchError
-from perch_common.outputs import replace_outputs, staging_folder
+from perch_common.outputs import atomic_path, remove_outputs, replace_outputs, staging_folder
 from perch_interfaces.action import PlanPerches
 from perch_operator.recorder import EVENT_SUFFIX, MISSION_TOPICS, MissionRecorder
 from perch_operator.stages import STAGES
@@ -40,6 +40,8 @@ class PlanOutputs:
     goal: PlanPerches.Goal | None = None
     removals: str = ""                  # text table: area each filter removed on the largest surfaces
     perches: str = ""                   # text: each accepted perch with its safety evidence
+    waypoints_at: float | None = None   # time.time() when waypoints.yaml was in out_dir
+    result_seconds: float = 0.0         # goal sent to result received (mission_seconds adds the recording's tail)
 
 
 @contextlib.contextmanager
@@ -272,7 +274,13 @@ def run_recorded_mission(node, goal: PlanPerches.Goal, out_dir: Path, progress: 
     outputs = PlanOutputs(PlanPerches.Result(), out_dir, staged / "run.mcap", staged=staged, goal=goal)
     try:
         outputs.result = run_mission(node, goal, timeout=timeout, on_feedback=printer)
+        outputs.result_seconds = time.monotonic() - started
         result = outputs.result
+        if result.success:
+            publish_waypoints(outputs)
+            if progress:
+                out.write(f"perch: {len(result.waypoints)} waypoint(s) in {outputs.waypoints}; writing the "
+                          "recording, report and rerun file\n")
         _drain(node, recorder)
         outputs.mission_seconds = time.monotonic() - started
         recorder.add_metadata("perch_mission", {
@@ -311,6 +319,21 @@ def run_recorded_mission(node, goal: PlanPerches.Goal, out_dir: Path, progress: 
             printer.close()
     recorder.close()
     return outputs
+
+
+def publish_waypoints(outputs: PlanOutputs) -> Path:
+    """The mission's product first: waypoints.yaml goes into out_dir as soon as the result is in, so
+    a dispatcher reading the file does not wait for the report. The earlier mission's outputs are
+    removed before, so the folder never mixes two missions; the rest follows (write_outputs), or,
+    should the mission end up failed after all (interrupted), FAILED replaces everything."""
+    from perch_operator.mission_data import waypoint_dict, write_waypoints_yaml
+
+    remove_outputs(outputs.out_dir, OUTPUT_NAMES)
+    outputs.out_dir.mkdir(parents=True, exist_ok=True)
+    with atomic_path(outputs.out_dir / "waypoints.yaml") as path:
+        write_waypoints_yaml(path, [waypoint_dict(w) for w in outputs.result.waypoints])
+    outputs.waypoints, outputs.waypoints_at = outputs.out_dir / "waypoints.yaml", time.time()
+    return outputs.waypoints
 
 
 def _drain(node, recorder: MissionRecorder, quiet: float = 0.3, limit: float = 5.0) -> None:
@@ -359,7 +382,8 @@ def _write_success(outputs: PlanOutputs, out) -> None:
     data = mission_data_from_result(outputs.mcap, outputs.result, outputs.goal)
     outputs.removals = removal_text(data)
     outputs.perches = perch_text(data)
-    write_waypoints_yaml(staged / "waypoints.yaml", data.waypoints)
+    if outputs.waypoints_at is None:   # not yet in out_dir (run_recorded_mission publishes them at once)
+        write_waypoints_yaml(staged / "waypoints.yaml", data.waypoints)
     if data.mesh is None:
         out.write("perch: neither the goal nor the recording holds the mesh (a bag mission without stage "
                   "events); no report or rerun file\n")
@@ -367,10 +391,13 @@ def _write_success(outputs: PlanOutputs, out) -> None:
         views = camera_views(data)
         write_rrd(data, staged / "run.rrd", views)
         write_report(data, staged, views=views)
-    moved = {p.name: p for p in replace_outputs(staged, outputs.out_dir, OUTPUT_NAMES, OUTPUT_NAMES)}
+    published = ("waypoints.yaml",) if outputs.waypoints_at is not None else ()
+    moved = {p.name: p for p in replace_outputs(staged, outputs.out_dir, OUTPUT_NAMES,
+                                                [n for n in OUTPUT_NAMES if n not in published])}
     outputs.staged = None
     outputs.mcap = moved.get("run.mcap", outputs.out_dir / "run.mcap")
-    outputs.waypoints, outputs.rrd = moved.get("waypoints.yaml"), moved.get("run.rrd")
+    outputs.waypoints = moved.get("waypoints.yaml", outputs.waypoints)
+    outputs.rrd = moved.get("run.rrd")
     outputs.report = moved.get("report.html")
 
 
