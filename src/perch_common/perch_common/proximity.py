@@ -1,14 +1,16 @@
 """Exact point-to-mesh proximity: is a sphere around each point clear of the mesh?
 
 Every triangle is sampled on a barycentric grid fine enough that each of its points lies within
-`spacing` of one of its own samples (corners included), and the samples go into one k-d tree with
-the triangle each belongs to. For a point p whose nearest sample is at distance d:
+`spacing` of one of its own grid points (corners included); the samples (the mesh's vertices and
+those grid points) go into one k-d tree. For a point p whose nearest sample is at distance d:
   d < r            a point of the mesh is closer than r: not clear;
   d >= r + spacing every point of the mesh is at least d - spacing >= r away: clear;
-  otherwise        a triangle closer than r has a sample within r + spacing: only the triangles
-                   owning such samples get the exact point-triangle distance.
-The first two settle nearly every point with one nearest-neighbour query; no candidate lists are
-built for them, however large the mesh's triangles (a decimated wall is a few metre-sized ones).
+  otherwise        the exact point-triangle distance decides, against the triangles whose bounding
+                   ball (centroid, farthest corner R_t) reaches within r: |p - c_t| < r + R_t. These
+                   come from k-d trees of centroids, one per band of R_t (half the triangles below
+                   the median, ..., the largest 0.1 %), each searched at r plus its band's largest
+                   R_t, so a few metre-sized triangles (a decimated wall) do not widen every search.
+One nearest-sample query settles nearly every point; no candidate lists are built for them.
 """
 
 from __future__ import annotations
@@ -20,7 +22,10 @@ import numpy as np
 from perch_common.mesh import Mesh
 
 SAMPLE_SPACING = 0.05     # m: band of points that need the exact test; samples ~ 2 x area / spacing^2
+RADIUS_BANDS = (0.5, 0.9, 0.99, 0.999, 1.0)   # upper quantiles of R_t bounding each band of triangles
 CHUNK_SAMPLES = 1 << 21   # samples generated at once (~50 MB of temporaries)
+CHUNK_PAIRS = 1 << 20     # point-triangle pairs tested at once (~100 MB of temporaries)
+LARGE_QUERY = 100_000     # points from which Open3D's closest points are asked instead (see clear_of_mesh)
 
 
 def point_triangle_distance(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
@@ -59,19 +64,17 @@ def _barycentric_grid(steps: int) -> np.ndarray:
 
 
 @dataclass
-class _Samples:
-    """Points on the mesh: its vertices, then grid points of the triangles larger than `spacing`
-    (each point of a triangle is within `spacing` of a corner or grid point of its own), in a
-    k-d tree; which triangles each sample lies on."""
+class _Bands:
+    """Triangle centroids and radii, and the centroid trees of the radius bands (the exact test's
+    candidates)."""
 
-    tree: object                  # scipy cKDTree of the samples
-    vertex_count: int             # samples [0, V) are the vertices
-    owner: np.ndarray             # (S - V,) face of each grid point
-    faces_of_vertex: tuple[np.ndarray, np.ndarray]   # CSR: offsets (V+1,), faces
-    spacing: float
+    centres: np.ndarray                              # (F,3)
+    radii: np.ndarray                                # (F,) farthest corner from the centroid
+    trees: list[tuple[object, np.ndarray, float]]    # (tree of centroids, face indices, largest radius)
 
 
-def _samples(mesh: Mesh, spacing: float) -> _Samples:
+def _samples(mesh: Mesh, spacing: float):
+    """k-d tree of the vertices and the grid points of the triangles longer than `spacing`."""
     from scipy.spatial import cKDTree
 
     corners = mesh.vertices[mesh.faces]                                      # (F,3,3)
@@ -79,52 +82,70 @@ def _samples(mesh: Mesh, spacing: float) -> _Samples:
     # Grid cells have edges of at most longest_edge / steps <= spacing, and no point of a cell is
     # farther from its nearest corner than the cell's longest edge.
     steps = np.maximum(1, np.ceil(edges / spacing)).astype(np.int64)
-    points, owners = [mesh.vertices], [np.zeros(0, np.int64)]
+    points = [mesh.vertices]
     for count in np.unique(steps[steps > 1]):
         faces = np.flatnonzero(steps == count)
         grid = _barycentric_grid(int(count))
         chunk = max(1, CHUNK_SAMPLES // len(grid))
         for start in range(0, len(faces), chunk):
-            chosen = faces[start:start + chunk]
-            a, b, c = corners[chosen, 0], corners[chosen, 1], corners[chosen, 2]
+            a, b, c = (corners[faces[start:start + chunk], k] for k in range(3))
             points.append((a[:, None] + grid[None, :, :1] * (b - a)[:, None] + grid[None, :, 1:] * (c - a)[:, None])
                           .reshape(-1, 3))
-            owners.append(np.repeat(chosen, len(grid)))
-    order = np.argsort(mesh.faces.ravel(), kind="stable")
-    offsets = np.searchsorted(mesh.faces.ravel()[order], np.arange(mesh.num_vertices + 1))
-    return _Samples(cKDTree(np.concatenate(points), balanced_tree=False, compact_nodes=False), mesh.num_vertices,
-                    np.concatenate(owners), (offsets, order // 3), spacing)
+    return cKDTree(np.concatenate(points), balanced_tree=False, compact_nodes=False)
 
 
-def clear_of_mesh(mesh: Mesh, points: np.ndarray, radius: float, spacing: float = SAMPLE_SPACING) -> np.ndarray:
-    """(N,) True where no point of the mesh is closer than `radius` to the point (exact, float64).
+def _bands(mesh: Mesh) -> _Bands:
+    from scipy.spatial import cKDTree
 
-    The samples' tree (~60 B a sample: the vertices and ~2 x area / spacing^2 more) is kept with
-    the mesh (Mesh.derived)."""
+    corners = mesh.vertices[mesh.faces]
+    centres = corners.mean(axis=1)
+    offsets = corners - centres[:, None]
+    radii = np.sqrt(np.einsum("fkj,fkj->fk", offsets, offsets).max(axis=1))
+    order = np.argsort(radii, kind="stable")
+    trees = []
+    bounds = np.unique(np.ceil(np.asarray(RADIUS_BANDS) * len(order)).astype(np.int64))
+    for first, last in zip(np.concatenate([[0], bounds[:-1]]), bounds):
+        members = order[first:last]
+        if len(members):
+            trees.append((cKDTree(centres[members], balanced_tree=False, compact_nodes=False), members,
+                          float(radii[members[-1]])))
+    return _Bands(centres, radii, trees)
+
+
+def clear_of_mesh(mesh: Mesh, points: np.ndarray, radius: float, spacing: float = SAMPLE_SPACING,
+                  large_query: int = LARGE_QUERY) -> np.ndarray:
+    """(N,) True where no point of the mesh is closer than `radius` to the point (exact: in float64,
+    or in Open3D's float32 from `large_query` points on).
+
+    What it builds is kept with the mesh (Mesh.derived): the samples' tree (~60 B a sample: the
+    vertices and ~2 x area / spacing^2 more), the centroid trees once a point needs the exact test
+    (~100 B a face), or, for `large_query` points and more, Open3D's scene."""
     points = np.asarray(points, np.float64).reshape(-1, 3)
     clear = np.ones(len(points), bool)
     if len(points) == 0 or mesh.num_faces == 0:
         return clear
-    index = mesh.derived(f"proximity_samples_{spacing:g}", lambda: _samples(mesh, spacing))
-    nearest, _ = index.tree.query(points, distance_upper_bound=radius + index.spacing)
+    if len(points) >= large_query:
+        # Open3D's BVH answers a closest-point query in ~1 us against the tree's ~5: for this many
+        # points its import (0.45 s, once per process) costs less than the queries it saves.
+        from perch_common.raycast import ray_scene
+
+        return ray_scene(mesh).closest_points(points)[2] >= radius
+    samples = mesh.derived(f"proximity_samples_{spacing:g}", lambda: _samples(mesh, spacing))
+    nearest, _ = samples.query(points, distance_upper_bound=radius + spacing, workers=-1)
     clear[nearest < radius] = False
-    unsure = np.flatnonzero((nearest >= radius) & (nearest < radius + index.spacing))
+    unsure = np.flatnonzero((nearest >= radius) & (nearest < radius + spacing))
     if len(unsure) == 0:
         return clear
-    near = index.tree.query_ball_point(points[unsure], radius + index.spacing, return_sorted=False)
-    rows = np.repeat(unsure, np.fromiter((len(n) for n in near), np.int64, len(near)))
-    samples = np.concatenate(near).astype(np.int64)
-    # A triangle closer than r has a corner or grid point within r + spacing: its vertices name
-    # the triangles around them, its grid points their own triangle.
-    grid = samples >= index.vertex_count
-    offsets, around = index.faces_of_vertex
-    corner_rows, corner_vertices = rows[~grid], samples[~grid]
-    counts = offsets[corner_vertices + 1] - offsets[corner_vertices]
-    starts = np.repeat(offsets[corner_vertices] - np.cumsum(counts) + counts, counts)
-    corner_faces = around[starts + np.arange(counts.sum())]
-    keys = np.unique(np.concatenate([np.repeat(corner_rows, counts), rows[grid]]) * mesh.num_faces
-                     + np.concatenate([corner_faces, index.owner[samples[grid] - index.vertex_count]]))
-    pair_rows, pair_faces = np.divmod(keys, mesh.num_faces)   # each (point, triangle) pair once
-    hit = point_triangle_distance(points[pair_rows], mesh.vertices[mesh.faces[pair_faces]]) < radius
-    clear[pair_rows[hit]] = False
+    bands = mesh.derived("proximity_bands", lambda: _bands(mesh))
+    rows, faces = [], []
+    for tree, members, largest in bands.trees:
+        near = tree.query_ball_point(points[unsure], radius + largest, return_sorted=False, workers=-1)
+        rows.append(np.repeat(unsure, np.fromiter((len(n) for n in near), np.int64, len(near))))
+        faces.append(members[np.concatenate(near).astype(np.int64)] if rows[-1].size else np.zeros(0, np.int64))
+    rows, faces = np.concatenate(rows), np.concatenate(faces)
+    reach = np.linalg.norm(points[rows] - bands.centres[faces], axis=1) - bands.radii[faces] < radius
+    rows, faces = rows[reach], faces[reach]
+    for start in range(0, len(rows), CHUNK_PAIRS):
+        r, f = rows[start:start + CHUNK_PAIRS], faces[start:start + CHUNK_PAIRS]
+        clear[r[point_triangle_distance(points[r], mesh.vertices[mesh.faces[f]]) < radius]] = False
     return clear

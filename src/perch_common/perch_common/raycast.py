@@ -8,14 +8,19 @@ is still loaded for closest-point queries (reports, benchmarks and test checkers
 
 from __future__ import annotations
 
+import os
+import threading
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 
 from perch_common.mesh import Mesh
+from perch_common.threads import OPENMP_THREADS
 
 MISS = -1
 SCENE_BYTES_PER_FACE = 64   # Embree's BVH: ~62 B a face (measured on 957k faces)
+PARALLEL_RAYS = 1 << 16     # rays from which a batch is split over the ray threads (embreex releases the GIL)
 
 
 @dataclass
@@ -34,6 +39,32 @@ class RayHits:
 
 def _float32_rows(values: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(np.asarray(values, np.float32).reshape(-1, 3))
+
+
+_pool: ThreadPoolExecutor | None = None
+_pool_lock = threading.Lock()
+
+
+def _ray_threads() -> int:
+    """Threads a large batch of rays is split over: as many as OpenMP gets (OMP_NUM_THREADS, which
+    Perch's entry points set to at most 2; Open3D's ray caster used that many)."""
+    try:
+        return max(1, int(os.environ.get("OMP_NUM_THREADS", OPENMP_THREADS)))
+    except ValueError:
+        return OPENMP_THREADS
+
+
+def _in_parallel(count: int, work) -> list:
+    """work(slice) over `count` rays: in chunks on the ray threads when the batch is large."""
+    threads = _ray_threads()
+    if count < PARALLEL_RAYS or threads == 1:
+        return [work(slice(0, count))]
+    global _pool
+    with _pool_lock:
+        if _pool is None:
+            _pool = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="perch-rays")
+    bounds = np.linspace(0, count, threads + 1).astype(int)
+    return list(_pool.map(work, [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]))
 
 
 class RayScene:
@@ -67,11 +98,11 @@ class RayScene:
         distance = np.full(len(origins), np.inf)
         normal = np.zeros((len(origins), 3))
         if len(origins) and self._scene is not None:
-            ans = self._scene.run(origins, directions, output=1)
-            face = ans["primID"].astype(np.int64)
+            parts = _in_parallel(len(origins), lambda part: self._scene.run(origins[part], directions[part], output=1))
+            face = np.concatenate([p["primID"] for p in parts]).astype(np.int64)
             face[face < 0] = MISS
             hit = face != MISS
-            distance[hit] = ans["tfar"][hit]
+            distance[hit] = np.concatenate([p["tfar"] for p in parts])[hit]
             if self._normals is None:
                 self._normals = self.mesh.face_normals()
             normal[hit] = self._normals[face[hit]]
@@ -82,15 +113,19 @@ class RayScene:
         origins, targets = _float32_rows(origins), _float32_rows(targets)
         if len(origins) == 0 or self._scene is None:
             return np.zeros(len(origins), bool)
-        # Float32 throughout (what Embree takes): the preparation must not cost more than the rays.
-        delta = targets - origins
-        length = np.sqrt(np.einsum("ij,ij->i", delta, delta))
-        usable = length > 2 * epsilon
-        skip = np.divide(epsilon, length, out=np.zeros_like(length), where=usable)
-        starts = np.ascontiguousarray(origins + delta * skip[:, None])      # epsilon along the segment
-        spans = np.ascontiguousarray(delta * (1 - 2 * skip)[:, None])       # to epsilon before its end: t in [0, 1]
-        blocked = self._scene.run(starts, spans, dists=np.ones(len(starts), np.float32), query="OCCLUDED") == 0
-        return blocked & usable
+
+        def segments(part: slice) -> np.ndarray:
+            # Float32 throughout (what Embree takes): the preparation must not cost more than the rays.
+            delta = targets[part] - origins[part]
+            length = np.sqrt(np.einsum("ij,ij->i", delta, delta))
+            usable = length > 2 * epsilon
+            skip = np.divide(epsilon, length, out=np.zeros_like(length), where=usable)
+            starts = np.ascontiguousarray(origins[part] + delta * skip[:, None])   # epsilon along the segment
+            spans = np.ascontiguousarray(delta * (1 - 2 * skip)[:, None])          # to epsilon before its end
+            blocked = self._scene.run(starts, spans, dists=np.ones(len(starts), np.float32), query="OCCLUDED") == 0
+            return blocked & usable
+
+        return np.concatenate(_in_parallel(len(origins), segments))
 
     def closest_points(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Closest mesh point, its face and the distance for each query point (Open3D, loaded and

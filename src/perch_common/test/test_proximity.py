@@ -35,9 +35,11 @@ def _random_points(mesh: Mesh, count: int, seed: int) -> np.ndarray:
 def _agrees_with_open3d(mesh: Mesh, points: np.ndarray, radius: float) -> None:
     distance = RayScene(mesh).closest_points(points)[2]
     decided = np.abs(distance - radius) > 1e-5            # Open3D measures in float32
-    clear = clear_of_mesh(mesh, points, radius)
+    clear = clear_of_mesh(mesh, points, radius, large_query=len(points) + 1)   # the sampled-triangle test
     assert (clear[decided] == (distance[decided] >= radius)).all()
     assert 0.05 < clear.mean() < 0.95                     # both answers occur
+    by_open3d = clear_of_mesh(mesh, points, radius, large_query=len(points))   # a large query: Open3D's
+    assert (by_open3d[decided] == clear[decided]).all()
 
 
 def test_clearance_of_a_mix_of_huge_and_small_triangles():

@@ -42,7 +42,8 @@ def test_closest_points(cube):
 
 def test_the_same_hits_as_open3d_on_a_real_scan():
     """Embree through embreex and Open3D's RaycastingScene (the ray caster before it) agree on
-    every first hit and every occlusion of random rays through the apartment scan."""
+    every first hit and every occlusion of random rays through the apartment scan (a batch large
+    enough to be split over the ray threads)."""
     from perch_common.data import shared_file
     from perch_common.mesh import load_mesh
     from perch_common.open3d_loader import open3d
@@ -53,8 +54,8 @@ def test_the_same_hits_as_open3d_on_a_real_scan():
     mesh = load_mesh(path)
     rng = np.random.default_rng(3)
     low, high = mesh.bounds()
-    origins = low + rng.random((50000, 3)) * (high - low)
-    targets = low + rng.random((50000, 3)) * (high - low)
+    origins = low + rng.random((100000, 3)) * (high - low)
+    targets = low + rng.random((100000, 3)) * (high - low)
     o3d = open3d()
     reference = o3d.t.geometry.RaycastingScene()
     reference.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)),
@@ -70,6 +71,18 @@ def test_the_same_hits_as_open3d_on_a_real_scan():
                                                 expected["primitive_normals"].numpy()[hits.hit])), 1.0, atol=1e-4)
     blocked = reference.test_occlusions(rays, tnear=0.0, tfar=1.0).numpy().astype(bool)
     assert (RayScene(mesh).occluded(origins, targets, epsilon=0.0) == blocked).all()
+
+
+def test_a_batch_split_over_threads_answers_as_ray_by_ray(cube):
+    from perch_common.raycast import PARALLEL_RAYS
+
+    rng = np.random.default_rng(5)
+    origins, targets = rng.uniform(-3, 3, (PARALLEL_RAYS + 999, 3)), rng.uniform(-3, 3, (PARALLEL_RAYS + 999, 3))
+    whole, hits = cube.occluded(origins, targets), cube.cast(origins, targets - origins)
+    pieces = [slice(i, i + 5000) for i in range(0, len(origins), 5000)]   # each below the split size
+    assert (whole == np.concatenate([cube.occluded(origins[p], targets[p]) for p in pieces])).all()
+    assert (hits.face == np.concatenate([cube.cast(origins[p], targets[p] - origins[p]).face for p in pieces])).all()
+    assert 0.2 < whole.mean() < 0.8
 
 
 def test_empty_batches(cube):

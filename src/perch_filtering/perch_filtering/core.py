@@ -127,10 +127,8 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
                 target.sample(config.visibility_points, seed=config.seed), config)
     clock.lap("line_of_sight")
     regions: list[PerchRegion] = []
-    for w in work:
-        if w.raster is not None:
-            kept = _reachability(w, grid, scene, config)
-            regions.extend(_regions(w, kept, len(regions), mesh.frame_id, config))
+    for w, kept in _reachability([w for w in work if w.raster is not None], grid, scene.mesh, config):
+        regions.extend(_regions(w, kept, len(regions), mesh.frame_id, config))
     clock.lap("reachability_regions")
     removals = [w.removal for w in work]
     result = FilterResult(regions, removals, oriented, "", floor_height, floor_ids,
@@ -219,18 +217,24 @@ def _support(w: _Work, scene: RayScene, kernel: np.ndarray, config: FilterConfig
     w.evidence.update(support_share=share, flatness_rms=rms)
 
 
-def _reachability(w: _Work, grid: FlightGrid, scene: RayScene, config: FilterConfig) -> np.ndarray:
+def _reachability(work: list[_Work], grid: FlightGrid, mesh: Mesh,
+                  config: FilterConfig) -> list[tuple[_Work, np.ndarray]]:
     """Filter 'reachability': the drone fits at the standoff point in front of the perch (a drone
-    radius from the mesh, measured exactly) and that point is reachable by flight from the target."""
-    stand = w.raster.cell_world(w.alive) + config.standoff * w.surface.frame.normal
-    near = grid.lookup(grid.reachable_near, stand)
-    if near.any():
-        near[near] = clear_of_mesh(scene.mesh, stand[near], config.drone_radius)
-    kept = np.zeros(w.raster.shape, bool)
-    kept[w.alive] = near
-    w.removal.reachability = float((w.alive & ~kept).sum() * w.raster.cell_area)
-    w.removal.area_kept = float(kept.sum() * w.raster.cell_area)
-    return kept
+    radius from the mesh, measured exactly) and that point is reachable by flight from the target.
+    Every surface's standoff points are measured in one query (per-query costs are paid once)."""
+    stands = [w.raster.cell_world(w.alive) + config.standoff * w.surface.frame.normal for w in work]
+    nears = [grid.lookup(grid.reachable_near, stand) for stand in stands]
+    asked = np.concatenate([stand[near] for stand, near in zip(stands, nears)]) if work else np.zeros((0, 3))
+    fits = np.split(clear_of_mesh(mesh, asked, config.drone_radius), np.cumsum([n.sum() for n in nears])[:-1])
+    out = []
+    for w, near, fit in zip(work, nears, fits):
+        near[near] = fit
+        kept = np.zeros(w.raster.shape, bool)
+        kept[w.alive] = near
+        w.removal.reachability = float((w.alive & ~kept).sum() * w.raster.cell_area)
+        w.removal.area_kept = float(kept.sum() * w.raster.cell_area)
+        out.append((w, kept))
+    return out
 
 
 def _regions(w: _Work, kept: np.ndarray, first_id: int, frame_id: str, config: FilterConfig) -> list[PerchRegion]:
