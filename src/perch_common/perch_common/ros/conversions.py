@@ -139,11 +139,16 @@ def mesh_from_request(msg: pm.TriangleMesh, what: str = "mesh") -> Mesh:
         mesh = PROCESS_CACHE.get(msg.content_id)
         if mesh is None:
             raise MeshNotCached(msg.content_id, what)
-        mesh = copy.copy(mesh)   # its own frame_id; the (read-only) arrays stay shared
-        mesh.frame_id = msg.header.frame_id or mesh.frame_id
-        return mesh
-    msg.content_id = msg_content_id(msg)
-    return _keep(msg, what)
+    else:
+        msg.content_id = msg_content_id(msg)
+        # Arrays this process already holds (the caller sent them again): the held mesh, with what
+        # the stages derived from it (its ray-cast scene), instead of a fresh copy of the same numbers.
+        mesh = PROCESS_CACHE.get(msg.content_id)
+        if mesh is None:
+            return _keep(msg, what)
+    mesh = copy.copy(mesh)   # its own frame_id; the (read-only) arrays stay shared
+    mesh.frame_id = msg.header.frame_id or (mesh.frame_id if is_id_only(msg) else "map")   # as mesh_from_msg names it
+    return mesh
 
 
 def cached_mesh_to_msg(mesh: Mesh, stamp=None) -> pm.TriangleMesh:
