@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import sys
 import threading
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from geometry_msgs.msg import PoseArray
@@ -91,6 +92,9 @@ class OperatorNode(Node):
         self.view_pub = self.create_publisher(Image, "perch/views/image", LATCHED)
         self.view_info_pub = self.create_publisher(CameraInfo, "perch/views/camera_info", LATCHED)
         self._view_scene = None
+        # Views are rendered in order on their own thread: a view is a picture for the operator, and
+        # no decision (nor an auto-accepted mission's result) waits for it.
+        self._view_worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="perch-views")
         self.action = ActionServer(self, PlanPerches, "perch/plan_perches", self._execute, callback_group=group,
                                    goal_callback=self._on_goal, cancel_callback=lambda _: CancelResponse.ACCEPT)
         self.operator: Operator | None = None
@@ -101,7 +105,9 @@ class OperatorNode(Node):
     def destroy_node(self) -> None:
         """Destroy the action server too: rclpy's destroy_node leaves action servers alive, and a
         destroyed coordinator's server (in a process that goes on, e.g. after a one-process graph
-        stopped) would keep accepting goals from the graph that nobody serves."""
+        stopped) would keep accepting goals from the graph that nobody serves. Views not yet
+        rendered are dropped (the one being rendered finishes first)."""
+        self._view_worker.shutdown(wait=True, cancel_futures=True)
         self.action.destroy()
         super().destroy_node()
 
@@ -249,7 +255,7 @@ class OperatorNode(Node):
             published = proposal_msg(proposal, alignment, regions)
             self.proposals_pub.publish(published)
             if published.id not in self._shown:
-                self._publish_view(proposal)
+                self._view_worker.submit(self._publish_view, proposal, self.operator.optimise_request)
             self._shown[published.id] = published
             if proposal.status == Status.ACCEPTED:
                 # the accepted camera's optical frame (z forward, x right, y down) for tf users and viewers
@@ -280,9 +286,9 @@ class OperatorNode(Node):
         self.markers_pub.publish(current_picture(list(self._shown.values()), self._camera,
                                                  operator.alignment.input_frame, stamp, self._scene_markers[1]))
 
-    def _publish_view(self, proposal: Proposal) -> None:
-        """The new proposal's simulated camera view (Image + CameraInfo in its drone's camera frame)."""
-        request = self.operator.optimise_request
+    def _publish_view(self, proposal: Proposal, request: srv.Optimise.Request) -> None:
+        """The new proposal's simulated camera view (Image + CameraInfo in its drone's camera frame),
+        of the optimise request that placed it (on the view thread)."""
         try:
             if self._view_scene is None or self._view_scene[0] is not request:   # one mesh and BVH per request
                 from perch_placement.core import scene_for
@@ -292,8 +298,8 @@ class OperatorNode(Node):
                 self._view_scene = request, mesh, scene_for(mesh), placement_config().camera
             _, mesh, scene, camera = self._view_scene
             rgb = render_proposal_view(mesh, scene, proposal.placement, camera, target_from_msg(request.target))
-        except (PerchError, MeshError, ValueError) as exc:  # a view is a picture: the mission goes on
-            self.get_logger().warning(f"no simulated view for proposal {proposal.id}: {exc}")
+        except Exception as exc:  # noqa: BLE001 - a view is a picture: the mission goes on, the log says why
+            self.get_logger().warning(f"no simulated view for proposal {proposal.id}: {type(exc).__name__}: {exc}")
             return
         stamp, frame = self.get_clock().now().to_msg(), camera_frame(proposal.slot)
         self.view_info_pub.publish(camera_info_msg(camera, rgb.shape[1], rgb.shape[0], frame, stamp))
