@@ -44,6 +44,23 @@ def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.eye(3) + k + k @ k / (1 + c)
 
 
+def optical_pose_looking_at(position, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """4x4 pose of a camera's optical frame (z forward, x right, y down, as REP 103 names it) at
+    `position` looking at `target`, level with `up`; ValueError when the target is straight above
+    or below (no level view)."""
+    position = np.asarray(position, np.float64)
+    forward = np.asarray(target, np.float64) - position
+    forward /= np.linalg.norm(forward)
+    right = np.cross(forward, np.asarray(up, np.float64))
+    if np.linalg.norm(right) < 1e-9:
+        raise ValueError("the target is straight above or below the camera: no level view of it")
+    right /= np.linalg.norm(right)
+    pose = np.eye(4)
+    pose[:3, :3] = np.column_stack([right, np.cross(forward, right), forward])
+    pose[:3, 3] = position
+    return pose
+
+
 UP_AXES = {"+x": (1, 0, 0), "-x": (-1, 0, 0), "+y": (0, 1, 0), "-y": (0, -1, 0),
            "+z": (0, 0, 1), "-z": (0, 0, -1)}
 

@@ -108,3 +108,16 @@ def test_up_axis_parsing():
     assert np.allclose(parse_up_axis("0 0 2"), [0, 0, 1])
     with pytest.raises(ValueError, match="up axis 'sideways'"):
         parse_up_axis("sideways")
+
+
+def test_optical_pose_looks_at_the_target_level_with_up():
+    from perch_common.transforms import optical_pose_looking_at
+
+    pose = optical_pose_looking_at([0.0, 0.0, 1.0], [2.0, 0.0, 1.0])
+    np.testing.assert_allclose(pose[:3, 2], [1, 0, 0], atol=1e-12)    # z forward, at the target
+    np.testing.assert_allclose(pose[:3, 0], [0, -1, 0], atol=1e-12)   # x right of the view
+    np.testing.assert_allclose(pose[:3, 1], [0, 0, -1], atol=1e-12)   # y down
+    np.testing.assert_allclose(pose[:3, 3], [0, 0, 1])
+    assert np.linalg.det(pose[:3, :3]) == pytest.approx(1.0)
+    with pytest.raises(ValueError, match="straight above or below"):
+        optical_pose_looking_at([0.0, 0.0, 0.0], [0.0, 0.0, 3.0])

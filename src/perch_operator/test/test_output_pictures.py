@@ -8,6 +8,7 @@ import pytest
 from perch_common.mesh import Mesh
 from perch_common.raycast import RayScene
 from perch_common.scene_generator import generate_scene
+from perch_common.transforms import optical_pose_looking_at
 from perch_common.types import CameraPlacement
 from perch_operator.mission_data import MissionData
 
@@ -61,16 +62,6 @@ def test_target_edges_drawn_as_one_polyline_call_are_the_lines_drawn_one_by_one(
     assert np.array_equal(one_by_one, at_once)
 
 
-def looking_at(position, target) -> np.ndarray:
-    z = np.asarray(target, float) - position
-    z /= np.linalg.norm(z)
-    x = np.cross(z, [0, 0, 1.0])
-    x /= np.linalg.norm(x)
-    pose = np.eye(4)
-    pose[:3, :3] = np.column_stack([x, np.cross(z, x), z])
-    pose[:3, 3] = position
-    return pose
-
 
 def scene_mission(scene) -> MissionData:
     lo, hi = scene.mesh.bounds()
@@ -78,7 +69,7 @@ def scene_mission(scene) -> MissionData:
     placements = []
     for i, (fx, fy) in enumerate([(0.2, 0.2), (0.8, 0.7)]):
         position = np.array([lo[0] + fx * (hi[0] - lo[0]), lo[1] + fy * (hi[1] - lo[1]), hi[2] - 0.4])
-        pose = looking_at(position, centre)
+        pose = optical_pose_looking_at(position, centre)
         placements.append(CameraPlacement(i, 0, pose.copy(), pose, 0.0, 0.0))
     mesh = Mesh(scene.mesh.vertices, scene.mesh.faces, scene.mesh.vertex_colors)   # nothing derived yet
     return MissionData(mesh=mesh, cropped=mesh, target=scene.target, placements=placements)

@@ -5,20 +5,9 @@ import pytest
 import yaml
 
 from perch_common.target import TargetVolume
+from perch_common.transforms import optical_pose_looking_at
 from perch_common.types import CameraPlacement
 from perch_operator.mission_data import MissionData, write_waypoints_yaml
-
-
-def looking_at(position, target) -> np.ndarray:
-    """Camera pose (optical frame: z forward, y down) at `position` looking at `target`."""
-    z = np.asarray(target, float) - position
-    z /= np.linalg.norm(z)
-    x = np.cross(z, [0, 0, 1.0])
-    x /= np.linalg.norm(x)
-    pose = np.eye(4)
-    pose[:3, :3] = np.column_stack([x, np.cross(z, x), z])
-    pose[:3, 3] = position
-    return pose
 
 
 @pytest.fixture
@@ -26,9 +15,9 @@ def mission(meshes) -> MissionData:
     mesh = meshes.room()
     mesh.vertex_colors = np.full((mesh.num_vertices, 3), 180, np.uint8)
     target = TargetVolume(center=[2.0, 1.5, 0.6], size=[1.5, 1.0, 1.2])
-    placements = [CameraPlacement(i, 0, looking_at(np.array(p), target.center), looking_at(np.array(p), target.center),
-                                  pan=0.1, tilt=-0.2, marginal_gain=0.3, coverage=0.5 + 0.2 * i)
-                  for i, p in enumerate([(0.3, 0.3, 2.4), (3.7, 2.7, 2.4)])]
+    poses = [optical_pose_looking_at(np.array(p), target.center) for p in [(0.3, 0.3, 2.4), (3.7, 2.7, 2.4)]]
+    placements = [CameraPlacement(i, 0, pose, pose, pan=0.1, tilt=-0.2, marginal_gain=0.3, coverage=0.5 + 0.2 * i)
+                  for i, pose in enumerate(poses)]
     waypoints = [{"drone_index": i, "proposal_id": 10 + i, "frame_id": "map", "position": [0.3, 0.3, 2.4],
                   "orientation_xyzw": [0, 0, 0, 1], "approach": [0.3, 0.3, 1.9], "pan": 0.1, "tilt": -0.2, "zoom": 1.0}
                  for i in range(2)]

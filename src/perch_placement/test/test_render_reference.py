@@ -7,21 +7,10 @@ import pytest
 from perch_common.mesh import Mesh
 from perch_common.raycast import RayScene
 from perch_common.scene_generator import generate_scene
+from perch_common.transforms import optical_pose_looking_at
 from perch_common.types import CameraPlacement
 from perch_placement.config import CameraSpec
 from perch_placement.render import pixel_rays, render_view, rotate_directions
-
-
-def looking_at(position, target) -> np.ndarray:
-    """Camera pose (optical frame: z forward, y down) at `position` looking at `target`."""
-    z = np.asarray(target, float) - position
-    z /= np.linalg.norm(z)
-    x = np.cross(z, [0, 0, 1.0])
-    x /= np.linalg.norm(x)
-    pose = np.eye(4)
-    pose[:3, :3] = np.column_stack([x, np.cross(z, x), z])
-    pose[:3, 3] = position
-    return pose
 
 
 def reference_view(mesh: Mesh, placement: CameraPlacement, camera: CameraSpec, scale: float):
@@ -52,7 +41,7 @@ def placements(scene) -> list[CameraPlacement]:
     out = []
     for i, (fx, fy) in enumerate(corners):
         position = np.array([lo[0] + fx * (hi[0] - lo[0]), lo[1] + fy * (hi[1] - lo[1]), hi[2] - 0.4])
-        pose = looking_at(position, centre)
+        pose = optical_pose_looking_at(position, centre)
         out.append(CameraPlacement(i, 0, pose.copy(), pose, 0.0, 0.0, zoom=1.0 + 0.5 * i))
     return out
 
