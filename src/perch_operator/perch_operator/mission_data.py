@@ -11,7 +11,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -20,9 +19,6 @@ from perch_common.mesh import Mesh
 from perch_common.target import TargetVolume
 from perch_common.types import CameraPlacement, FilterRemoval, PerchRegion, Surface
 from perch_operator.proposals import Status
-
-if TYPE_CHECKING:
-    from perch_interfaces.msg import TriangleMesh
 
 MISSION_METADATA = "perch_mission"
 
@@ -47,6 +43,7 @@ class MissionData:
 def load_mission(path: str | Path) -> MissionData:
     """Read the stage replies, proposals and waypoints of one recorded mission."""
     from perch_common.ros.conversions import (
+        held_mesh,
         mesh_from_msg,
         placement_from_msg,
         region_from_msg,
@@ -111,25 +108,6 @@ def load_mission(path: str | Path) -> MissionData:
     if data.mesh is None:
         data.mesh = data.cropped
     return data
-
-
-def held_mesh(msg: TriangleMesh) -> Mesh | None:
-    """The mesh this process's stages hold under a recorded mesh message's content id (a one-process
-    graph after its mission), else None. The same arrays, sharing what the stages derived and keep
-    with the mesh (face cross products, its ray-cast scene: no second BVH for the views), where
-    decoding the message starts from nothing. Only when the message's arrays hash to its id (3 ms on
-    100k faces, against the 60 ms BVH build it saves)."""
-    import copy
-
-    from perch_common.mesh_cache import PROCESS_CACHE
-    from perch_common.ros.conversions import msg_content_id
-
-    held = PROCESS_CACHE.get(msg.content_id) if msg.content_id else None
-    if held is None or msg_content_id(msg) != msg.content_id:
-        return None
-    mesh = copy.copy(held)   # its own frame_id; the (read-only) arrays and the derived data stay shared
-    mesh.frame_id = msg.header.frame_id or "map"   # as mesh_from_msg names it
-    return mesh
 
 
 def mission_data_from_result(path: str | Path, result, goal=None) -> MissionData:

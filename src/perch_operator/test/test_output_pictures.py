@@ -112,8 +112,7 @@ def test_a_live_missions_mesh_is_the_one_the_stages_hold(scene, monkeypatch):
     from it), but only when the recording's arrays are what its content id names."""
     import perch_common.mesh_cache
     from perch_common.mesh_cache import MeshCache
-    from perch_common.ros.conversions import cached_mesh_to_msg, mesh_to_msg
-    from perch_operator.mission_data import held_mesh
+    from perch_common.ros.conversions import cached_mesh_to_msg, held_mesh, mesh_to_msg
 
     monkeypatch.setattr(perch_common.mesh_cache, "PROCESS_CACHE", MeshCache(10**9))
     msg = cached_mesh_to_msg(scene.mesh)   # as a stage's reply: kept under its content id

@@ -139,15 +139,25 @@ def mesh_from_request(msg: pm.TriangleMesh, what: str = "mesh") -> Mesh:
         mesh = PROCESS_CACHE.get(msg.content_id)
         if mesh is None:
             raise MeshNotCached(msg.content_id, what)
-    else:
-        msg.content_id = msg_content_id(msg)
-        # Arrays this process already holds (the caller sent them again): the held mesh, with what
-        # the stages derived from it (its ray-cast scene), instead of a fresh copy of the same numbers.
-        mesh = PROCESS_CACHE.get(msg.content_id)
-        if mesh is None:
-            return _keep(msg, what)
-    mesh = copy.copy(mesh)   # its own frame_id; the (read-only) arrays stay shared
-    mesh.frame_id = msg.header.frame_id or (mesh.frame_id if is_id_only(msg) else "map")   # as mesh_from_msg names it
+        mesh = copy.copy(mesh)   # its own frame_id; the (read-only) arrays stay shared
+        mesh.frame_id = msg.header.frame_id or mesh.frame_id
+        return mesh
+    msg.content_id = msg_content_id(msg)
+    return held_mesh(msg) or _keep(msg, what)
+
+
+def held_mesh(msg: pm.TriangleMesh) -> Mesh | None:
+    """The mesh this process holds with the arrays of `msg` (which carry them), else None: the same
+    numbers, sharing what the stages derived and keep with it (face data, its ray-cast BVH), where
+    decoding the message starts from nothing. Only when the arrays hash to the message's id (3 ms
+    on 100k faces)."""
+    from perch_common.mesh_cache import PROCESS_CACHE
+
+    held = PROCESS_CACHE.get(msg.content_id) if msg.content_id else None
+    if held is None or msg_content_id(msg) != msg.content_id:
+        return None
+    mesh = copy.copy(held)   # its own frame_id; the (read-only) arrays and the derived data stay shared
+    mesh.frame_id = msg.header.frame_id or "map"   # as mesh_from_msg names it
     return mesh
 
 
