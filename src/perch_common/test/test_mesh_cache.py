@@ -84,25 +84,22 @@ def test_a_held_mesh_has_one_ray_scene_for_every_stage_and_the_budget_counts_it(
                                                                                          target[None]).tolist()
 
 
-def test_arrays_sent_again_give_the_held_mesh_and_what_stages_derived_from_it():
+def test_arrays_sent_again_give_the_held_mesh_and_what_stages_derived_from_it(monkeypatch):
     """A caller that sends a held mesh's arrays again (the operator rendering views of the optimise
     request it kept) gets the held mesh's derived data, e.g. its ray-cast scene, not a fresh copy."""
-    from perch_common.mesh_cache import PROCESS_CACHE
+    import perch_common.mesh_cache
     from perch_common.raycast import ray_scene
     from perch_common.ros.conversions import mesh_from_request, mesh_to_msg
 
+    monkeypatch.setattr(perch_common.mesh_cache, "PROCESS_CACHE", MeshCache(10**9))
     mesh = _mesh(500, 7.0)
     msg = mesh_to_msg(mesh)
     msg.header.frame_id = "odom"
-    try:
-        first = mesh_from_request(msg)                # a stage receives the arrays: kept, then derives
-        scene = ray_scene(first)
-        again = mesh_from_request(mesh_to_msg(mesh))  # the same numbers from another caller
-        assert ray_scene(again) is scene and again.frame_id == "map" and first.frame_id == "odom"
-        other = mesh_to_msg(_mesh(500, 8.0))
-        assert ray_scene(mesh_from_request(other)) is not scene
-    finally:
-        PROCESS_CACHE.clear()
+    first = mesh_from_request(msg)                # a stage receives the arrays: kept, then derives
+    scene = ray_scene(first)
+    again = mesh_from_request(mesh_to_msg(mesh))  # the same numbers from another caller
+    assert ray_scene(again) is scene and again.frame_id == "map" and first.frame_id == "odom"
+    assert ray_scene(mesh_from_request(mesh_to_msg(_mesh(500, 8.0)))) is not scene
 
 
 def test_book_sends_ids_only_where_held_and_forgets_on_a_miss():
