@@ -48,8 +48,7 @@ def freeze_startup_objects() -> None:
 
     A full collection traverses every tracked object: with the imports of a graph that is 70 ms,
     paid after each stage's reply (`release_memory`) and at every automatic full collection, on
-    the mission's critical path in a one-process graph. Garbage is collected first, so only live
-    start-up objects are frozen; everything created later is collected as before.
+    the mission's critical path in a one-process graph. Everything created later is collected as
+    before. No collection first: it finds ~20 unreachable objects at this point and takes 50 ms.
     """
-    gc.collect()
     gc.freeze()
