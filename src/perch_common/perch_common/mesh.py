@@ -102,14 +102,16 @@ class Mesh:
         every picture. Read-only, as it is shared. None without colours."""
         if self.vertex_colors is None:
             return None
-        if "face_color_table" not in self._cache:
+
+        def build() -> np.ndarray:
             # Corner by corner in uint16 (no overflow: 3 x 255): half the time of a (F,3,3) gather.
             colours = self.vertex_colors.astype(np.uint16)
             total = colours[self.faces[:, 0]] + colours[self.faces[:, 1]] + colours[self.faces[:, 2]]
             table = total.astype(np.float32) / np.float32(3 * 255)
             table.flags.writeable = False
-            self._cache["face_color_table"] = table
-        return self._cache["face_color_table"]
+            return table
+
+        return self.derived("face_color_table", build)
 
     def bounds(self) -> np.ndarray:
         """(2,3) min and max corner."""
@@ -120,10 +122,12 @@ class Mesh:
     def submesh(self, face_mask_or_indices: np.ndarray) -> "Mesh":
         """The given faces with only the vertices they use, colours kept."""
         faces = self.faces[face_mask_or_indices]
-        used, inverse = np.unique(faces, return_inverse=True)
+        # A vertex mask and its running count, not np.unique's sort (4x faster, the same order).
+        used = np.zeros(self.num_vertices, bool)
+        used[faces] = True
         return Mesh(
             vertices=self.vertices[used],
-            faces=inverse.reshape(-1, 3),
+            faces=(np.cumsum(used) - 1)[faces],
             vertex_colors=None if self.vertex_colors is None else self.vertex_colors[used],
             vertex_normals=None if self.vertex_normals is None else self.vertex_normals[used],
             frame_id=self.frame_id,

@@ -1,10 +1,10 @@
 """Exact point-to-mesh proximity: is a sphere around each point clear of the mesh?
 
-Every triangle is sampled on a barycentric grid fine enough that each of its points lies within
-`spacing` of one of its own grid points (corners included); the samples (the mesh's vertices and
-those grid points) go into one k-d tree. For a point p whose nearest sample is at distance d:
+The mesh's surface samples (perch_common.mesh_samples: its vertices and a lattice on its larger
+faces, every point of the mesh within `reach` of one) go into a k-d tree. For a point p whose
+nearest sample is at distance d:
   d < r            a point of the mesh is closer than r: not clear;
-  d >= r + spacing every point of the mesh is at least d - spacing >= r away: clear;
+  d >= r + reach   every point of the mesh is at least d - reach >= r away: clear;
   otherwise        the exact point-triangle distance decides, against the triangles whose bounding
                    ball (centroid, farthest corner R_t) reaches within r: |p - c_t| < r + R_t. These
                    come from k-d trees of centroids, one per band of R_t (half the triangles below
@@ -20,10 +20,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from perch_common.mesh import Mesh
+from perch_common.mesh_samples import mesh_samples
 
 SAMPLE_SPACING = 0.05     # m: band of points that need the exact test; samples ~ 2 x area / spacing^2
 RADIUS_BANDS = (0.5, 0.9, 0.99, 0.999, 1.0)   # upper quantiles of R_t bounding each band of triangles
-CHUNK_SAMPLES = 1 << 21   # samples generated at once (~50 MB of temporaries)
 CHUNK_PAIRS = 1 << 20     # point-triangle pairs tested at once (~100 MB of temporaries)
 LARGE_QUERY = 100_000     # points from which Open3D's closest points are asked instead (see clear_of_mesh)
 
@@ -55,14 +55,6 @@ def point_triangle_distance(points: np.ndarray, triangles: np.ndarray) -> np.nda
     return best
 
 
-def _barycentric_grid(steps: int) -> np.ndarray:
-    """(K,2) barycentric (u, v) of the grid with `steps` intervals per edge, corners excluded."""
-    i, j = np.meshgrid(np.arange(steps + 1), np.arange(steps + 1), indexing="ij")
-    corner = ((i == 0) | (i == steps)) & ((j == 0) | (j == steps))
-    keep = (i + j <= steps) & ~corner
-    return np.column_stack([i[keep], j[keep]]) / steps
-
-
 @dataclass
 class _Bands:
     """Triangle centroids and radii, and the centroid trees of the radius bands (the exact test's
@@ -72,34 +64,38 @@ class _Bands:
     radii: np.ndarray                                # (F,) farthest corner from the centroid
     trees: list[tuple[object, np.ndarray, float]]    # (tree of centroids, face indices, largest radius)
 
+    @property
+    def nbytes(self) -> int:
+        """What a mesh cache counts when the bands are kept with their mesh."""
+        trees = sum(tree.data.nbytes + tree.indices.nbytes for tree, _, _ in self.trees)
+        return self.centres.nbytes + self.radii.nbytes + trees
 
-def _samples(mesh: Mesh, spacing: float):
-    """k-d tree of the vertices and the grid points of the triangles longer than `spacing`."""
+
+@dataclass
+class _SampleTree:
+    """The surface samples in a k-d tree, and how far any point of the mesh is from one."""
+
+    tree: object    # scipy cKDTree
+    reach: float
+
+    @property
+    def nbytes(self) -> int:
+        """What a mesh cache counts when the tree is kept with its mesh."""
+        return self.tree.data.nbytes + self.tree.indices.nbytes
+
+
+def _sample_tree(mesh: Mesh, spacing: float) -> _SampleTree:
     from scipy.spatial import cKDTree
 
-    corners = mesh.vertices[mesh.faces]                                      # (F,3,3)
-    edges = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(axis=1)
-    # Grid cells have edges of at most longest_edge / steps <= spacing, and no point of a cell is
-    # farther from its nearest corner than the cell's longest edge.
-    steps = np.maximum(1, np.ceil(edges / spacing)).astype(np.int64)
-    points = [mesh.vertices]
-    for count in np.unique(steps[steps > 1]):
-        faces = np.flatnonzero(steps == count)
-        grid = _barycentric_grid(int(count))
-        chunk = max(1, CHUNK_SAMPLES // len(grid))
-        for start in range(0, len(faces), chunk):
-            a, b, c = (corners[faces[start:start + chunk], k] for k in range(3))
-            points.append((a[:, None] + grid[None, :, :1] * (b - a)[:, None] + grid[None, :, 1:] * (c - a)[:, None])
-                          .reshape(-1, 3))
-    return cKDTree(np.concatenate(points), balanced_tree=False, compact_nodes=False)
+    samples = mesh_samples(mesh, spacing)
+    return _SampleTree(cKDTree(samples.points, balanced_tree=False, compact_nodes=False), samples.reach)
 
 
 def _bands(mesh: Mesh) -> _Bands:
     from scipy.spatial import cKDTree
 
-    corners = mesh.vertices[mesh.faces]
-    centres = corners.mean(axis=1)
-    offsets = corners - centres[:, None]
+    centres = mesh.face_centroids()
+    offsets = mesh.triangles() - centres[:, None]
     radii = np.sqrt(np.einsum("fkj,fkj->fk", offsets, offsets).max(axis=1))
     order = np.argsort(radii, kind="stable")
     trees = []
@@ -117,9 +113,10 @@ def clear_of_mesh(mesh: Mesh, points: np.ndarray, radius: float, spacing: float 
     """(N,) True where no point of the mesh is closer than `radius` to the point (exact: in float64,
     or in Open3D's float32 from `large_query` points on).
 
-    What it builds is kept with the mesh (Mesh.derived): the samples' tree (~60 B a sample: the
-    vertices and ~2 x area / spacing^2 more), the centroid trees once a point needs the exact test
-    (~100 B a face), or, for `large_query` points and more, Open3D's scene."""
+    What it builds is kept with the mesh (Mesh.derived): the surface samples at `spacing` (the
+    filter's, when it asks with its own spacing) and their tree (~60 B a sample: the vertices and
+    ~2 x area / spacing^2 more), the centroid trees once a point needs the exact test (~100 B a
+    face), or, for `large_query` points and more, Open3D's scene."""
     points = np.asarray(points, np.float64).reshape(-1, 3)
     clear = np.ones(len(points), bool)
     if len(points) == 0 or mesh.num_faces == 0:
@@ -130,10 +127,10 @@ def clear_of_mesh(mesh: Mesh, points: np.ndarray, radius: float, spacing: float 
         from perch_common.raycast import ray_scene
 
         return ray_scene(mesh).closest_points(points)[2] >= radius
-    samples = mesh.derived(f"proximity_samples_{spacing:g}", lambda: _samples(mesh, spacing))
-    nearest, _ = samples.query(points, distance_upper_bound=radius + spacing, workers=-1)
+    samples = mesh.derived(f"sample_tree_{spacing:g}", lambda: _sample_tree(mesh, spacing))
+    nearest, _ = samples.tree.query(points, distance_upper_bound=radius + samples.reach, workers=-1)
     clear[nearest < radius] = False
-    unsure = np.flatnonzero((nearest >= radius) & (nearest < radius + spacing))
+    unsure = np.flatnonzero((nearest >= radius) & (nearest < radius + samples.reach))
     if len(unsure) == 0:
         return clear
     bands = mesh.derived("proximity_bands", lambda: _bands(mesh))

@@ -8,7 +8,6 @@ is still loaded for closest-point queries (reports, benchmarks and test checkers
 
 from __future__ import annotations
 
-import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -16,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from perch_common.mesh import Mesh
-from perch_common.threads import OPENMP_THREADS
+from perch_common.threads import OPENMP_THREADS, thread_environment
 
 MISS = -1
 SCENE_BYTES_PER_FACE = 64   # Embree's BVH: ~62 B a face (measured on 957k faces)
@@ -49,7 +48,7 @@ def _ray_threads() -> int:
     """Threads a large batch of rays is split over: as many as OpenMP gets (OMP_NUM_THREADS, which
     Perch's entry points set to at most 2; Open3D's ray caster used that many)."""
     try:
-        return max(1, int(os.environ.get("OMP_NUM_THREADS", OPENMP_THREADS)))
+        return max(1, int(thread_environment()["OMP_NUM_THREADS"]))
     except ValueError:
         return OPENMP_THREADS
 

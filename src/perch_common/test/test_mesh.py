@@ -19,6 +19,17 @@ def test_geometry_of_unit_square():
     assert np.allclose(m.face_colors(), [[1, 0, 0], [1, 0, 0]])
 
 
+def test_submesh_matches_the_sorted_unique_vertices_of_its_faces():
+    """The vertex-mask submesh gives what np.unique of the faces' vertices gave (order included)."""
+    rng = np.random.default_rng(3)
+    mesh = Mesh(rng.random((400, 3)), rng.integers(0, 400, (900, 3)), rng.integers(0, 255, (400, 3)))
+    for which in (rng.choice(900, 200, replace=False), rng.random(900) < 0.3):
+        used, inverse = np.unique(mesh.faces[which], return_inverse=True)
+        sub = mesh.submesh(which)
+        assert np.array_equal(sub.vertices, mesh.vertices[used]) and np.array_equal(sub.faces, inverse.reshape(-1, 3))
+        assert np.array_equal(sub.vertex_colors, mesh.vertex_colors[used])
+
+
 def test_submesh_keeps_only_used_vertices_and_colours():
     sub = square().submesh(np.array([1]))
     assert sub.num_vertices == 3 and sub.num_faces == 1

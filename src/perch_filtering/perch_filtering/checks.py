@@ -14,9 +14,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from perch_common.mesh_samples import MeshSamples
 from perch_common.types import SurfaceClass
 from perch_filtering.raster import SurfaceRaster
-from perch_filtering.sampling import MeshSamples, SampleIndex, project
+from perch_filtering.sampling import SampleIndex, project
 
 SNAP = 0.35  # cells (the worst case, a point half a cell diagonal from its cell centre, is 0.71)
 GAP = 0.25  # share of the sample spacing (points of a face lie within ~0.5 spacing of a sample)

@@ -28,6 +28,7 @@ import numpy as np
 
 from perch_common.conventions import FILTER_NAMES, is_wall
 from perch_common.mesh import Mesh, validate_mesh
+from perch_common.mesh_samples import mesh_samples
 from perch_common.polygons import faces_outline, from_shapely
 from perch_common.proximity import clear_of_mesh
 from perch_common.raycast import RayScene
@@ -41,7 +42,7 @@ from perch_filtering.holes import hole_patches
 from perch_filtering.orientation import class_enabled, find_floor, orient, oriented_copy, visibility_scores, winding_votes
 from perch_filtering.raster import SurfaceRaster, erode_window, rasterise, window_kernel
 from perch_filtering.regions import mask_polygons, triangulate
-from perch_filtering.sampling import SampleIndex, project, sample_mesh
+from perch_filtering.sampling import SampleIndex, project
 from perch_filtering.support import first_surface_depth, local_window_support, scan_noise
 from perch_filtering.validation import validate_inputs
 from perch_filtering.visibility import visible_shares
@@ -96,7 +97,7 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
     validate_mesh(mesh, "environment mesh")
     up = validate_inputs(mesh, surfaces, target, up)
     clock = Laps()
-    samples = sample_mesh(mesh, config.voxel_size)
+    samples = mesh_samples(mesh, config.voxel_size)
     wall = is_wall([s.frame.normal for s in surfaces], up, config.class_angle_deg)
     walls = [s for s, is_a_wall in zip(surfaces, wall) if is_a_wall]
     rotation = grid_rotation(up, np.array([s.frame.normal for s in walls]) if walls else None,
@@ -225,7 +226,9 @@ def _reachability(work: list[_Work], grid: FlightGrid, mesh: Mesh,
     stands = [w.raster.cell_world(w.alive) + config.standoff * w.surface.frame.normal for w in work]
     nears = [grid.lookup(grid.reachable_near, stand) for stand in stands]
     asked = np.concatenate([stand[near] for stand, near in zip(stands, nears)]) if work else np.zeros((0, 3))
-    fits = np.split(clear_of_mesh(mesh, asked, config.drone_radius), np.cumsum([n.sum() for n in nears])[:-1])
+    # The clearance test reuses the samples the filter drew (same spacing: kept with the mesh).
+    fits = np.split(clear_of_mesh(mesh, asked, config.drone_radius, config.voxel_size),
+                    np.cumsum([n.sum() for n in nears])[:-1])
     out = []
     for w, near, fit in zip(work, nears, fits):
         near[near] = fit

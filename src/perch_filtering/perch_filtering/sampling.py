@@ -1,49 +1,11 @@
-"""Dense point samples of a mesh's surface: the 'other geometry' the filters test against."""
+"""Projections and a bucket index of a mesh's surface samples (perch_common.mesh_samples), for the
+filters that test perches against the other geometry."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-from perch_common.mesh import Mesh
-
-MAX_SPLITS = 64  # a single triangle is never split into more than 64 x 64 pieces
-
-
-@dataclass
-class MeshSamples:
-    """Points on the mesh no further than `spacing` from any surface point, with their face."""
-
-    points: np.ndarray  # (N,3)
-    face: np.ndarray    # (N,) face the point lies on
-    spacing: float
-
-
-def sample_mesh(mesh: Mesh, spacing: float) -> MeshSamples:
-    """All vertices plus a barycentric lattice on every face with an edge longer than `spacing`."""
-    tris = mesh.triangles()
-    edges = np.linalg.norm(tris - np.roll(tris, 1, axis=1), axis=2).max(axis=1)
-    splits = np.clip(np.ceil(edges / spacing), 1, MAX_SPLITS).astype(np.int64)
-    vertex_face = np.zeros(mesh.num_vertices, np.int64)
-    vertex_face[mesh.faces.ravel()] = np.repeat(np.arange(mesh.num_faces), 3)
-    points, faces = [mesh.vertices], [vertex_face]
-    for k in np.unique(splits[splits > 1]):
-        members = np.flatnonzero(splits == k)
-        weights = _lattice(int(k))
-        points.append(np.einsum("wc,fcd->fwd", weights, tris[members]).reshape(-1, 3))
-        faces.append(np.repeat(members, len(weights)))
-    return MeshSamples(np.concatenate(points), np.concatenate(faces), float(spacing))
-
-
-def _lattice(k: int) -> np.ndarray:
-    """Barycentric weights of the k-split lattice of a triangle, corners excluded."""
-    i, j = np.meshgrid(np.arange(k + 1), np.arange(k + 1), indexing="ij")
-    keep = (i + j) <= k
-    i, j = i[keep], j[keep]
-    w = np.stack([k - i - j, i, j], axis=1) / k
-    corner = (w.max(axis=1) > 1 - 1e-9)
-    return w[~corner]
+from perch_common.mesh_samples import MeshSamples
 
 
 def project(points: np.ndarray, axes: np.ndarray, origin: np.ndarray | None = None) -> np.ndarray:

@@ -97,16 +97,6 @@ def test_views_and_target_scores_share_one_scene(scene, monkeypatch):
     assert built == [data.mesh]   # one BVH for both views and the scores
 
 
-def test_surfaces_go_to_rerun_as_their_submeshes(scene):
-    from perch_operator.rerun_log import _face_subset
-
-    rng = np.random.default_rng(3)
-    for faces in (np.flatnonzero(scene.face_class == scene.face_class[0]),
-                  rng.choice(scene.mesh.num_faces, 500, replace=False)):
-        fast, reference = _face_subset(scene.mesh, faces), scene.mesh.submesh(faces)
-        assert np.array_equal(fast.vertices, reference.vertices) and np.array_equal(fast.faces, reference.faces)
-
-
 def test_a_live_missions_mesh_is_the_one_the_stages_hold(scene, monkeypatch):
     """After a one-process mission the recorded mesh is the held one (with what the stages derived
     from it), but only when the recording's arrays are what its content id names."""
