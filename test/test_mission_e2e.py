@@ -113,6 +113,40 @@ def test_late_dispatcher_gets_exactly_the_current_missions_waypoints(graph, scen
     dispatcher.destroy_node()
 
 
+def test_a_lost_answer_to_the_goal_is_recovered_from_the_coordinators_status_list(graph, scene, monkeypatch):
+    """The goal reaches the coordinator but its answer never reaches the client (as when a young
+    server answers before matching the client's response reader): the client follows the goal by
+    the status topic and still gets the mission's result."""
+    from rclpy.action import ActionClient
+    from rclpy.task import Future
+
+    from perch_operator.client import run_mission
+
+    original = ActionClient.send_goal_async
+
+    def answer_lost(self, *args, **kwargs):
+        original(self, *args, **kwargs)
+        return Future()   # the answer to this request never arrives
+
+    monkeypatch.setattr(ActionClient, "send_goal_async", answer_lost)
+    started = time.monotonic()
+    result = run_mission(graph.node, make_goal(scene), timeout=300, server_wait=20)
+    assert result.success, result.message
+    assert len(result.waypoints) == CAMERAS
+    assert time.monotonic() - started < 20   # followed by its status, not waited out
+
+
+def test_a_goal_that_never_arrives_times_out_naming_the_cause(graph, scene, monkeypatch):
+    from rclpy.action import ActionClient
+    from rclpy.task import Future
+
+    from perch_operator.client import run_mission
+
+    monkeypatch.setattr(ActionClient, "send_goal_async", lambda self, *args, **kwargs: Future())   # never sent
+    with pytest.raises(TimeoutError, match="did not answer the goal within 2 s"):
+        run_mission(graph.node, make_goal(scene), timeout=300, server_wait=2)
+
+
 def test_recording_holds_every_stage_call_and_replays_clean(graph, recorded):
     from perch_operator.replay import replay
     from perch_operator.runfile import channel_counts, stage_calls

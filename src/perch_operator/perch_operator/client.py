@@ -3,15 +3,18 @@
 from __future__ import annotations
 
 import time
+import uuid
 from typing import Callable
 
 import rclpy
 from rclpy.action import ActionClient
+from unique_identifier_msgs.msg import UUID
 
 from perch_common.errors import PerchError
 from perch_interfaces.action import PlanPerches
 
 ACTION = "perch/plan_perches"
+LOST_ANSWER_GRACE = 1.0   # s a listed goal waits for its answer before the answer counts as lost
 
 
 class GoalRejected(PerchError):
@@ -29,21 +32,17 @@ def run_mission(node, goal: PlanPerches.Goal, timeout: float = 600.0, server_wai
                 on_feedback: Callable[[PlanPerches.Feedback], None] | None = None) -> PlanPerches.Result:
     """Run one mission on the live graph and return its result (success or not)."""
     client = ActionClient(node, PlanPerches, ACTION)
+    statuses = GoalStatusWatch(node)
     try:
         if not client.wait_for_server(timeout_sec=server_wait):
             raise PerchError(f"no mission coordinator: action {ACTION} did not appear within {server_wait:.0f} s; "
                              "start the graph with `perch launch` (or use `perch plan`, which launches it)")
         deadline = time.monotonic() + timeout
+        goal_id = UUID(uuid=list(uuid.uuid4().bytes))
         sent = client.send_goal_async(
-            goal, feedback_callback=(lambda m: on_feedback(m.feedback)) if on_feedback else None)
-        # The coordinator answers a goal at once (accepted or refused); no answer means it never got it.
-        try:
-            _spin_until(node, sent, min(deadline, time.monotonic() + server_wait), "sending the goal")
-        except TimeoutError:
-            raise TimeoutError(f"the coordinator did not answer the goal within {server_wait:.0f} s (another "
-                               "process on this ROS domain may serve the action without running it: "
-                               "`ros2 action info` lists the servers, a restart of the graph clears it)") from None
-        handle = sent.result()
+            goal, feedback_callback=(lambda m: on_feedback(m.feedback)) if on_feedback else None, goal_uuid=goal_id)
+        handle = _goal_handle(node, client, sent, goal_id, statuses,
+                              min(deadline, time.monotonic() + server_wait), server_wait)
         if not handle.accepted:
             raise GoalRejected("the coordinator rejected the goal: another mission is running (wait for it, "
                                "or cancel it with `perch operator cancel`); nothing was written")
@@ -56,7 +55,57 @@ def run_mission(node, goal: PlanPerches.Goal, timeout: float = 600.0, server_wai
             raise
         return result.result().result
     finally:
+        statuses.destroy()
         client.destroy()
+
+
+class GoalStatusWatch:
+    """The goals the coordinator's status topic lists (transient local: a late reader gets the last list)."""
+
+    def __init__(self, node):
+        from action_msgs.msg import GoalStatusArray
+        from rclpy.qos import qos_profile_action_status_default
+
+        self.node = node
+        self.accepted: dict[bytes, object] = {}   # goal id -> the time the coordinator accepted it
+        self._sub = node.create_subscription(GoalStatusArray, ACTION + "/_action/status", self._on_status,
+                                             qos_profile_action_status_default)
+
+    def _on_status(self, msg) -> None:
+        for status in msg.status_list:
+            self.accepted.setdefault(bytes(status.goal_info.goal_id.uuid), status.goal_info.stamp)
+
+    def destroy(self) -> None:
+        """Stop listening."""
+        self.node.destroy_subscription(self._sub)
+
+
+def _goal_handle(node, client, sent, goal_id, statuses: GoalStatusWatch, deadline: float, server_wait: float):
+    """The goal's handle from the coordinator's answer, or from its status list when the answer is lost.
+
+    A service response is dropped when the server answers before it has matched this client's
+    response reader (a young coordinator, or a young client on a busy machine). The goal is then
+    running all the same, and the status topic lists it: the mission is followed from there."""
+    from rclpy.action.client import ClientGoalHandle
+
+    key = bytes(goal_id.uuid)
+    listed_at = None
+    while not sent.done():
+        now = time.monotonic()
+        if key in statuses.accepted:
+            listed_at = listed_at or now
+            if now - listed_at > LOST_ANSWER_GRACE:
+                node.get_logger().warning("the coordinator's answer to the goal was lost on the way; "
+                                          "following the goal by its status instead")
+                answer = PlanPerches.Impl.SendGoalService.Response(accepted=True, stamp=statuses.accepted[key])
+                return ClientGoalHandle(client, goal_id, answer)
+        if now > deadline:
+            # The coordinator answers a goal at once (accepted or refused); no answer means it never got it.
+            raise TimeoutError(f"the coordinator did not answer the goal within {server_wait:.0f} s (another "
+                               "process on this ROS domain may serve the action without running it: "
+                               "`ros2 action info` lists the servers, a restart of the graph clears it)")
+        rclpy.spin_until_future_complete(node, sent, timeout_sec=0.1)
+    return sent.result()
 
 
 class ProgressPrinter:
