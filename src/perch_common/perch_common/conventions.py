@@ -53,6 +53,10 @@ STAGE_SERVICES: dict[str, str] = {
     "optimise": "perch/optimise",
 }
 CONFIRM_SERVICE = "perch/confirm"  # the operator's accept/reject service (not a pipeline stage)
+# The mission action and the two of its topics a client or recorder names itself (relative names).
+MISSION_ACTION = "perch/plan_perches"
+MISSION_FEEDBACK_TOPIC = MISSION_ACTION + "/_action/feedback"
+MISSION_STATUS_TOPIC = MISSION_ACTION + "/_action/status"
 # Which node offers which services; the first one tells that the node is up.
 NODE_SERVICES: dict[str, list[str]] = {
     "perch_operator": [STAGE_SERVICES["crop"], CONFIRM_SERVICE],

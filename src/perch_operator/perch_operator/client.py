@@ -10,10 +10,11 @@ import rclpy
 from rclpy.action import ActionClient
 from unique_identifier_msgs.msg import UUID
 
+from perch_common.conventions import MISSION_ACTION, MISSION_STATUS_TOPIC
 from perch_common.errors import PerchError
 from perch_interfaces.action import PlanPerches
 
-ACTION = "perch/plan_perches"
+ACTION = MISSION_ACTION   # the name `perch operator` and the soak import
 LOST_ANSWER_GRACE = 1.0   # s a listed goal waits for its answer before the answer counts as lost
 
 
@@ -68,7 +69,7 @@ class GoalStatusWatch:
 
         self.node = node
         self.accepted: dict[bytes, object] = {}   # goal id -> the time the coordinator accepted it
-        self._sub = node.create_subscription(GoalStatusArray, ACTION + "/_action/status", self._on_status,
+        self._sub = node.create_subscription(GoalStatusArray, MISSION_STATUS_TOPIC, self._on_status,
                                              qos_profile_action_status_default)
 
     def _on_status(self, msg) -> None:

@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import time
 
-FEEDBACK_TOPIC = "perch/plan_perches/_action/feedback"   # relative to the coordinator's namespace
+from perch_common.conventions import MISSION_FEEDBACK_TOPIC
+
 ADOPT_SECONDS = 5.0   # readers discovered this soon after the goal started count as its client
 CHECK_PERIOD = 0.5    # s between graph queries
 
@@ -18,7 +19,7 @@ CHECK_PERIOD = 0.5    # s between graph queries
 class GoalWatch:
     """`gone()` turns True when the feedback readers present at the goal's start have all vanished."""
 
-    def __init__(self, node, grace: float, topic: str = FEEDBACK_TOPIC):
+    def __init__(self, node, grace: float, topic: str = MISSION_FEEDBACK_TOPIC):
         self.node = node
         self.grace = grace
         self.topic = node.resolve_topic_name(topic)

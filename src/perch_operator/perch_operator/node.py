@@ -21,7 +21,7 @@ from sensor_msgs.msg import CameraInfo, Image
 from unique_identifier_msgs.msg import UUID
 from visualization_msgs.msg import MarkerArray
 
-from perch_common.conventions import CONFIRM_SERVICE, STAGE_SERVICES
+from perch_common.conventions import CONFIRM_SERVICE, MISSION_ACTION, STAGE_SERVICES
 from perch_common.errors import PerchError
 from perch_common.mesh import MeshError, validate_mesh
 from perch_common.ros.conversions import (
@@ -95,7 +95,7 @@ class OperatorNode(Node):
         # Views are rendered in order on their own thread: a view is a picture for the operator, and
         # no decision (nor an auto-accepted mission's result) waits for it.
         self._view_worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="perch-views")
-        self.action = ActionServer(self, PlanPerches, "perch/plan_perches", self._execute, callback_group=group,
+        self.action = ActionServer(self, PlanPerches, MISSION_ACTION, self._execute, callback_group=group,
                                    goal_callback=self._on_goal, cancel_callback=lambda _: CancelResponse.ACCEPT)
         self.operator: Operator | None = None
         self._busy = threading.Lock()

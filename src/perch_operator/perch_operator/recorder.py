@@ -16,11 +16,10 @@ from pathlib import Path
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from perch_common.conventions import CONFIRM_SERVICE
+from perch_common.conventions import CONFIRM_SERVICE, MISSION_FEEDBACK_TOPIC
 from perch_common.ros import bag_format
 from perch_common.ros.msgdefs import full_definition, message_class
 from perch_common.ros.static_transforms import TF_STATIC_TOPIC
-from perch_operator.goal_watch import FEEDBACK_TOPIC
 from perch_operator.stages import STAGES
 
 EVENT_SUFFIX = "/_service_event"
@@ -29,7 +28,7 @@ GRAPH_METADATA = "perch_graph"  # metadata record: the namespace the recorded na
 SERVICES = {s.service: s.srv_type for s in STAGES.values()}
 # The coordinator's topics, subscribed by name (not only once discovered), so none is missed: a
 # topic found only by discovery is missing whenever the client is faster than the graph query.
-MISSION_TOPICS = {FEEDBACK_TOPIC: "perch_interfaces/action/PlanPerches_FeedbackMessage",
+MISSION_TOPICS = {MISSION_FEEDBACK_TOPIC: "perch_interfaces/action/PlanPerches_FeedbackMessage",
                   "perch/proposals": "perch_interfaces/msg/Proposal",
                   "perch/waypoints": "perch_interfaces/msg/PerchWaypoint",
                   "perch/waypoint_poses": "geometry_msgs/msg/PoseArray",
