@@ -3,9 +3,11 @@
 Surfaces outlined in their class colour, the area each safety filter removed (a label per surface,
 coloured by the filter that removed most), perch regions coloured by surface class, the target
 volume, and for each proposal its perch (coloured
-by status), the camera frustum drawn from the CameraSpec, and a label `#id status gain`. Every array
-starts with DELETEALL, so the latched last message is the whole current picture. Built from messages
-and numpy only (no rclpy).
+by status), the camera frustum drawn from the CameraSpec, and a short label `#id`. Every array
+starts with DELETEALL, so the latched last message is the whole current picture. The scan itself goes
+out as one decimated TRIANGLE_LIST with per-vertex colours (`scan_marker`, within a triangle budget
+so a viewer stays light). Labels stay short: the removal numbers belong in the report and the console.
+Built from messages and numpy only (no rclpy).
 """
 
 from __future__ import annotations
@@ -26,6 +28,8 @@ STATUS_COLOURS = {pm.Proposal.STATUS_PENDING: (1.0, 0.75, 0.1), pm.Proposal.STAT
 CLASS_COLOURS = {pm.Surface.CLASS_UNKNOWN: (0.6, 0.6, 0.6), pm.Surface.CLASS_FLOOR: (0.55, 0.4, 0.25),
                  pm.Surface.CLASS_WALL: (0.25, 0.5, 0.9), pm.Surface.CLASS_CEILING: (0.9, 0.9, 0.55),
                  pm.Surface.CLASS_INTERMEDIATE: (0.6, 0.3, 0.8)}
+SCAN_TRIANGLE_BUDGET = 60_000  # triangles of the viewers' scan marker: ~4 MB on the wire, smooth in RViz/Foxglove
+SCAN_GREY = (0.72, 0.72, 0.72)  # a scan without colours
 FRUSTUM_DRAW_RANGE = 1.5  # m: frustums are drawn this deep (or to max_range if shorter), not to the full range
 
 
@@ -96,8 +100,7 @@ def proposal_markers(proposal: pm.Proposal, camera: pm.CameraSpec, frame_id: str
     label.pose = Pose(position=Point(x=placement.drone_pose.position.x, y=placement.drone_pose.position.y,
                                      z=placement.drone_pose.position.z + 0.25), orientation=Quaternion(w=1.0))
     label.scale = Vector3(x=0.0, y=0.0, z=0.12)
-    label.text = (f"#{proposal.id} drone {placement.drone_index} {STATUS_NAMES.get(proposal.status, '?')} "
-                  f"gain {placement.marginal_gain:.3f}")
+    label.text = f"#{proposal.id}"  # status is the colour; drone, gain and evidence are in the console and report
     return [perch, frustum, label]
 
 
@@ -159,9 +162,45 @@ def surface_outline(surface: pm.Surface, to_input: np.ndarray, frame_id: str, st
     return marker
 
 
+def display_mesh(mesh, max_triangles: int = SCAN_TRIANGLE_BUDGET):
+    """`mesh` (perch_common Mesh) decimated for display to at most `max_triangles`, colours kept.
+
+    Vertex clustering on a grid (perch_reconstruction's, colours averaged per cell): linear time and
+    shape-faithful enough to recognise a room; the grid is coarsened until the budget holds.
+    """
+    from perch_reconstruction.mesh_ops import cluster_vertices
+
+    if max_triangles <= 0:
+        raise ValueError(f"max_triangles must be positive, got {max_triangles}")
+    target = max_triangles
+    while mesh.num_faces > max_triangles:
+        mesh = cluster_vertices(mesh, target)
+        target = max(1, int(target * 0.7))
+    return mesh
+
+
+def scan_marker(mesh, to_input: np.ndarray, frame_id: str, stamp,
+                max_triangles: int = SCAN_TRIANGLE_BUDGET) -> Marker | None:
+    """The scan as one TRIANGLE_LIST marker with per-vertex colours (grey without), decimated to at
+    most `max_triangles`, in the input frame (`to_input` takes the mesh's frame there)."""
+    shown = display_mesh(mesh, max_triangles)
+    if shown.num_faces == 0:
+        return None
+    marker = _marker(Marker.TRIANGLE_LIST, "scan", 0, frame_id, stamp, (1.0, 1.0, 1.0))
+    corners = shown.faces.reshape(-1)
+    marker.points = _points(_apply(to_input, shown.vertices[corners]))
+    if shown.vertex_colors is not None:
+        rgb = shown.vertex_colors[corners].astype(np.float64) / 255.0
+        marker.colors = [ColorRGBA(r=r, g=g, b=b, a=1.0) for r, g, b in rgb.tolist()]
+    else:
+        marker.color = _colour(SCAN_GREY)
+    return marker
+
+
 def removal_label(surface: pm.Surface, removal: pm.FilterRemoval, to_input: np.ndarray, frame_id: str, stamp,
                   filter_names, filter_colours) -> Marker | None:
-    """The area each filter removed from a surface, as a label coloured by the filter that removed most."""
+    """A short label `S<id>` on a surface a filter trimmed, coloured by the filter that removed most
+    (how much each removed is in the report and the console, not in a 3D label)."""
     removed = [(float(getattr(removal, name)), name, colour) for name, colour in zip(filter_names, filter_colours)
                if float(getattr(removal, name)) > 0]
     if not removed:
@@ -174,8 +213,7 @@ def removal_label(surface: pm.Surface, removal: pm.FilterRemoval, to_input: np.n
     marker.pose = Pose(position=Point(x=float(position[0]), y=float(position[1]), z=float(position[2])),
                        orientation=Quaternion(w=1.0))
     marker.scale = Vector3(x=0.0, y=0.0, z=0.1)
-    marker.text = f"surface {surface.id} removed: " + ", ".join(f"{name} {area:.2f} m2" for area, name, _ in
-                                                                sorted(removed, reverse=True))
+    marker.text = f"S{surface.id}"
     return marker
 
 

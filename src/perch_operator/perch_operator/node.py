@@ -19,7 +19,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 from unique_identifier_msgs.msg import UUID
-from visualization_msgs.msg import MarkerArray
+from visualization_msgs.msg import Marker, MarkerArray
 
 from perch_common.conventions import CONFIRM_SERVICE, MISSION_ACTION, STAGE_SERVICES
 from perch_common.errors import PerchError
@@ -43,7 +43,7 @@ from perch_interfaces.action import PlanPerches
 from perch_operator.config import OperatorConfig
 from perch_operator.crop import crop_mesh
 from perch_operator.goal_watch import GoalWatch
-from perch_operator.markers import camera_frame, current_picture, scene_markers
+from perch_operator.markers import camera_frame, current_picture, scan_marker, scene_markers
 from perch_operator.messages import box_from_ros, pose_array_msg, proposal_msg, waypoint_msg, waypoint_set_msg
 from perch_operator.mission import Mission, MissionOptions, Operator, decide
 from perch_operator.mission_data import placement_config
@@ -92,6 +92,11 @@ class OperatorNode(Node):
         self.view_pub = self.create_publisher(Image, "perch/views/image", LATCHED)
         self.view_info_pub = self.create_publisher(CameraInfo, "perch/views/camera_info", LATCHED)
         self._view_scene = None
+        # Viewers: the scan as one decimated, coloured TRIANGLE_LIST, and each drone's own view topics
+        # (perch/views/drone_N/image, camera_info: an image panel per drone), latched.
+        self.scan_pub = self.create_publisher(Marker, "perch/scan_marker", LATCHED_LAST)
+        self._scan_shown = False  # this mission's scan marker has gone to the view thread
+        self._drone_view_pubs: dict[int, tuple] = {}
         # Views are rendered in order on their own thread: a view is a picture for the operator, and
         # no decision (nor an auto-accepted mission's result) waits for it.
         self._view_worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="perch-views")
@@ -155,6 +160,7 @@ class OperatorNode(Node):
         config = read_config(self, OperatorConfig)
         self._mission_id = UUID(uuid=goal_handle.goal_id.uuid)
         self._shown, self._camera, self._view_scene, self._scene_markers = {}, None, None, None
+        self._scan_shown = False
         self.waypoint_set_pub.publish(waypoint_set_msg(self._mission_id, [], self._frame_id(),
                                                        self.get_clock().now().to_msg()))
         options = MissionOptions(
@@ -183,6 +189,10 @@ class OperatorNode(Node):
 
         def aligned(alignment) -> None:  # the input frame -> gravity-aligned frame, for tf users
             self.static_transforms.send(alignment_to_msg(alignment))
+            given = goal_handle.request.mesh   # the scan for viewers, early: it is in the input frame already
+            if len(given.triangles) and not self._scan_shown:
+                self._scan_shown = True
+                self._view_worker.submit(self._publish_scan, given, np.eye(4), alignment.input_frame)
 
         mission = Mission(self.stages, options, self._next_proposal_id, feedback, cancelled,
                           self._publish_proposal, adopt, review, aligned)
@@ -280,6 +290,10 @@ class OperatorNode(Node):
         operator, stamp = self.operator, self.get_clock().now().to_msg()
         shown = (request, operator.alignment, operator.surfaces, operator.removals)  # the same objects all mission
         if self._scene_markers is None or any(a is not b for a, b in zip(self._scene_markers[0], shown)):
+            if not self._scan_shown:   # a reconstructed scan: the mission's mesh (on the view thread)
+                self._scan_shown = True
+                self._view_worker.submit(self._publish_scan, request.mesh, operator.alignment.to_input(),
+                                         operator.alignment.input_frame)
             self._scene_markers = shown, scene_markers(list(request.regions), request.target,
                                                        operator.alignment.to_input(), operator.alignment.input_frame,
                                                        stamp, operator.surfaces, operator.removals)
@@ -302,8 +316,28 @@ class OperatorNode(Node):
             self.get_logger().warning(f"no simulated view for proposal {proposal.id}: {type(exc).__name__}: {exc}")
             return
         stamp, frame = self.get_clock().now().to_msg(), camera_frame(proposal.slot)
-        self.view_info_pub.publish(camera_info_msg(camera, rgb.shape[1], rgb.shape[0], frame, stamp))
-        self.view_pub.publish(image_msg(rgb, frame, stamp))
+        info, image = camera_info_msg(camera, rgb.shape[1], rgb.shape[0], frame, stamp), image_msg(rgb, frame, stamp)
+        self.view_info_pub.publish(info)
+        self.view_pub.publish(image)
+        if proposal.slot not in self._drone_view_pubs:
+            prefix = f"perch/views/drone_{proposal.slot}"
+            self._drone_view_pubs[proposal.slot] = (self.create_publisher(Image, f"{prefix}/image", LATCHED_LAST),
+                                                    self.create_publisher(CameraInfo, f"{prefix}/camera_info",
+                                                                          LATCHED_LAST))
+        image_pub, info_pub = self._drone_view_pubs[proposal.slot]
+        info_pub.publish(info)
+        image_pub.publish(image)
+
+    def _publish_scan(self, mesh_msg: pm.TriangleMesh, to_input: np.ndarray, frame_id: str) -> None:
+        """The mission's scan for viewers (perch/scan_marker, decimated, on the view thread), in the input frame."""
+        try:
+            mesh = mesh_from_request(mesh_msg, "mission mesh")
+            marker = scan_marker(mesh, to_input, frame_id, self.get_clock().now().to_msg())
+        except Exception as exc:  # noqa: BLE001 - a picture: the mission goes on, the log says why
+            self.get_logger().warning(f"no scan marker: {type(exc).__name__}: {exc}")
+            return
+        if marker is not None:
+            self.scan_pub.publish(marker)
 
     def _waypoint(self, proposal: Proposal, config: OperatorConfig | None = None) -> pm.PerchWaypoint:
         config = config or read_config(self, OperatorConfig)

@@ -72,7 +72,7 @@ def test_mission_markers_clear_then_draw_regions_target_and_labelled_proposals()
     [box] = by_ns["target_volume"]
     assert (box.type, box.pose.position.x, box.scale.y) == (Marker.CUBE, 10.0, 3.0)
     labels = sorted(m.text for m in by_ns["proposal_labels"])
-    assert labels == ["#7 drone 2 accepted gain 0.125", "#8 drone 2 rejected gain 0.500"]
+    assert labels == ["#7", "#8"]   # short: status is the colour, the numbers are in the console and report
     assert len(by_ns["camera_frustums"]) == 2 and all(len(m.points) == 16 for m in by_ns["camera_frustums"])
     accepted, rejected = sorted(by_ns["perch_proposals"], key=lambda m: m.id)
     assert accepted.color.g > accepted.color.r and rejected.color.r > rejected.color.g
@@ -114,5 +114,52 @@ def test_surfaces_are_outlined_by_class_and_removals_labelled_by_filter():
     assert len(outline.points) == 8 and {p.z for p in outline.points} == {2.5}  # 4 edges of the ring
     assert (outline.points[0].x, outline.points[1].x) == (0.0, 2.0)
     [label] = [m for m in markers if m.ns == "area_removed"]
-    assert label.text == f"surface 3 removed: {FILTER_NAMES[2]} 1.25 m2, {FILTER_NAMES[0]} 0.25 m2"
+    assert label.text == "S3"   # short: how much each filter removed is in the report and the console
     assert label.color.r == pytest.approx(FILTER_COLOURS[2][0] / 255)
+
+
+def scan(faces_per_side: int = 60, coloured: bool = True):
+    """A coloured open box (floor and four walls) of 5 x (2 * faces_per_side^2) triangles."""
+    import trimesh
+
+    from perch_common.mesh import Mesh
+
+    box = trimesh.creation.box(extents=(4.0, 3.0, 2.5))
+    box = box.subdivide_to_size(max(box.extents) / faces_per_side)
+    keep = box.face_normals[:, 2] < 0.5   # no ceiling: a viewer looks in from above
+    mesh = Mesh(box.vertices, box.faces[keep])
+    if coloured:
+        red = (mesh.vertices[:, 0] > 0).astype(np.uint8) * 200   # the +x half red, the other blue
+        mesh.vertex_colors = np.stack([red + 30, np.full_like(red, 40), 230 - red], axis=1)
+    return mesh
+
+
+def test_scan_marker_is_a_coloured_triangle_list_within_its_budget_in_the_input_frame():
+    from perch_operator.markers import scan_marker
+
+    mesh = scan()
+    assert mesh.num_faces > 20_000
+    to_input = np.eye(4)
+    to_input[:3, 3] = [0.0, 0.0, 1.0]
+    marker = scan_marker(mesh, to_input, "map", None, max_triangles=5_000)
+    assert (marker.type, marker.header.frame_id, marker.ns) == (Marker.TRIANGLE_LIST, "map", "scan")
+    triangles = len(marker.points) // 3
+    assert len(marker.points) % 3 == 0 and 1_000 < triangles <= 5_000
+    assert len(marker.colors) == len(marker.points)   # per-vertex colours
+    xyz = np.array([(p.x, p.y, p.z) for p in marker.points])
+    np.testing.assert_allclose(xyz.min(axis=0), [-2.0, -1.5, -0.25], atol=0.15)   # shape kept, shifted 1 m up
+    np.testing.assert_allclose(xyz.max(axis=0), [2.0, 1.5, 2.25], atol=0.15)
+    rgb = np.array([(c.r, c.g, c.b) for c in marker.colors])
+    far_red, far_blue = xyz[:, 0] > 1.0, xyz[:, 0] < -1.0
+    assert rgb[far_red, 0].min() > 0.8 and rgb[far_blue, 2].min() > 0.8   # colours stay where they were
+
+
+def test_scan_marker_without_colours_is_grey_and_a_small_scan_is_sent_whole():
+    from perch_operator.markers import SCAN_GREY, scan_marker
+
+    mesh = scan(faces_per_side=8, coloured=False)
+    marker = scan_marker(mesh, np.eye(4), "odom", None)
+    assert len(marker.points) == 3 * mesh.num_faces and not marker.colors
+    assert (marker.color.r, marker.color.a) == (pytest.approx(SCAN_GREY[0]), 1.0)
+    with pytest.raises(ValueError, match="max_triangles must be positive"):
+        scan_marker(mesh, np.eye(4), "odom", None, max_triangles=0)
