@@ -55,10 +55,23 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     temp_path = Path(temp)
     try:
         yield temp_path
+        if temp_path.exists():   # mkstemp made it 0600; a finished file gets the mode open() would give
+            os.chmod(temp_path, 0o666 & ~current_umask())
         os.replace(temp_path, path)
     finally:
         with contextlib.suppress(FileNotFoundError):
             temp_path.unlink()
+
+
+def current_umask() -> int:
+    """This process's umask (Linux reads it without changing it; elsewhere set and restored at once)."""
+    with contextlib.suppress(OSError, ValueError):
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 def staging_folder(out_dir: str | Path) -> Path:

@@ -219,7 +219,7 @@ def _record(args) -> int:
     from perch_operator.runner import spin_for
 
     def body(node) -> int:
-        recorder = MissionRecorder(node, args.output)
+        recorder = MissionRecorder(node, args.output, latched=True)  # the latched state, as ros2 bag record
         started = time.monotonic()
         print(f"perch record: recording /perch to {args.output} (Ctrl-C stops)", file=sys.stderr)
         try:

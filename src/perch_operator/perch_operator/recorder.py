@@ -6,6 +6,13 @@ rosbag2's metadata record, so rosbag2, rosbags and Foxglove list, decode and rep
 recorder lives in the client's process and subscribes before the goal is sent and waits until the
 coordinator's topics and the stage event topics are matched (`wait_matched`); it records what is
 published from then on. Outputs do not depend on it: they come from the mission result.
+
+QoS as `ros2 bag record` chooses it (rosbag2's adapt-to-offers): reliable unless a publisher is
+best effort; with `latched=True` (`perch record`) transient local when every publisher of the topic
+is, so a recording started after a mission holds the latched state (/tf_static, the markers, the
+mission's waypoints). A mission's own recording stays volatile: it holds that mission only, not what
+an earlier mission left latched. Each channel carries its type's RIHS01 hash (`topic_type_hash`)
+as rosbag2 Jazzy writes it: the publishers' hash from discovery, else the installed type's.
 """
 
 from __future__ import annotations
@@ -18,7 +25,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from perch_common.conventions import CONFIRM_SERVICE, MISSION_FEEDBACK_TOPIC
 from perch_common.ros import bag_format
-from perch_common.ros.msgdefs import full_definition, message_class
+from perch_common.ros.msgdefs import full_definition, message_class, type_hash
 from perch_common.ros.static_transforms import TF_STATIC_TOPIC
 from perch_operator.stages import STAGES
 
@@ -54,7 +61,7 @@ class MissionRecorder:
     `perch_graph` metadata record so readers can look names up relative to it.
     """
 
-    def __init__(self, node, path: str | Path, prefix: str = "perch"):
+    def __init__(self, node, path: str | Path, prefix: str = "perch", latched: bool = False):
         from mcap.writer import CompressionType, Writer
 
         self.node = node
@@ -71,6 +78,9 @@ class MissionRecorder:
         self.counts: dict[str, int] = {}
         self._types: dict[str, str] = {}
         self._profiles: dict[str, list] = {}
+        self._hashes: dict[str, str] = {}
+        self._qos: dict[str, tuple] = {}   # topic -> (reliability, durability) subscribed with
+        self.latched = latched
         self._first_ns: int | None = None
         self._last_ns = 0
         self._closed = False
@@ -87,11 +97,26 @@ class MissionRecorder:
         for name, type_name in topics.items():
             if name not in self._subs:
                 self._subscribe(name, type_name)
+            elif self._qos[name] != self._wanted_qos(name) and not self.counts.get(name):
+                # Subscribed by name before its publishers were known: now they are, take their QoS
+                # (only while nothing was received, so no message is recorded twice).
+                self.node.destroy_subscription(self._subs.pop(name))
+                self._subscribe(name, type_name)
+
+    def _wanted_qos(self, topic: str) -> tuple:
+        """(reliability, durability) `ros2 bag record` would request from the topic's publishers now."""
+        infos = self.node.get_publishers_info_by_topic(topic)
+        best_effort = any(i.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for i in infos)
+        latched = self.latched and infos and all(
+            i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in infos)
+        return (ReliabilityPolicy.BEST_EFFORT if best_effort else ReliabilityPolicy.RELIABLE,
+                DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
 
     def _subscribe(self, topic: str, type_name: str) -> None:
         msg_class = message_class(type_name)
-        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, durability=DurabilityPolicy.VOLATILE,
-                         reliability=self._reliability(topic))
+        reliability, durability = self._qos[topic] = self._wanted_qos(topic)
+        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, durability=durability,
+                         reliability=reliability)
         self._subs[topic] = self.node.create_subscription(
             msg_class, topic, lambda data, t=topic, n=type_name: self._write(t, n, data), qos, raw=True)
 
@@ -99,12 +124,12 @@ class MissionRecorder:
         """The QoS of the topic's publishers now, as rosbags profiles (for `ros2 bag play`)."""
         return [qos_from_rclpy(i.qos_profile) for i in self.node.get_publishers_info_by_topic(topic)]
 
-    def _reliability(self, topic: str) -> ReliabilityPolicy:
-        """Reliable unless a publisher is best-effort (a reliable reader would not match it)."""
-        infos = self.node.get_publishers_info_by_topic(topic)
-        if any(i.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for i in infos):
-            return ReliabilityPolicy.BEST_EFFORT
-        return ReliabilityPolicy.RELIABLE
+    def _type_hash(self, topic: str, type_name: str) -> str:
+        """The publishers' RIHS01 hash (what rosbag2 records), else the installed type's."""
+        for info in self.node.get_publishers_info_by_topic(topic):
+            if info.topic_type == type_name and info.topic_type_hash.version > 0:
+                return str(info.topic_type_hash)
+        return type_hash(type_name)
 
     def _write(self, topic: str, type_name: str, data: bytes) -> None:
         if self._closed:
@@ -115,9 +140,10 @@ class MissionRecorder:
                     name=type_name, encoding="ros2msg", data=full_definition(type_name).encode())
             self._profiles[topic] = self._offered_profiles(topic)
             self._types[topic] = type_name
+            self._hashes[topic] = self._type_hash(topic, type_name)
             self._channels[topic] = self._writer.register_channel(
                 topic=topic, message_encoding="cdr", schema_id=self._schemas[type_name],
-                metadata=bag_format.channel_metadata(self._profiles[topic]))
+                metadata=bag_format.channel_metadata(self._profiles[topic], self._hashes[topic]))
         now = time.time_ns()
         self._first_ns = now if self._first_ns is None else self._first_ns
         self._last_ns = now
@@ -150,7 +176,8 @@ class MissionRecorder:
             self._closed = True
             self._writer.add_metadata(GRAPH_METADATA, {"namespace": self.namespace})
             bag_format.add_rosbag2_metadata(
-                self._writer, [bag_format.TopicRecord(topic, self._types[topic], self._profiles[topic], count)
+                self._writer, [bag_format.TopicRecord(topic, self._types[topic], self._profiles[topic], count,
+                                                       self._hashes[topic])
                                for topic, count in self.counts.items()],
                 self._first_ns or 0, self._last_ns, self.path.name)
             for sub in self._subs.values():

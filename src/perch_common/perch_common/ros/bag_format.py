@@ -2,7 +2,10 @@
 
 `ros2 bag play` replays a topic with the QoS in its channel's `offered_qos_profiles` (so a
 transient-local topic stays transient local), and `ros2 bag info` reads the `rosbag2` metadata
-record (`serialized_metadata`: the bag description with `version` at the top level). QoS profiles
+record (`serialized_metadata`: the bag description with `version` at the top level). Like rosbag2
+Jazzy's MCAP storage plugin (`MCAPStorage::create_topic`), each channel also carries
+`topic_type_hash`, the type's RIHS01 hash, which the bag description repeats as each topic's
+`type_description_hash` (the reader maps one onto the other). QoS profiles
 are rosbags' (`rosbags.interfaces.Qos`) and are written in rosbag2's version-9 layout by rosbags.
 Pure Python: no rclpy.
 """
@@ -45,9 +48,9 @@ def offered_qos_text(profiles: list) -> str:
     return _yaml(_qos_dicts(profiles)).strip() if profiles else ""
 
 
-def channel_metadata(profiles: list) -> dict[str, str]:
-    """The channel metadata rosbag2 writes: the offered QoS profiles."""
-    return {"offered_qos_profiles": offered_qos_text(profiles)}
+def channel_metadata(profiles: list, type_hash: str = "") -> dict[str, str]:
+    """The channel metadata rosbag2 Jazzy writes: the offered QoS profiles and the type's RIHS01 hash."""
+    return {"offered_qos_profiles": offered_qos_text(profiles), "topic_type_hash": type_hash}
 
 
 @dataclass
@@ -58,6 +61,7 @@ class TopicRecord:
     type: str
     profiles: list = field(default_factory=list)
     count: int = 0
+    type_hash: str = ""   # RIHS01_<sha256 hex> of the type description ('' when unknown)
 
 
 def serialized_metadata(topics: list[TopicRecord], start_ns: int, end_ns: int, file_name: str) -> str:
@@ -73,7 +77,8 @@ def serialized_metadata(topics: list[TopicRecord], start_ns: int, end_ns: int, f
         "message_count": count,
         "topics_with_message_count": [
             {"topic_metadata": {"name": t.name, "type": t.type, "serialization_format": "cdr",
-                                "offered_qos_profiles": _qos_dicts(t.profiles), "type_description_hash": ""},
+                                "offered_qos_profiles": _qos_dicts(t.profiles),
+                                "type_description_hash": t.type_hash},
              "message_count": t.count}
             for t in topics],
         "compression_format": "",

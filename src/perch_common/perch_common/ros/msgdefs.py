@@ -140,6 +140,28 @@ def full_definition(type_name: str) -> str:
     return text
 
 
+@lru_cache(maxsize=None)
+def type_hash(type_name: str) -> str:
+    """The RIHS01 type hash of a message, service part/event or action part, as rosidl computed it at
+    build time (the `type_hashes` of the installed `share/<pkg>/<kind>/<Base>.json`); '' when the
+    package installs no type description (built before Iron)."""
+    import json
+
+    package, kind, name = split_type(type_name)
+    base = name.split("_", 1)[0]   # interface names are CamelCase: '_' only separates generated parts
+    try:
+        path = _share(package) / kind / f"{base}.json"
+    except FileNotFoundError:
+        return ""
+    if not path.is_file():
+        return ""
+    wanted = f"{package}/{kind}/{name}"
+    for entry in json.loads(path.read_text()).get("type_hashes", []):
+        if entry.get("type_name") == wanted:
+            return str(entry.get("hash_string", ""))
+    return ""
+
+
 def message_class(type_name: str) -> type:
     """The Python class of a message type name (msg, service Request/Response/Event, action parts)."""
     package, kind, name = split_type(type_name)
