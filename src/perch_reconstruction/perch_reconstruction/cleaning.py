@@ -95,10 +95,13 @@ def quadric_decimate(mesh: Mesh, target: int) -> Mesh:
     kept vertex gets the mean colour of the vertices collapsed into it."""
     import fast_simplification
 
-    faces = np.ascontiguousarray(mesh.faces, np.int32)
+    # Own writable C-ordered copies: fast-simplification's binding refuses read-only arrays (a request's
+    # mesh arrays are shared and frozen) and non-contiguous or other-typed ones alike.
+    faces = np.array(mesh.faces, np.int32, order="C", copy=True)
     with _DECIMATION_LOCK:
         vertices, out_faces, collapses = fast_simplification.simplify(
-            np.ascontiguousarray(mesh.vertices, np.float64), faces, target_count=target, return_collapses=True)
+            np.array(mesh.vertices, np.float64, order="C", copy=True), faces, target_count=target,
+            return_collapses=True)
     colors = None
     if mesh.vertex_colors is not None:
         into = _collapsed_into(mesh, faces, out_faces, collapses)
