@@ -46,6 +46,11 @@ class FilterConfig:
                                  "itself (plane_tolerance plus 3 sigma of the surface's scan noise, capped here; support "
                                  "judges it under the window); farther geometry is an obstacle to the approach "
                                  "prism and the fall corridor", "m", low=0.0, high=1.0)
+    max_unobserved_share: float = param(0.2, "largest share of a perch's approach prism or fall corridor (column) "
+                                        "that may lie outside the space the scan observed", low=0.0, high=1.0)
+    enclosed_escape_share: float = param(0.5, "a point counts as observed (enclosed by the scan) when at most this "
+                                         "share of the rays cast from it leaves the model without a hit",
+                                         low=0.0, high=1.0)
     floor_merge_tolerance: float = param(0.1, "floor pieces within this height of the lowest are one floor", "m",
                                          low=0.0, high=10.0)
     min_floor_area: float = param(1.0, "smallest horizontal surface that may be the floor", "m^2", low=0.0)
@@ -79,7 +84,7 @@ class FilterConfig:
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 problems.append(f"{name}={value} must be >= 0")
-        for name in ("min_support", "min_visible_share"):
+        for name in ("min_support", "min_visible_share", "max_unobserved_share", "enclosed_escape_share"):
             value = getattr(self, name)
             if not (math.isfinite(value) and 0 <= value <= 1):
                 problems.append(f"{name}={value} must be a share in [0, 1]")

@@ -25,8 +25,6 @@ perch centre by perch centre:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 from scipy import ndimage
 
@@ -34,42 +32,18 @@ from perch_common.mesh import Mesh
 from perch_common.raycast import RayScene
 from perch_common.scene_generator import GeneratedScene, SemanticClass
 from perch_common.types import PlaneFrame
+from perch_filtering.perch_check import (
+    CheckSpec,
+    local_plane_support,
+    surface_kind,
+    triangles_overlap_box,
+    window_grid,
+)
 
 TOL = 0.01          # m: geometry closer to a plane than this is the plane itself
-SUPPORT_POINTS = 21  # per side of the perch window (support: cell centres of a 21 x 21 grid)
 
 
-def surface_kind(normal: np.ndarray, up: np.ndarray, class_angle_deg: float) -> str:
-    """'floor', 'ceiling', 'wall' or 'intermediate' of a surface normal, by the class angle."""
-    c = float(np.asarray(normal) @ up)
-    a = np.radians(class_angle_deg)
-    if c >= np.cos(a):
-        return "floor"
-    if c <= -np.cos(a):
-        return "ceiling"
-    return "wall" if abs(c) <= np.sin(a) else "intermediate"
-
-@dataclass
-class Spec:
-    allow_walls: bool = True
-    allow_ceiling: bool = True
-    allow_floor: bool = False
-    allow_intermediate: bool = False
-    class_angle_deg: float = 15.0
-    min_recovery_height: float = 0.5
-    approach_distance: float = 0.5
-    approach_margin: float = 0.1
-    window_width: float = 0.5
-    window_height: float = 0.5
-    drone_radius: float = 0.35
-    standoff: float = 0.5
-    plane_tolerance: float = 0.03
-    surface_depth: float = 0.06
-    min_support: float = 0.9
-    max_support_rms: float = 0.02
-    min_visible_share: float = 0.2
-    visibility_points: int = 64
-    seed: int = 0
+Spec = CheckSpec  # the safety model's numbers (FilterConfig's names), shared with the scan checker
 
 
 class SceneOracle:
@@ -232,29 +206,6 @@ class SceneOracle:
         return np.isin(labels, ids[ids > 0])
 
 
-def window_grid(spec: Spec, axis_u: np.ndarray, axis_v: np.ndarray) -> np.ndarray:
-    """(K*K, 3) offsets of the cell centres of a K x K grid over the perch window."""
-    k = SUPPORT_POINTS
-    us = (np.arange(k) + 0.5) / k * spec.window_width - spec.window_width / 2
-    vs = (np.arange(k) + 0.5) / k * spec.window_height - spec.window_height / 2
-    return np.array([u * axis_u + v * axis_v for u in us for v in vs])
-
-
-def local_plane_support(depth: np.ndarray, spec: Spec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Support of windows from their grid's first-hit depths (K, windows; inf: no hit): the perch plane
-    at the median of the depths within plane_tolerance + max_support_rms, the share of the grid
-    within plane_tolerance of it, the RMS distance of those and the plane's offset (the median)."""
-    band = np.abs(depth) <= spec.plane_tolerance + spec.max_support_rms
-    median = np.zeros(depth.shape[1])
-    some = band.any(axis=0)
-    median[some] = [np.median(column[inside]) for column, inside in zip(depth[:, some].T, band[:, some].T)]
-    found = band & (np.abs(depth - median) <= spec.plane_tolerance)
-    count = found.sum(axis=0)
-    squares = np.where(found, (depth - median) ** 2, 0.0).sum(axis=0)
-    rms = np.sqrt(squares / np.maximum(count, 1))
-    return count / depth.shape[0], np.where(count > 0, rms, np.inf), median
-
-
 def boxes_free(tris: np.ndarray, centres: np.ndarray, axes: np.ndarray, half: np.ndarray) -> np.ndarray:
     """For each centre (M,3): no triangle (F,3,3) overlaps the box centre + axes.T @ [-half, half]."""
     out = np.ones(len(centres), bool)
@@ -268,20 +219,6 @@ def boxes_free(tris: np.ndarray, centres: np.ndarray, axes: np.ndarray, half: np
             local = np.einsum("fvk,ak->fva", tris[near] - centre, axes)
             out[k] = not triangles_overlap_box(local, half).any()
     return out
-
-
-def triangles_overlap_box(tris: np.ndarray, half: np.ndarray) -> np.ndarray:
-    """(F,3,3) triangles in the box's frame overlap the box [-half, half] (Akenine-Moller's 13 axes)."""
-    edges = np.stack([tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 1], tris[:, 0] - tris[:, 2]], axis=1)
-    axes = [np.broadcast_to(np.eye(3)[i], (len(tris), 3)) for i in range(3)]
-    axes.append(np.cross(edges[:, 0], edges[:, 1]))
-    axes += [np.cross(np.eye(3)[i], edges[:, j]) for i in range(3) for j in range(3)]
-    overlap = np.ones(len(tris), bool)
-    for axis in axes:
-        proj = np.einsum("fvk,fk->fv", tris, axis)
-        radius = np.abs(axis) @ half
-        overlap &= ~((proj.min(axis=1) > radius + 1e-12) | (proj.max(axis=1) < -radius - 1e-12))
-    return overlap
 
 
 def sample_plane(scene: GeneratedScene, plane_id: int, spacing: float, rng: np.random.Generator) -> np.ndarray:
