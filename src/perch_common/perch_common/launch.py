@@ -26,9 +26,9 @@ from importlib.metadata import entry_points
 from pathlib import Path
 
 from perch_common import namespace as ros_namespace
-from perch_common.config import ConfigError, default_config_path, node_names
+from perch_common.config import ConfigError, check_overrides, default_config_path, node_names
 from perch_common.data import repo_root
-from perch_common.processes import stop_process
+from perch_common.processes import child_environment, clean_dead_shm, stop_process
 from perch_common.threads import thread_environment
 
 NETWORK_ENV = "PERCH_NETWORK"          # 1/true/yes: let the graph use every network interface
@@ -222,12 +222,14 @@ class GraphProcesses:
         self.nodes = listed
         self.mode = mode
         self.modules = {n: registered[n] for n in listed}
-        self.overrides = parse_overrides(overrides)
         self.log_dir = Path(log_dir) if log_dir else None
         self.env = dict(os.environ if env is None else env)
         self.env.update(thread_environment(self.env))
         use_perch_dds(self.env, network)
         self.namespace = ros_namespace.current(self.env) if namespace is None else ros_namespace.normalise(namespace)
+        # Every -p checked against what its node declares before anything starts (rcl would drop a
+        # wrongly typed override silently when the file sets the key, or the node would die on it).
+        self.overrides = check_overrides(parse_overrides(overrides), listed, self.config, self.namespace)
         if self.namespace:
             self.env[ros_namespace.NAMESPACE_ENV] = self.namespace
         self.processes: dict[str, subprocess.Popen] = {}
@@ -252,14 +254,16 @@ class GraphProcesses:
         if self.log_dir:
             self.log_dir.mkdir(parents=True, exist_ok=True)
             out = open(self.log_dir / f"{name}.log", "ab")
-        proc = subprocess.Popen(self.command(name), env=self.env, stdout=out,
+        # the node dies with this process, however it ends (perch_common.processes.die_with_parent)
+        proc = subprocess.Popen(self.command(name), env=child_environment(self.env), stdout=out,
                                 stderr=subprocess.STDOUT if self.log_dir else None)
         self.processes[name] = proc
         self.started_at[name] = time.monotonic()
         return proc
 
     def start(self) -> "GraphProcesses":
-        """Start every process of the graph."""
+        """Start every process of the graph (first clearing the shared memory killed processes left)."""
+        clean_dead_shm()
         for name in self.units:
             self.start_node(name)
         return self
@@ -337,6 +341,55 @@ def register(sub) -> None:
     p.set_defaults(func=_run)
 
 
+DDS_ENV = ("FASTRTPS_DEFAULT_PROFILES_FILE", "ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_LOCALHOST_ONLY",
+           "RMW_FASTRTPS_USE_QOS_FROM_XML", "ROS_STATIC_PEERS", "RMW_IMPLEMENTATION")
+
+
+def running_graph(graph: GraphProcesses, wait: float = 2.0) -> list[str]:
+    """The services of `graph`'s nodes that some process already offers on its domain and namespace.
+
+    Only looked for when a process on this host takes part in the domain (its discovery port is
+    bound); discovery on loopback then lists a running graph's services within `wait` seconds."""
+    from perch_common.conventions import NODE_SERVICES
+
+    domain = current_domain(graph.env)
+    if domain not in domains_in_use():
+        return []
+    import rclpy
+    from rclpy.context import Context
+
+    for key in DDS_ENV:   # the graph's own transport settings, so that the probe sees what its nodes would
+        if key in graph.env:
+            os.environ[key] = graph.env[key]
+    names = [f"{graph.namespace}/{service}" for n in graph.nodes for service in NODE_SERVICES.get(n, [])[:1]]
+    context = Context()
+    rclpy.init(args=[], context=context, domain_id=domain)
+    try:
+        node = rclpy.create_node("perch_launch_probe", context=context, start_parameter_services=False)
+        deadline = time.monotonic() + wait
+        while True:
+            offered = {name for name, _ in node.get_service_names_and_types()}
+            found = [name for name in names if name in offered]
+            if found or time.monotonic() > deadline:
+                node.destroy_node()
+                return found
+            time.sleep(0.1)
+    finally:
+        rclpy.try_shutdown(context=context)
+
+
+CONFIG_EXIT = 2   # perch_common.ros.node_main.run_node: the node stopped on a bad parameter
+
+
+def config_reason(graph: GraphProcesses, name: str) -> str:
+    """': <the error line>' from the node's log (its last `error:` line), '' without a log."""
+    if graph.log_dir is None or not (graph.log_dir / f"{name}.log").is_file():
+        return ""
+    lines = [line for line in (graph.log_dir / f"{name}.log").read_text(errors="replace").splitlines()
+             if line.startswith("error:")]
+    return f": {lines[-1].removeprefix('error:').strip()}" if lines else ""
+
+
 def _run(args) -> int:
     overrides = list(args.param)
     if args.up is not None:
@@ -354,6 +407,12 @@ def _run(args) -> int:
             print(f"no installed node is listed in {graph.config}")
         return 0
     where = f" in namespace {graph.namespace}" if graph.namespace else ""
+    running = running_graph(graph)
+    if running:
+        print(f"perch launch: a Perch graph already runs on ROS domain {current_domain(graph.env)}{where} (it offers "
+              f"{', '.join(running)}); not starting a second one. Stop it first, or give this one another "
+              "ROS_DOMAIN_ID or --namespace", file=sys.stderr, flush=True)
+        return 1
     reach = "every network interface" if network_requested(graph.env) else "this host only"
     print(f"perch launch: starting {', '.join(graph.nodes)}{where} ({args.graph_mode}, domain "
           f"{current_domain(graph.env)}, {reach}; Ctrl-C to stop)", flush=True)
@@ -374,6 +433,11 @@ def _run(args) -> int:
                 if ok or name in pending:
                     continue
                 code = graph.processes[name].returncode
+                if code == CONFIG_EXIT:   # restarting cannot help: the same parameters fail the same way
+                    print(f"perch launch: {name} refused its parameters (exit code {code}"
+                          f"{config_reason(graph, name)}); not restarting it, stopping the graph; fix the "
+                          "parameter and launch again", file=sys.stderr, flush=True)
+                    return 1
                 if args.no_respawn:
                     print(f"perch launch: {name} exited (code {code}); stopping the graph", file=sys.stderr)
                     return 1

@@ -1,4 +1,11 @@
-"""Client side of a mission: send a PlanPerches goal, show progress, wait for the result."""
+"""Client side of a mission: send a PlanPerches goal, show progress, wait for the result.
+
+The client follows the coordinator that accepted its goal by identity (the endpoint GIDs of the
+action's status publisher): when that coordinator dies or restarts (`perch launch` respawns it
+within a second, with an empty goal list), its endpoints leave the graph (at once on a clean exit,
+after the DDS lease of 3 s when killed) and the mission ends within seconds with that reason
+instead of waiting out the client's time limit.
+"""
 
 from __future__ import annotations
 
@@ -16,16 +23,24 @@ from perch_interfaces.action import PlanPerches
 
 ACTION = MISSION_ACTION   # the name `perch operator` and the soak import
 LOST_ANSWER_GRACE = 1.0   # s a listed goal waits for its answer before the answer counts as lost
+SERVER_GONE_GRACE = 1.0   # s the accepting coordinator may be absent from the graph before the mission ends
 
 
 class GoalRejected(PerchError):
     """The coordinator refused the goal (another mission is running); nothing was started."""
 
 
-def _spin_until(node, future, deadline: float, what: str) -> None:
+class CoordinatorGone(PerchError):
+    """The coordinator running the mission died or restarted; the mission is lost with it."""
+
+
+def _spin_until(node, future, deadline: float, what: str, gone: Callable[[], str] | None = None) -> None:
     while not future.done():
         if time.monotonic() > deadline:
             raise TimeoutError(f"{what} did not finish in time")
+        reason = gone() if gone is not None else ""
+        if reason:
+            raise CoordinatorGone(reason)
         rclpy.spin_until_future_complete(node, future, timeout_sec=0.1)
 
 
@@ -48,8 +63,12 @@ def run_mission(node, goal: PlanPerches.Goal, timeout: float = 600.0, server_wai
             raise GoalRejected("the coordinator rejected the goal: another mission is running (wait for it, "
                                "or cancel it with `perch operator cancel`); nothing was written")
         result = handle.get_result_async()
+        statuses.follow_server()
         try:
-            _spin_until(node, result, deadline, f"the mission ({timeout:.0f} s limit)")
+            _spin_until(node, result, deadline, f"the mission ({timeout:.0f} s limit)", statuses.server_gone)
+        except CoordinatorGone as exc:
+            node.get_logger().error(str(exc))
+            return PlanPerches.Result(success=False, message=str(exc))
         except (TimeoutError, KeyboardInterrupt):
             cancel = handle.cancel_goal_async()
             _spin_until(node, cancel, time.monotonic() + 5, "cancelling the mission")
@@ -69,8 +88,52 @@ class GoalStatusWatch:
 
         self.node = node
         self.accepted: dict[bytes, object] = {}   # goal id -> the time the coordinator accepted it
+        self.topic = node.resolve_topic_name(MISSION_STATUS_TOPIC)
+        self.servers: dict[bytes, str] = {}       # the accepting coordinator's status writer GIDs -> node
+        self._current: dict[bytes, str] = {}
+        self._absent_since: float | None = None
+        self._checked = 0.0
         self._sub = node.create_subscription(GoalStatusArray, MISSION_STATUS_TOPIC, self._on_status,
                                              qos_profile_action_status_default)
+
+    @staticmethod
+    def writers_of(node) -> dict[bytes, str]:
+        """The coordinators in the graph now: their status writers' GIDs -> node name."""
+        return {bytes(i.endpoint_gid): f"{i.node_namespace.rstrip('/')}/{i.node_name}"
+                for i in node.get_publishers_info_by_topic(node.resolve_topic_name(MISSION_STATUS_TOPIC))}
+
+    def _writers(self) -> dict[bytes, str]:
+        return self.writers_of(self.node)
+
+    def follow_server(self) -> None:
+        """Remember the coordinator(s) in the graph now, once the goal is accepted."""
+        self.servers = self._writers()
+        self._checked = time.monotonic()
+
+    def server_gone(self) -> str:
+        """Why the mission is lost ('' while the coordinator that accepted the goal is in the graph)."""
+        now = time.monotonic()
+        if now - self._checked < 0.25:
+            return self._reason(now)
+        self._checked = now
+        current = self._writers()
+        if not self.servers:
+            self.servers = current   # accepted before its endpoints were listed here (discovery lag)
+        if not self.servers or set(self.servers) & set(current):
+            self._absent_since = None
+        else:
+            self._absent_since = self._absent_since or now
+        self._current = current
+        return self._reason(now)
+
+    def _reason(self, now: float) -> str:
+        if self._absent_since is None or now - self._absent_since <= SERVER_GONE_GRACE:
+            return ""
+        names = ", ".join(sorted(set(self.servers.values())))
+        after = (f"; a new coordinator ({', '.join(sorted(set(self._current.values())))}) now serves, without "
+                 "this mission" if self._current else "")
+        return (f"the mission coordinator ({names}) died or restarted during the mission: its action server "
+                f"left the graph{after}; run the mission again")
 
     def _on_status(self, msg) -> None:
         for status in msg.status_list:

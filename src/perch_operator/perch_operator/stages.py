@@ -7,6 +7,13 @@ Each mesh goes to a stage once: a request whose mesh the service already holds c
 id only, and a "mesh not cached" reply (the node restarted) is answered by sending the arrays again
 (perch_common.mesh_cache). A stage hosted in this process reads this process's cache, so it gets by
 id whatever that cache holds.
+
+A call follows the identity of the server it was sent to (the endpoint GIDs of the service's request
+readers when the call went out), not only whether some server is offered: a stage node that died and
+came back (`perch launch` respawns it within a second) can never answer the call the dead one took,
+so the call fails as soon as every server it was sent to has left the graph for `gone_grace` seconds
+(the DDS lease, 3 s, drops a killed process). The stage is not retried on the new node: a crash may
+be the input's doing, and the user gets a clear reason at once instead of a second wait.
 """
 
 from __future__ import annotations
@@ -140,21 +147,16 @@ class StageCaller:
         done = threading.Event()
         future = client.call_async(request)
         future.add_done_callback(lambda _: done.set())
+        servers = ServerWatch(self.node, self.services[stage], self.gone_grace)
         deadline = time.monotonic() + self.timeout
-        gone_since = None
         while not done.wait(0.05):
             now = time.monotonic()
             if cancelled():
                 self._abandon(stage, client, future, request.request_id, "mission cancelled")
                 raise MissionCancelled(f"mission cancelled during stage {stage}")
-            if not client.service_is_ready():
-                gone_since = gone_since or now
-                if now - gone_since > self.gone_grace:
-                    client.remove_pending_request(future)
-                    raise StageError(stage, "the service disappeared during the call (its node stopped or "
-                                            "crashed); restart it and run the mission again", self.services[stage])
-            else:
-                gone_since = None
+            if servers.gone():
+                client.remove_pending_request(future)
+                raise StageError(stage, servers.describe(), self.services[stage])
             if now > deadline:
                 self._abandon(stage, client, future, request.request_id, "no reply within stage_timeout")
                 raise StageError(stage, f"no reply within {self.timeout:.0f} s (parameter stage_timeout)", self.services[stage])
@@ -162,3 +164,55 @@ class StageCaller:
         if response is None:
             raise StageError(stage, "the call ended without a reply", self.services[stage])
         return response
+
+
+def server_endpoints(node, service: str) -> dict[bytes, str]:
+    """The servers of a (fully qualified) service now in the graph: request-reader GID -> node name.
+
+    A service travels on the DDS topics rq<service>Request / rr<service>Reply; each server has one
+    reader of the request topic, with a GID that a restarted node never reuses."""
+    infos = node.get_subscriptions_info_by_topic(f"rq{service}Request", no_mangle=True)
+    return {bytes(info.endpoint_gid): f"{info.node_namespace.rstrip('/')}/{info.node_name}" for info in infos}
+
+
+class ServerWatch:
+    """`gone()` turns True when every server of `service` present as the call went out has left the
+    graph for `grace` seconds, whether or not another server (a respawned node) has appeared since."""
+
+    CHECK_PERIOD = 0.2   # s between graph queries
+    ADOPT_SECONDS = 2.0  # servers first listed this soon after the call count as its own (discovery lag)
+
+    def __init__(self, node, service: str, grace: float):
+        self.node = node
+        self.service = service
+        self.grace = grace
+        self.started = time.monotonic()
+        self.servers = server_endpoints(node, service)
+        self.current = dict(self.servers)
+        self._absent_since: float | None = None
+        self._checked = self.started
+
+    def gone(self) -> bool:
+        """True once the call's servers have all been absent for longer than the grace period."""
+        now = time.monotonic()
+        if now - self._checked < self.CHECK_PERIOD:
+            return self._absent_since is not None and now - self._absent_since > self.grace
+        self._checked = now
+        self.current = server_endpoints(self.node, self.service)
+        if not self.servers and now - self.started < self.ADOPT_SECONDS:
+            self.servers = dict(self.current)   # matched (wait_for_service) but not yet listed here
+        if not self.servers or set(self.servers) & set(self.current):
+            self._absent_since = None
+            return False
+        self._absent_since = self._absent_since or now
+        return now - self._absent_since > self.grace
+
+    def describe(self) -> str:
+        """Why the call ended: which node died or restarted, and whether a new one serves now."""
+        names = ", ".join(sorted(set(self.servers.values()))) or "its node"
+        if self.current:
+            now = ", ".join(sorted(set(self.current.values())))
+            return (f"the node serving the call ({names}) died or restarted during it: the server the request "
+                    f"went to left the graph and a new one ({now}) cannot answer it; run the mission again")
+        return (f"the node serving the call ({names}) died during it (its server left the graph); restart it "
+                "(`perch launch` restarts nodes that die) and run the mission again")

@@ -73,6 +73,9 @@ class NodeContainer:
 
     def start(self) -> "NodeContainer":
         """Create the nodes and spin them in a background thread."""
+        from perch_common.processes import clean_dead_shm
+
+        clean_dead_shm()   # what killed Perch processes left in /dev/shm
         self.create()
         self._thread = threading.Thread(target=self.spin, name="perch-container", daemon=True)
         self._thread.start()
@@ -98,8 +101,10 @@ class NodeContainer:
 
 def main(argv: list[str] | None = None) -> int:
     """`python -m perch_common.ros.container --nodes a,b --ros-args ...`: host the nodes until Ctrl-C."""
+    from perch_common.processes import die_with_parent
     from perch_common.ros.node_main import ros_context
 
+    die_with_parent()    # started by a launcher: never outlive it
     limit_threads()
     argv = list(sys.argv[1:] if argv is None else argv)
     split = argv.index("--ros-args") if "--ros-args" in argv else len(argv)
