@@ -111,7 +111,12 @@ def test_a_failed_mission_leaves_a_reason_and_no_stale_outputs(graph, tmp_path):
     assert failed.returncode == 1 and "FAILED" in failed.stderr
     reason = (out / "FAILED").read_text()
     assert "target.box.pose.position.x = nan: must be a finite number" in reason
-    assert sorted(p.name for p in out.iterdir() if p.name != "logs") == ["FAILED", "run.mcap"]
+    # The last good set stays whole (issue 22: a failed re-run keeps the last good waypoints and says
+    # so); the failure's recording sits beside it.
+    assert "the last good waypoints.yaml" in reason
+    assert sorted(p.name for p in out.iterdir() if p.name != "logs") == [
+        ".perch-outputs.json", "FAILED", "failed.mcap", "report.html", "report_files", "run.mcap", "run.rrd",
+        "waypoints.yaml"]
     # No partial staging folder is left beside it.
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
 

@@ -2,12 +2,18 @@
 
 A file is written under a temporary name beside its destination and renamed into place only when
 complete, so an interrupted or failed write never leaves a truncated file and never replaces a good
-one (rename within one folder is atomic on POSIX).
+one (rename within one folder is atomic on POSIX); a reader polling the destination always finds
+either the old or the new file. Files are created with the mode the user's umask gives (a temporary
+file would be 0600: a dispatcher running as another user could not read waypoints.yaml).
+
+An output folder keeps a manifest (MANIFEST_NAME) of the names Perch wrote into it: only those are
+ever replaced or removed, so a user's own `report_files/` or notes in the folder are never touched.
 """
 
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import shutil
 import tempfile
@@ -35,6 +41,40 @@ def refuse_overwriting_inputs(outputs: Iterable[str | Path], inputs: Iterable[st
             if _same_path(out, source):
                 raise PerchError(f"output {out} is the input {source}: writing it would destroy the input; "
                                  "choose another output path")
+
+
+def refuse_folder_holding_inputs(out_dir: str | Path, inputs: Iterable[str | Path | None]) -> None:
+    """Raise PerchError when an output folder is, or lies above, one of the inputs."""
+    folder = Path(out_dir).resolve()
+    for source in (Path(p) for p in inputs if p):
+        resolved = source.resolve()
+        if resolved == folder or folder in resolved.parents:
+            raise PerchError(f"-o {out_dir}: holds the input {source}; outputs go into a folder of their own "
+                             f"(e.g. -o {folder / 'perch_out'} is fine only if the input is not in it: choose "
+                             "another folder)")
+
+
+def give_user_mode(path: str | Path, folder: bool = False) -> None:
+    """Mode of a file (0666) or folder (0777) created normally under the user's umask (tempfile's are 0600/0700)."""
+    os.chmod(path, (0o777 if folder else 0o666) & ~current_umask())
+
+
+def check_writable_folder(out_dir: str | Path) -> None:
+    """Raise PerchError unless the outputs can be staged beside out_dir and moved into it (checked
+    before a mission starts, so that a finished mission is never lost to a PermissionError)."""
+    out_dir = Path(out_dir)
+    existing = out_dir if out_dir.exists() else next((p for p in out_dir.parents if p.exists()), Path("."))
+    if out_dir.exists() and not out_dir.is_dir():
+        raise PerchError(f"-o {out_dir}: is a file; give a folder for the outputs")
+    for folder in {existing, out_dir.parent if out_dir.parent.exists() else existing}:
+        if not os.access(folder, os.W_OK | os.X_OK):
+            raise PerchError(f"-o {out_dir}: cannot write into {folder} (permission denied); choose a folder you "
+                             "can write, or fix its permissions, before the mission runs")
+    try:   # os.access passes for root, and on a read-only file system mounted writable-looking
+        os.rmdir(tempfile.mkdtemp(prefix=f".{out_dir.name}.probe-", dir=existing))
+    except OSError as exc:
+        raise PerchError(f"-o {out_dir}: cannot write into {existing} ({exc.strerror}); choose a folder you can "
+                         "write before the mission runs") from None
 
 
 def refuse_directory(path: str | Path, what: str = "output") -> Path:
@@ -83,7 +123,9 @@ def staging_folder(out_dir: str | Path) -> Path:
     out_dir = Path(out_dir)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     remove_abandoned_staging(out_dir.parent)
-    return Path(tempfile.mkdtemp(prefix=f".{out_dir.name}{STAGING_MARK}{os.getpid()}-", dir=out_dir.parent))
+    staged = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}{STAGING_MARK}{os.getpid()}-", dir=out_dir.parent))
+    give_user_mode(staged, folder=True)
+    return staged
 
 
 STAGING_MARK = ".partial-"
@@ -110,27 +152,87 @@ def _running(pid: int) -> bool:
     return True
 
 
-def replace_outputs(staged: Path, out_dir: Path, names: Iterable[str], stale: Iterable[str]) -> list[Path]:
-    """Move `names` from staged into out_dir (replacing older ones), remove the `stale` names that were
-    not produced this time, and delete the staging folder; returns the moved paths."""
+MANIFEST_NAME = ".perch-outputs.json"   # the names Perch wrote into an output folder
+
+
+def written_by_perch(out_dir: str | Path) -> set[str]:
+    """The names in out_dir that Perch wrote there (its manifest; empty when there is none)."""
+    try:
+        names = json.loads((Path(out_dir) / MANIFEST_NAME).read_text()).get("written", [])
+    except (FileNotFoundError, NotADirectoryError, ValueError, AttributeError):
+        return set()
+    return {n for n in names if isinstance(n, str) and "/" not in n and n not in ("", ".", "..")}
+
+
+def _record_written(out_dir: Path, added: Iterable[str], removed: Iterable[str] = ()) -> None:
+    names = (written_by_perch(out_dir) | set(added)) - set(removed)
+    names = sorted(n for n in names if (out_dir / n).exists() or os.path.islink(out_dir / n))
+    with atomic_path(out_dir / MANIFEST_NAME) as path:
+        path.write_text(json.dumps({"written": names}, indent=1) + "\n")
+
+
+def foreign_outputs(out_dir: str | Path, names: Iterable[str]) -> list[str]:
+    """Those of `names` present in out_dir that Perch did not write there (a user's own)."""
+    out_dir = Path(out_dir)
+    ours = written_by_perch(out_dir)
+    return [n for n in names if (out_dir / n).exists() and n not in ours]
+
+
+def refuse_foreign_outputs(out_dir: str | Path, names: Iterable[str]) -> None:
+    """Raise PerchError when out_dir holds, under a name Perch writes, something Perch did not write."""
+    foreign = foreign_outputs(out_dir, names)
+    if foreign:
+        shown = ", ".join(n + ("/" if (Path(out_dir) / n).is_dir() else "") for n in foreign)
+        raise PerchError(f"-o {out_dir}: holds {shown}, not written by Perch (not in its {MANIFEST_NAME}); Perch "
+                         "replaces only what it wrote: move them away or choose another folder")
+
+
+def replace_outputs(staged: Path, out_dir: Path, names: Iterable[str], stale: Iterable[str]) -> list[str | Path]:
+    """Move `names` from staged into out_dir, replacing what Perch wrote there before, remove the `stale`
+    names Perch wrote that were not produced this time, and delete the staging folder; returns the moved
+    paths. Each file replaces its predecessor in one rename (a reader never finds it missing); a folder
+    is swapped in by two renames. Nothing Perch did not write is replaced or removed (PerchError)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     names = [n for n in names if (staged / n).exists()]
-    remove_outputs(out_dir, [name for name in stale if name not in names])
+    refuse_foreign_outputs(out_dir, names)
     moved = []
     for name in names:
         target = out_dir / name
         if target.is_dir() and not target.is_symlink():
-            shutil.rmtree(target)
-        os.replace(staged / name, target)
+            old = out_dir / f".{name}.old-{os.getpid()}"
+            _remove(old)
+            os.replace(target, old)
+            os.replace(staged / name, target)
+            _remove(old)
+        else:
+            os.replace(staged / name, target)
         moved.append(target)
+    ours = written_by_perch(out_dir)
+    gone = [n for n in stale if n not in names and n in ours]
+    remove_outputs(out_dir, gone)
+    _record_written(out_dir, names, gone)
     shutil.rmtree(staged, ignore_errors=True)
     return moved
 
 
+def publish_output(out_dir: Path, name: str, write) -> Path:
+    """Write one output file atomically into out_dir (`write(temporary_path)`) and record it in the manifest."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    refuse_foreign_outputs(out_dir, [name])
+    with atomic_path(out_dir / name) as path:
+        write(path)
+    _record_written(out_dir, [name])
+    return out_dir / name
+
+
 def remove_outputs(out_dir: Path, names: Iterable[str]) -> None:
-    """Delete these files or folders from out_dir (those absent are skipped)."""
-    for name in names:
+    """Delete those of these names that Perch wrote into out_dir (those absent, or not Perch's, are left)."""
+    ours = written_by_perch(out_dir)
+    gone = [name for name in names if name in ours]
+    for name in gone:
         _remove(Path(out_dir) / name)
+    if gone:
+        _record_written(Path(out_dir), (), gone)
 
 
 def _remove(path: Path) -> None:

@@ -43,6 +43,7 @@ def test_replacing_outputs_removes_stale_ones(tmp_path):
     out.mkdir()
     for name in ("waypoints.yaml", "report.html", "notes.txt"):
         (out / name).write_text("old")
+    (out / ".perch-outputs.json").write_text('{"written": ["waypoints.yaml", "report.html"]}')  # Perch wrote these
     staged = staging_folder(out)
     assert staged.parent == tmp_path and staged.name.startswith(".run.partial-")
     abandoned = tmp_path / ".other.partial-999999999-x"   # no such process
@@ -53,7 +54,7 @@ def test_replacing_outputs_removes_stale_ones(tmp_path):
     (staged / "run.mcap").write_text("new")
     replace_outputs(staged, out, ["FAILED", "run.mcap"], ["waypoints.yaml", "report.html", "run.mcap", "FAILED"])
     # The user's own file stays; the earlier mission's outputs are gone.
-    assert sorted(p.name for p in out.iterdir()) == ["FAILED", "notes.txt", "run.mcap"]
+    assert sorted(p.name for p in out.iterdir()) == [".perch-outputs.json", "FAILED", "notes.txt", "run.mcap"]
     assert not staged.exists()
 
 

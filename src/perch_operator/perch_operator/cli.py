@@ -173,17 +173,25 @@ def _plan(args) -> int:
 
 def check_output_folder(out: Path, overwrite: bool, inputs) -> None:
     """Refuse an output folder that is (or holds) an input, or holds an earlier mission without --overwrite."""
-    from perch_common.outputs import refuse_overwriting_inputs
+    from perch_common.outputs import (
+        check_writable_folder,
+        refuse_folder_holding_inputs,
+        refuse_foreign_outputs,
+        refuse_overwriting_inputs,
+    )
     from perch_operator.runner import OUTPUT_NAMES
 
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise PerchError(f"-o {out}: is a file; give a folder for the mission outputs")
     refuse_overwriting_inputs([out] + [out / n for n in OUTPUT_NAMES], inputs)
+    refuse_folder_holding_inputs(out, inputs)
     earlier = [n for n in OUTPUT_NAMES if (out / n).exists()]
     if earlier and not overwrite:
         raise PerchError(f"-o {out}: holds the outputs of an earlier mission ({', '.join(earlier)}); "
                          "add --overwrite to replace them, or choose another folder")
+    refuse_foreign_outputs(out, OUTPUT_NAMES)   # --overwrite replaces only what Perch wrote
+    check_writable_folder(out)
 
 
 def run_plan(goal, args, describe: dict) -> int:

@@ -166,8 +166,11 @@ def write_waypoints_yaml(path: str | Path, waypoints: list[dict]) -> Path:
     doc = {"frame_id": latest[0]["frame_id"] if latest else "map",
            "units": "metres, radians; orientation is the drone body (z along the perch normal)",
            "waypoints": latest}
+    from perch_common.outputs import atomic_path
+
     path = Path(path)
-    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    with atomic_path(path) as temporary:   # `perch dispatch --output` rewrites it while others read it
+        temporary.write_text(yaml.safe_dump(doc, sort_keys=False))
     return path
 
 

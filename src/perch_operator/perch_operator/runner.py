@@ -10,6 +10,7 @@ graph already running instead.
 from __future__ import annotations
 
 import contextlib
+import os
 import shutil
 import signal
 import sys
@@ -19,7 +20,14 @@ from pathlib import Path
 
 from perch_common.conventions import NODE_SERVICES
 from perch_common.errors import PerchError
-from perch_common.outputs import atomic_path, remove_outputs, replace_outputs, staging_folder
+from perch_common.outputs import (
+    check_writable_folder,
+    publish_output,
+    remove_outputs,
+    replace_outputs,
+    staging_folder,
+    written_by_perch,
+)
 from perch_interfaces.action import PlanPerches
 from perch_operator.recorder import EVENT_SUFFIX, MISSION_TOPICS, MissionRecorder
 from perch_operator.stages import STAGES
@@ -81,14 +89,17 @@ def graph_ros_args(config: Path | None, overrides, log_dir: Path | None) -> list
     """`--ros-args` for nodes hosted in this process: parameters, and logs into `log_dir` (not the terminal)."""
     import os
 
-    from perch_common.config import default_config_path
+    from perch_common import namespace
+    from perch_common.config import check_overrides, default_config_path
     from perch_common.launch import parse_overrides, ros_arguments
 
+    config = Path(config) if config else default_config_path()
+    # -p checked against the nodes' declarations before any node is created (perch_common.config).
+    checked = check_overrides(parse_overrides(overrides), mission_nodes(), config, namespace.current())
     if log_dir is not None:
         log_dir.mkdir(parents=True, exist_ok=True)
         os.environ["ROS_LOG_DIR"] = str(log_dir.resolve())   # read by rclpy.init
-    return [*ros_arguments(Path(config) if config else default_config_path(), mission_nodes(),
-                           parse_overrides(overrides)), "--disable-stdout-logs"]
+    return [*ros_arguments(config, mission_nodes(), checked), "--disable-stdout-logs"]
 
 
 def mission_nodes() -> list[str]:
@@ -244,8 +255,11 @@ def spin_for(node, seconds: float) -> None:
 
 
 FAILED_NAME = "FAILED"
+FAILED_RECORDING = "failed.mcap"   # a failed mission's recording, beside the last good outputs it left alone
+# What a successful mission leaves in its output folder.
+GOOD_SET = ("waypoints.yaml", "run.mcap", "run.rrd", "report.html", "report_files")
 # Everything a mission writes into its output folder (logs/ of launched nodes is not a mission output).
-OUTPUT_NAMES = ("waypoints.yaml", "run.mcap", "run.rrd", "report.html", "report_files", FAILED_NAME)
+OUTPUT_NAMES = (*GOOD_SET, FAILED_NAME, FAILED_RECORDING)
 
 
 def run_recorded_mission(node, goal: PlanPerches.Goal, out_dir: Path, progress: bool = True,
@@ -257,6 +271,7 @@ def run_recorded_mission(node, goal: PlanPerches.Goal, out_dir: Path, progress: 
     """
     from perch_operator.client import GoalRejected, ProgressPrinter, run_mission
 
+    check_writable_folder(out_dir)   # before the mission: a finished mission is never lost to a PermissionError
     staged = staging_folder(out_dir)
     recorder = MissionRecorder(node, staged / "run.mcap")
     offered = offered_services(node)
@@ -324,16 +339,16 @@ def run_recorded_mission(node, goal: PlanPerches.Goal, out_dir: Path, progress: 
 
 def publish_waypoints(outputs: PlanOutputs) -> Path:
     """The mission's product first: waypoints.yaml goes into out_dir as soon as the result is in, so
-    a dispatcher reading the file does not wait for the report. The earlier mission's outputs are
-    removed before, so the folder never mixes two missions; the rest follows (write_outputs), or,
-    should the mission end up failed after all (interrupted), FAILED replaces everything."""
+    a dispatcher reading the file does not wait for the report. It replaces the earlier mission's in
+    one rename (a reader polling the file never finds it missing); an earlier failure's FAILED goes;
+    the earlier report, rerun file and recording are swapped for the new ones by write_outputs."""
     from perch_operator.mission_data import waypoint_dict, write_waypoints_yaml
 
-    remove_outputs(outputs.out_dir, OUTPUT_NAMES)
-    outputs.out_dir.mkdir(parents=True, exist_ok=True)
-    with atomic_path(outputs.out_dir / "waypoints.yaml") as path:
-        write_waypoints_yaml(path, [waypoint_dict(w) for w in outputs.result.waypoints])
-    outputs.waypoints, outputs.waypoints_at = outputs.out_dir / "waypoints.yaml", time.time()
+    waypoints = [waypoint_dict(w) for w in outputs.result.waypoints]
+    outputs.waypoints = publish_output(outputs.out_dir, "waypoints.yaml",
+                                       lambda path: write_waypoints_yaml(path, waypoints))
+    outputs.waypoints_at = time.time()
+    remove_outputs(outputs.out_dir, (FAILED_NAME, FAILED_RECORDING))
     return outputs.waypoints
 
 
@@ -418,17 +433,35 @@ def _write_success(outputs: PlanOutputs, out) -> None:
 
 
 def fail_outputs(outputs: PlanOutputs, reason: str) -> Path:
-    """out_dir gets FAILED (the reason) and this mission's recording; earlier outputs are removed."""
+    """out_dir gets FAILED (the reason) and this mission's recording. The last good waypoints.yaml stays
+    (with the rest of its set), and FAILED says whose it is; without one, FAILED and run.mcap are all
+    the folder holds of Perch's."""
     staged = outputs.staged
     if staged is None or not staged.is_dir():
         staged = staging_folder(outputs.out_dir)
+    out_dir = outputs.out_dir
+    kept = "waypoints.yaml" in written_by_perch(out_dir) and (out_dir / "waypoints.yaml").is_file()
+    failed_at = time.strftime('%Y-%m-%d %H:%M:%S %Z')
+    if not kept:
+        recording = "run.mcap"
+        what = "no waypoints, report or rerun file were written."
+    else:
+        recording = FAILED_RECORDING
+        written = time.strftime('%Y-%m-%d %H:%M:%S %Z', time.localtime((out_dir / "waypoints.yaml").stat().st_mtime))
+        whose = ("this mission's own (its result was in before it failed)" if outputs.waypoints_at is not None
+                 else "the last good mission's; this one wrote none")
+        others = [n for n in GOOD_SET[1:] if n in written_by_perch(out_dir) and (out_dir / n).exists()]
+        what = (f"the last good waypoints.yaml (written {written}) is kept: {whose}"
+                + (f"; {', '.join(others)} beside it are of the mission that wrote them" if others else "") + ".")
+    if (staged / "run.mcap").exists() and recording != "run.mcap":
+        os.replace(staged / "run.mcap", staged / recording)
     (staged / FAILED_NAME).write_text(
-        f"{reason}\n\nfailed at {time.strftime('%Y-%m-%d %H:%M:%S %Z')}; run.mcap (when present) records "
-        "this failed mission; no waypoints, report or rerun file were written.\n")
-    replace_outputs(staged, outputs.out_dir, (FAILED_NAME, "run.mcap"), OUTPUT_NAMES)
+        f"{reason}\n\nfailed at {failed_at}; {recording} (when present) records this failed mission; {what}\n")
+    stale = (FAILED_NAME, FAILED_RECORDING) if kept else OUTPUT_NAMES
+    replace_outputs(staged, out_dir, (FAILED_NAME, recording), stale)
     outputs.staged = None
-    outputs.mcap = outputs.out_dir / "run.mcap"
-    return outputs.out_dir / FAILED_NAME
+    outputs.mcap = out_dir / recording
+    return out_dir / FAILED_NAME
 
 
 def summary_table(result: PlanPerches.Result) -> str:

@@ -1,0 +1,186 @@
+"""Nothing the user had is lost: outputs with the user's umask, a re-run swaps in a complete new set
+(a failed one keeps the last good waypoints and says so), readers never find waypoints.yaml missing,
+only what Perch wrote is replaced or removed, and unusable output folders are refused before a mission."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import pytest
+
+from perch_common.errors import PerchError
+from perch_common.outputs import (
+    MANIFEST_NAME,
+    check_writable_folder,
+    publish_output,
+    refuse_folder_holding_inputs,
+    refuse_foreign_outputs,
+    replace_outputs,
+    staging_folder,
+    written_by_perch,
+)
+
+
+@pytest.fixture
+def umask_027():
+    previous = os.umask(0o027)
+    try:
+        yield
+    finally:
+        os.umask(previous)
+
+
+def _good_mission(out: Path, label: str) -> None:
+    """What a successful `perch plan` leaves: waypoints first, then the rest swapped in together."""
+    from perch_interfaces.action import PlanPerches
+    from perch_operator.runner import GOOD_SET, OUTPUT_NAMES, PlanOutputs, publish_waypoints
+
+    staged = staging_folder(out)
+    (staged / "run.mcap").write_text(f"recording {label}")
+    outputs = PlanOutputs(PlanPerches.Result(success=True, message=label), out, staged / "run.mcap", staged=staged)
+    publish_waypoints(outputs)
+    (staged / "report.html").write_text(f"report {label}")
+    (staged / "report_files").mkdir()
+    (staged / "report_files" / "overview.png").write_text(label)
+    (staged / "run.rrd").write_text(label)
+    replace_outputs(staged, out, GOOD_SET, [n for n in OUTPUT_NAMES if n != "waypoints.yaml"])
+
+
+def test_outputs_get_the_users_umask(tmp_path, umask_027):
+    out = tmp_path / "run"
+    _good_mission(out, "first")
+    for name in ("waypoints.yaml", "run.mcap", "report.html", "run.rrd", "report_files/overview.png"):
+        assert (out / name).stat().st_mode & 0o777 == 0o640, name
+    assert (out / "report_files").stat().st_mode & 0o777 == 0o750
+    os.umask(0o002)
+    _good_mission(out, "second")
+    assert (out / "waypoints.yaml").stat().st_mode & 0o777 == 0o664
+
+
+def test_a_failed_rerun_keeps_the_last_good_waypoints_and_says_so(tmp_path):
+    from perch_interfaces.action import PlanPerches
+    from perch_operator.runner import PlanOutputs, fail_outputs
+
+    out = tmp_path / "run"
+    _good_mission(out, "good")
+    before = {n: (out / n).read_bytes() for n in ("waypoints.yaml", "run.mcap", "report.html")}
+    staged = staging_folder(out)
+    (staged / "run.mcap").write_text("recording of the failed mission")
+    failed = PlanOutputs(PlanPerches.Result(success=False), out, staged / "run.mcap", staged=staged)
+    fail_outputs(failed, "segment: no planar region")
+    # The last good set is untouched; the failure and its recording sit beside it.
+    assert {n: (out / n).read_bytes() for n in before} == before
+    assert (out / "failed.mcap").read_text() == "recording of the failed mission"
+    reason = (out / "FAILED").read_text()
+    assert reason.startswith("segment: no planar region")
+    assert "the last good waypoints.yaml (written" in reason and "the last good mission's" in reason
+    assert failed.mcap == out / "failed.mcap"
+    # The next good mission clears the failure.
+    _good_mission(out, "again")
+    assert not (out / "FAILED").exists() and not (out / "failed.mcap").exists()
+    assert (out / "report.html").read_text() == "report again"
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_a_first_failure_leaves_failed_and_its_recording(tmp_path):
+    from perch_interfaces.action import PlanPerches
+    from perch_operator.runner import PlanOutputs, fail_outputs
+
+    out = tmp_path / "run"
+    staged = staging_folder(out)
+    (staged / "run.mcap").write_text("rec")
+    fail_outputs(PlanOutputs(PlanPerches.Result(), out, staged / "run.mcap", staged=staged), "bad target")
+    assert sorted(p.name for p in out.iterdir()) == [MANIFEST_NAME, "FAILED", "run.mcap"]
+    assert "no waypoints, report or rerun file were written" in (out / "FAILED").read_text()
+
+
+def test_readers_polling_waypoints_never_find_it_missing(tmp_path):
+    out = tmp_path / "run"
+    _good_mission(out, "0")
+    missing, reads = [], [0]
+    done = threading.Event()
+
+    def poll() -> None:
+        while not done.is_set():
+            try:
+                text = (out / "waypoints.yaml").read_text()
+                assert text.startswith("frame_id"), text[:40]
+            except FileNotFoundError:
+                missing.append(1)
+            reads[0] += 1
+
+    reader = threading.Thread(target=poll)
+    reader.start()
+    try:
+        for i in range(40):
+            _good_mission(out, str(i))
+    finally:
+        done.set()
+        reader.join()
+    assert reads[0] > 100 and not missing, f"waypoints.yaml missing {len(missing)} times in {reads[0]} reads"
+
+
+def test_only_what_perch_wrote_is_replaced_or_removed(tmp_path):
+    out = tmp_path / "run"
+    mine = out / "report_files"
+    mine.mkdir(parents=True)
+    (mine / "holiday.jpg").write_text("the user's own")
+    (out / "notes.txt").write_text("mine")
+    with pytest.raises(PerchError, match=r"holds report_files/, not written by Perch"):
+        refuse_foreign_outputs(out, ["waypoints.yaml", "report_files"])
+    staged = staging_folder(out)
+    (staged / "report_files").mkdir()
+    with pytest.raises(PerchError, match="not written by Perch"):
+        replace_outputs(staged, out, ["report_files"], [])
+    shutil.rmtree(staged)
+    assert (mine / "holiday.jpg").read_text() == "the user's own"
+    # Stale names are removed only when the manifest lists them.
+    publish_output(out, "waypoints.yaml", lambda p: p.write_text("frame_id: map\n"))
+    staged = staging_folder(out)
+    (staged / "FAILED").write_text("why")
+    replace_outputs(staged, out, ["FAILED"], ["waypoints.yaml", "report_files", "notes.txt"])
+    assert sorted(p.name for p in out.iterdir()) == [MANIFEST_NAME, "FAILED", "notes.txt", "report_files"]
+    assert written_by_perch(out) == {"FAILED"}
+
+
+def test_an_output_folder_holding_an_input_is_refused(tmp_path):
+    mesh = tmp_path / "scans" / "room.ply"
+    mesh.parent.mkdir()
+    mesh.write_text("ply")
+    with pytest.raises(PerchError, match="holds the input"):
+        refuse_folder_holding_inputs(tmp_path / "scans", [mesh])
+    with pytest.raises(PerchError, match="holds the input"):
+        refuse_folder_holding_inputs(tmp_path, [None, mesh])
+    refuse_folder_holding_inputs(tmp_path / "out", [mesh, None])
+
+
+def test_an_unwritable_output_folder_is_refused_before_the_mission(tmp_path):
+    with pytest.raises(PerchError, match="is a file"):
+        (tmp_path / "f").write_text("")
+        check_writable_folder(tmp_path / "f")
+    check_writable_folder(tmp_path / "new" / "deeper")   # created later: its existing ancestor is writable
+    # Root may write into any folder of an ordinary file system; /proc takes no new folders from anyone.
+    out = Path("/proc/perch-out") if os.getuid() == 0 else tmp_path / "locked" / "out"
+    if os.getuid() != 0:
+        out.mkdir(parents=True)
+        out.chmod(0o555)
+    try:
+        with pytest.raises(PerchError, match="cannot write into"):
+            check_writable_folder(out)
+        # `perch plan --no-launch` (no graph needed to get this far) stops before any mission with one
+        # line, no traceback and no .partial folder.
+        done = subprocess.run([sys.executable, "-m", "perch_common.cli", "plan", "--scene", "1", "--no-launch",
+                               "--auto-accept", "-o", str(out)], capture_output=True, text=True, timeout=120)
+        assert done.returncode == 1, done.stderr
+        assert "perch: error: -o" in done.stderr and "cannot write into" in done.stderr, done.stderr
+        assert "Traceback" not in done.stderr
+        if os.getuid() != 0:
+            assert not list(out.iterdir()) and sorted(p.name for p in out.parent.iterdir()) == ["out"]
+    finally:
+        if os.getuid() != 0:
+            out.chmod(0o755)
