@@ -155,13 +155,31 @@ def _running(pid: int) -> bool:
 MANIFEST_NAME = ".perch-outputs.json"   # the names Perch wrote into an output folder
 
 
+# Files a Perch mission wrote before output folders had a manifest.
+_LEGACY_FILES = ("waypoints.yaml", "run.mcap", "run.rrd", "report.html", "FAILED")
+
+
 def written_by_perch(out_dir: str | Path) -> set[str]:
-    """The names in out_dir that Perch wrote there (its manifest; empty when there is none)."""
+    """The names in out_dir that Perch wrote there (its manifest). A folder written before manifests
+    existed: its mission files, and report_files/ when every file in it is one report.html shows."""
+    out_dir = Path(out_dir)
     try:
-        names = json.loads((Path(out_dir) / MANIFEST_NAME).read_text()).get("written", [])
-    except (FileNotFoundError, NotADirectoryError, ValueError, AttributeError):
+        names = json.loads((out_dir / MANIFEST_NAME).read_text()).get("written", [])
+    except (FileNotFoundError, NotADirectoryError):
+        return _legacy_outputs(out_dir)
+    except (ValueError, AttributeError):
         return set()
     return {n for n in names if isinstance(n, str) and "/" not in n and n not in ("", ".", "..")}
+
+
+def _legacy_outputs(out_dir: Path) -> set[str]:
+    names = {n for n in _LEGACY_FILES if (out_dir / n).is_file() and not (out_dir / n).is_symlink()}
+    pictures = out_dir / "report_files"
+    if "report.html" in names and pictures.is_dir() and not pictures.is_symlink():
+        html = (out_dir / "report.html").read_text(errors="replace")
+        if all(p.is_file() and f"report_files/{p.name}" in html for p in pictures.iterdir()):
+            names.add("report_files")
+    return names
 
 
 def _record_written(out_dir: Path, added: Iterable[str], removed: Iterable[str] = ()) -> None:

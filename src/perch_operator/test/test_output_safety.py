@@ -148,6 +148,17 @@ def test_only_what_perch_wrote_is_replaced_or_removed(tmp_path):
     assert written_by_perch(out) == {"FAILED"}
 
 
+def test_a_folder_from_before_manifests_counts_only_what_its_report_shows(tmp_path):
+    out = tmp_path / "old"
+    (out / "report_files").mkdir(parents=True)
+    (out / "report.html").write_text("<img src='report_files/overview.png'>")
+    (out / "report_files" / "overview.png").write_text("png")
+    (out / "waypoints.yaml").write_text("frame_id: map\n")
+    assert written_by_perch(out) == {"report.html", "report_files", "waypoints.yaml"}
+    (out / "report_files" / "my_notes.txt").write_text("the user's")
+    assert written_by_perch(out) == {"report.html", "waypoints.yaml"}
+
+
 def test_an_output_folder_holding_an_input_is_refused(tmp_path):
     mesh = tmp_path / "scans" / "room.ply"
     mesh.parent.mkdir()
