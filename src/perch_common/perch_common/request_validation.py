@@ -166,7 +166,11 @@ _TYPE_CHECKS = {
 # Fields not in metres: excluded from the 10 km limit (still finite).
 _UNLIMITED = {"perch_interfaces/CameraSpec"}
 _FLOAT_TYPES = {"float", "double"}
-_TARGET_FIELDS = {1: ("kind", "box"), 2: ("kind", "footprint", "height")}
+# Integer fields as rosidl declares them: a Python int beyond the range is wrapped on the wire
+# (4294967296 cameras arrive as 0), so it is refused here, where the message is still Python.
+_INT_RANGES = {f"{sign}int{bits}": ((0, 2 ** bits - 1) if sign else (-2 ** (bits - 1), 2 ** (bits - 1) - 1))
+               for sign in ("", "u") for bits in (8, 16, 32, 64)}
+_TARGET_FIELDS = {1: ("kind", "box", "more_boxes"), 2: ("kind", "footprint", "height")}
 
 
 def _walk(path: str, msg, type_name: str, limit: float | None) -> None:
@@ -180,7 +184,11 @@ def _walk(path: str, msg, type_name: str, limit: float | None) -> None:
         value = getattr(msg, name)
         field_path = _join(path, name)
         base = field_type.split("<", 1)[-1].rstrip(">").split("[", 1)[0]
-        if base in _FLOAT_TYPES:
+        if base in _INT_RANGES and field_type == base:
+            low, high = _INT_RANGES[base]
+            if not low <= value <= high:
+                raise RequestError(f"{field_path} = {value}: out of range for {base} ({low}..{high})")
+        elif base in _FLOAT_TYPES:
             if field_type in _FLOAT_TYPES:
                 _check_numbers(field_path, np.array([value], np.float64), inner_limit)
             else:
@@ -202,9 +210,20 @@ def _mesh_extent(vertices: np.ndarray) -> float:
     return float(np.max(high - low))
 
 
+def _held_extent(content_id: str) -> float:
+    """Size of the mesh this process holds under `content_id` (0 when it holds none: its stage says so)."""
+    from perch_common.mesh_cache import PROCESS_CACHE
+
+    held = PROCESS_CACHE.get(content_id)
+    if held is None or held.num_vertices == 0:
+        return 0.0
+    return held.derived("extent", lambda: _mesh_extent(held.vertices))
+
+
 def _target_extent(target) -> float:
     if target.kind == 1:
-        return max(target.box.size.x, target.box.size.y, target.box.size.z)
+        boxes = [target.box, *getattr(target, "more_boxes", [])]
+        return max(max(b.size.x, b.size.y, b.size.z) for b in boxes)
     if target.kind == 2:
         footprint = _float_array(target.footprint.vertices).reshape(-1, 3)
         return max(_mesh_extent(footprint), float(target.height))
@@ -225,6 +244,8 @@ def validate_request(request, mesh_field: str = "mesh") -> None:
         units = scale_problem(extent, mesh_field)
         if units:
             raise RequestError(units)
+    elif mesh is not None and getattr(mesh, "content_id", ""):
+        extent = _held_extent(mesh.content_id)   # a mesh named by id: the target is checked against it too
     target = getattr(request, "target", None) if "target" in fields else None
     if target is not None and extent > 0:
         size = _target_extent(target)

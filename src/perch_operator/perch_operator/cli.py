@@ -28,11 +28,11 @@ def register_plan(sub) -> None:
                    help="floor (the cropped floor area, default for --mesh/--bag) | "
                         "box:CX,CY,CZ,SX,SY,SZ[,YAW_DEG] | several boxes joined by '+' (each weighted equally) | "
                         "FOOTPRINT_MESH[:HEIGHT] (extruded, default 1.2 m); --scene defaults to the scene's own target")
-    p.add_argument("--cameras", type=non_negative_int, default=0,
+    p.add_argument("--cameras", type=camera_count, default=0,
                    help="number of cameras (0: the placement node's default)")
     p.add_argument("--scale", type=positive_float, default=1.0,
                    help="multiply --mesh coordinates by this (0.001 for a mesh in millimetres)")
-    p.add_argument("--seed", type=int, default=-1, help="optimiser seed (negative: the node's default)")
+    p.add_argument("--seed", type=seed_int, default=-1, help="optimiser seed (negative: the node's default)")
     p.add_argument("--auto-accept", action="store_true", help="accept every proposal (else: perch operator ...)")
     add_up_argument(p, "the mesh (--mesh)")
     p.add_argument("--review-surfaces", type=non_negative_int, default=0, metavar="N",
@@ -45,7 +45,7 @@ def register_demo(sub) -> None:
     """Add `perch demo` to the CLI."""
     p = sub.add_parser("demo", help="the demo: a seeded apartment, auto-accepted, outputs in out/demo/")
     p.add_argument("--seed", type=int, default=DEMO_SEED, help="scene seed")
-    p.add_argument("--cameras", type=non_negative_int, default=0,
+    p.add_argument("--cameras", type=camera_count, default=0,
                    help="number of cameras (0: the placement node's default)")
     from perch_common.launch import add_graph_arguments
 
@@ -54,8 +54,9 @@ def register_demo(sub) -> None:
                    quiet=False, overwrite=True)
 
 
-def non_negative_int(text: str) -> int:
-    """argparse type: an integer >= 0 (a negative count is an error, never silently changed)."""
+def non_negative_int(text: str, maximum: int = 2 ** 32 - 1) -> int:
+    """argparse type: an integer 0..maximum (a negative or too large count is an error, never silently
+    changed: the goal's uint32 fields would wrap 4294967296 to 0)."""
     import argparse
 
     try:
@@ -64,6 +65,29 @@ def non_negative_int(text: str) -> int:
         raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
     if value < 0:
         raise argparse.ArgumentTypeError(f"{value} is negative; give 0 (the node's default) or more")
+    if value > maximum:
+        raise argparse.ArgumentTypeError(f"{value} is too large; give 0 (the node's default) to {maximum}")
+    return value
+
+
+def camera_count(text: str) -> int:
+    """argparse type: cameras to place, 0 (the node's default) to MAX_CAMERAS."""
+    from perch_common.request_validation import MAX_CAMERAS
+
+    return non_negative_int(text, MAX_CAMERAS)
+
+
+def seed_int(text: str) -> int:
+    """argparse type: a seed that fits the goal's int64 (negative: the node's default)."""
+    import argparse
+
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if not -2 ** 63 <= value < 2 ** 63:
+        raise argparse.ArgumentTypeError(f"{value} does not fit a 64-bit seed; give -1 (the node's default) "
+                                         "or 0..9223372036854775807")
     return value
 
 
@@ -89,7 +113,7 @@ def _common(p) -> None:
                    help="use the graph already running on this ROS domain (else: start the mission's own graph)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace the outputs of an earlier mission in the output folder (else refused)")
-    p.add_argument("--timeout", type=float, default=900.0, help="mission time limit (s)")
+    p.add_argument("--timeout", type=positive_float, default=900.0, help="mission time limit (s)")
     p.add_argument("--quiet", action="store_true", help="no progress display")
     from perch_common.launch import add_graph_arguments
 
@@ -199,12 +223,26 @@ def run_plan(goal, args, describe: dict) -> int:
     mission, write the outputs, print the summary; SIGTERM/SIGHUP stop the nodes like Ctrl-C."""
     import rclpy
 
-    from perch_common.launch import use_perch_dds
-    from perch_operator.runner import choose_domain, client_context, graph_ros_args, start_own_graph
+    from perch_common import namespace
+    from perch_common.config import check_overrides
+    from perch_common.launch import parse_overrides, use_perch_dds
+    from perch_operator.runner import (
+        choose_domain,
+        client_context,
+        existing_perch_graph,
+        graph_ros_args,
+        mission_nodes,
+        start_own_graph,
+    )
 
     use_perch_dds(network=args.network or None)
     started = time.monotonic()
     launch = not args.no_launch
+    if args.param and not launch:
+        raise PerchError("-p with --no-launch: the running graph keeps the parameters it was started with; set "
+                         "them on it (`ros2 param set /perch_placement num_cameras 3`, refused where a parameter "
+                         "is read-only) or drop --no-launch to start a graph with them")
+    check_overrides(parse_overrides(args.param), mission_nodes(), args.config, namespace.current())  # before anything starts
     domain = choose_domain() if launch else None
     in_process = launch and args.graph_mode == "one-process"
     ros_args = graph_ros_args(args.config, args.param, args.out / "logs") if in_process else None
@@ -213,6 +251,8 @@ def run_plan(goal, args, describe: dict) -> int:
         graph = None
         try:
             if launch:
+                launch = not _use_running_graph(node, existing_perch_graph(node), domain, args.param)
+            if launch:
                 graph = start_own_graph(node, args.graph_mode, domain, args.config, args.param, args.out / "logs")
             return _mission_and_outputs(node, goal, args, describe, started)
         except KeyboardInterrupt:
@@ -220,6 +260,23 @@ def run_plan(goal, args, describe: dict) -> int:
         finally:
             if graph is not None:
                 graph.stop()
+
+
+def _use_running_graph(node, existing: tuple[list[str], list[str]], domain: int, overrides) -> bool:
+    """True when a usable Perch graph runs on the user's domain (the mission then runs on it); raises
+    PerchError when Perch nodes there cannot be used, or -p asks for parameters it does not have."""
+    found, problems = existing
+    where = f"ROS domain {domain}" + (f", namespace {node.get_namespace()}" if node.get_namespace() != "/" else "")
+    if problems:
+        raise PerchError(f"{where} already has Perch nodes this perch cannot use ({'; '.join(problems)}); stop "
+                         "them, or give this mission another ROS_DOMAIN_ID or --namespace")
+    if not found:
+        return False
+    if overrides:
+        raise PerchError(f"a Perch graph already runs on {where}; -p cannot change its parameters (set them on "
+                         "it with `ros2 param set`, or stop it and run perch plan again)")
+    print(f"perch: using the Perch graph already running on {where} (its parameters)", file=sys.stderr)
+    return True
 
 
 def _mission_and_outputs(node, goal, args, describe: dict, started: float) -> int:

@@ -17,6 +17,7 @@ import numpy as np
 from perch_common.conventions import FILTER_NAMES
 from perch_common.frames import Alignment
 from perch_common.mesh import load_mesh
+from perch_common.request_validation import validate_request
 from perch_common.ros.conversions import (
     exclusion_to_msg,
     mesh_from_msg,
@@ -116,6 +117,10 @@ class Mission:
     def run(self, goal: PlanPerches.Goal) -> PlanPerches.Result:
         """Run the goal through every stage and the operator's decisions; the action's result, in the input's own frame."""
         started = time.monotonic()
+        try:   # the very checks every stage request gets (perch_common.request_validation)
+            validate_request(goal)
+        except ValueError as exc:
+            raise ValueError(f"invalid goal: {exc}") from None
         mesh_msg = self._acquire_mesh(goal)
         if self.on_alignment is not None:
             self.on_alignment(self.alignment)
