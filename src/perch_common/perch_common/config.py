@@ -9,8 +9,10 @@ its descriptor, so a file, the command line and a running node are checked alike
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import math
 import os
+import re
 from pathlib import Path
 from typing import Any, Generic, TypeVar
 
@@ -26,10 +28,16 @@ class ConfigError(ValueError):
 
 
 def param(default: Any, description: str, unit: str | None = None, *, low: float | None = None,
-          high: float | None = None, choices: tuple | list | None = None) -> Any:
+          high: float | None = None, choices: tuple | list | None = None, read_only: bool = False) -> Any:
     """A config dataclass field: description and unit, the inclusive range [low, high] of a number
-    (either end may be left open) and the values a string may take; all become the ROS parameter's."""
+    (either end may be left open) and the values a string may take; all become the ROS parameter's.
+
+    read_only: the node uses the value only at start-up (a subscription's topic, a service's
+    introspection, a timer's period): its descriptor says so and a change while running is refused,
+    instead of being accepted and changing nothing."""
     metadata: dict[str, Any] = {"description": description}
+    if read_only:
+        metadata["read_only"] = True
     if unit:
         metadata["unit"] = unit
     if low is not None or high is not None:
@@ -88,7 +96,8 @@ class StageNodeConfig(Generic[T]):
     own fields, and gives the stage its settings alone with `stage_config()`.
     """
 
-    introspection: bool = param(True, "publish service introspection events (requests and replies) for the recorder")
+    introspection: bool = param(True, "publish service introspection events (requests and replies) for the recorder",
+                                read_only=True)
 
     def stage_config(self) -> T:
         """The stage's settings alone, as the stage's config class (the dataclass this node config extends)."""
@@ -124,22 +133,185 @@ def load_yaml(path: str | Path) -> dict:
     return data
 
 
+def _key_pattern(key: str) -> re.Pattern:
+    """The node names a parameter-file key applies to, as rcl matches them: `/**` any namespaces
+    (or none), `*` one token; a key without a leading `/` is absolute too."""
+    parts = []
+    for token in key.strip("/").split("/"):
+        if token == "**":
+            parts.append(r"(?:/[^/]+)*")
+        else:
+            parts.append("/" + re.escape(token).replace(r"\*", "[^/]*"))
+    return re.compile("".join(parts))
+
+
+def node_keys(data: dict, node_name: str, namespace: str = "") -> list[str]:
+    """The keys of a parameter file that apply to node `namespace/node_name`, in file order."""
+    full = f"{namespace.rstrip('/')}/{node_name}" if namespace else f"/{node_name}"
+    return [key for key in data if isinstance(key, str) and _key_pattern(key).fullmatch(full)]
+
+
 def node_names(path: str | Path | None = None) -> list[str]:
-    """Node sections of a parameter file, in file order (the wildcard excluded)."""
-    return [k.lstrip("/") for k in load_yaml(path or default_config_path()) if k != WILDCARD]
+    """Nodes a parameter file names, in file order: the last token of each key that names one
+    (`perch_placement`, `/site_a/perch_placement`, `/**/perch_segmentation`); wildcard-only keys
+    (`/**`, `/site_a/*`) name none."""
+    names: list[str] = []
+    for key in load_yaml(path or default_config_path()):
+        last = str(key).strip("/").rsplit("/", 1)[-1]
+        if last and "*" not in last and last not in names:
+            names.append(last)
+    return names
 
 
-def node_parameters(node_name: str, path: str | Path | None = None) -> dict[str, Any]:
-    """Flat parameters of one node: the `/**` wildcard section overlaid by the node's own.
+def node_parameters(node_name: str, path: str | Path | None = None, namespace: str | None = None) -> dict[str, Any]:
+    """Flat parameters of one node as rcl gives them to it: every key that matches the node's full
+    name (`/**`, `/**/NAME`, `/NS/NAME`, `NAME`, ... in file order, later ones winning), read with
+    rclpy's parameter-file parser (nested mappings become dotted names, `camera.width`).
 
-    Nested mappings are flattened with dots, as ROS does (`camera.width`).
+    namespace: the node's (default: PERCH_NAMESPACE, where Perch's graph runs).
     """
-    data = load_yaml(path or default_config_path())
-    merged: dict[str, Any] = {}
-    for key in (WILDCARD, node_name, "/" + node_name):
-        section = data.get(key) or {}
-        merged.update(flatten(section.get("ros__parameters") or {}))
-    return merged
+    from perch_common import namespace as ros_namespace
+
+    path = Path(path or default_config_path())
+    data = load_yaml(path)
+    keys = node_keys(data, node_name, ros_namespace.current() if namespace is None else namespace)
+    for key in keys:
+        if not isinstance(data[key], dict) or "ros__parameters" not in data[key]:
+            raise ConfigError(f"{path}: section '{key}' has no ros__parameters mapping")
+    if not keys:
+        return {}
+    from rclpy.parameter import parameter_dict_from_yaml_file, parameter_value_to_python
+
+    try:
+        parsed = parameter_dict_from_yaml_file(str(path), target_nodes=keys)
+    except (RuntimeError, yaml.YAMLError) as exc:
+        raise ConfigError(f"{path}: {exc}") from None
+    return {name: _plain(parameter_value_to_python(msg.value)) for name, msg in parsed.items()}
+
+
+def _plain(value: Any) -> Any:
+    """rclpy's array values (array.array, numpy) as lists, as YAML gave them."""
+    if isinstance(value, (str, bytes, bool, int, float)) or value is None:
+        return value
+    return list(value)
+
+
+# Node name -> its parameters' config class ("module:Class"), for checking values before a node starts.
+NODE_CONFIGS = {
+    "perch_reconstruction": "perch_reconstruction.config:ReconstructionNodeConfig",
+    "perch_operator": "perch_operator.config:OperatorConfig",
+    "perch_segmentation": "perch_segmentation.config:SegmentationNodeConfig",
+    "perch_filtering": "perch_filtering.config:FilterNodeConfig",
+    "perch_placement": "perch_placement.config:PlacementNodeConfig",
+    "perch_mesh_tools": "perch_common.mesh_node:MeshToolsConfig",
+}
+
+
+def node_config_class(node_name: str) -> type | None:
+    """The config dataclass whose fields are `node_name`'s parameters (None for an unknown node)."""
+    import importlib
+
+    target = NODE_CONFIGS.get(node_name)
+    if target is None:
+        return None
+    module, _, name = target.partition(":")
+    return getattr(importlib.import_module(module), name)
+
+
+_TYPE_NAMES = {bool: "a bool (true/false)", int: "an integer", float: "a float (double)", str: "a string",
+               list: "a list"}
+
+
+def override_value(name: str, text: str, default: Any) -> Any:
+    """The value of `-p ...:name:=text` as the node declaring `name` with `default` receives it.
+
+    rcl reads the text as YAML. An integer for a float parameter is taken as that float (ROS would
+    refuse `60` for a double with "wrong parameter type", which surprises ROS users); a number for
+    a string parameter is taken as its text. Anything else of the wrong type is a ConfigError."""
+    try:
+        value = yaml.safe_load(text) if text.strip() else ""
+    except yaml.YAMLError:
+        value = text
+    kind = type(default)
+    if isinstance(default, bool):
+        ok = isinstance(value, bool)
+    elif isinstance(default, int):
+        ok = isinstance(value, int) and not isinstance(value, bool)
+    elif isinstance(default, float):
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+        value = float(value) if ok else value
+    elif isinstance(default, str):
+        ok = not isinstance(value, (list, dict)) and value is not None
+        value = text if ok and not isinstance(value, str) else value
+    elif isinstance(default, (list, tuple)):
+        kind = list
+        ok = isinstance(value, list)
+        if ok and default and isinstance(default[0], float):
+            ok = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+            value = [float(v) for v in value] if ok else value
+    else:
+        ok = True
+    if not ok:
+        raise ConfigError(f"parameter {name}:={text}: expects {_TYPE_NAMES.get(kind, kind.__name__)}, "
+                          f"got {type(value).__name__} {value!r}")
+    return value
+
+
+def override_text(value: Any) -> str:
+    """The `-p` text (YAML, as rcl parses it) that gives a node exactly `value`."""
+    return yaml.safe_dump(value, default_flow_style=True, width=1 << 20).strip().removesuffix("...").strip()
+
+
+def check_overrides(per_node: dict[str, list[str]], nodes: list[str], path: str | Path | None = None,
+                    namespace: str | None = None) -> dict[str, list[str]]:
+    """Check `-p` overrides (perch_common.launch.parse_overrides' `{node or '*': ['name:=text']}`)
+    against what `nodes` declare, before anything starts; returns them as the nodes should get them.
+
+    An unknown node or parameter name, a value of the wrong type or outside its range, or a
+    configuration (file + overrides) the node's own validation refuses is a ConfigError naming
+    the override and what exists or is accepted.
+    """
+    classes = {n: node_config_class(n) for n in nodes}
+    unknown = [n for n in per_node if n != "*" and n not in classes]
+    if unknown:
+        raise ConfigError(f"-p {unknown[0]}:...: no node '{unknown[0]}' in this graph; its nodes: "
+                          f"{', '.join(nodes)}")
+    out: dict[str, list[str]] = {}
+    values: dict[str, dict[str, Any]] = {n: {} for n in nodes}
+    for node, items in per_node.items():
+        targets = [n for n in nodes if classes[n] is not None] if node == "*" else [node]
+        for item in items:
+            name, _, text = item.partition(":=")
+            users = [n for n in targets if classes[n] is not None
+                     and name in to_parameters(classes[n](), "")]
+            if not users:
+                where = f"node {node} declares no" if node != "*" else "no node declares a"
+                declared = sorted(to_parameters(classes[targets[0]](), "")) if node != "*" and classes[node] else []
+                close = difflib.get_close_matches(name, declared, n=3)
+                hint = f"; did you mean {', '.join(close)}?" if close else ""
+                listing = f"; its parameters: {', '.join(declared)}" if declared else ""
+                raise ConfigError(f"-p {'' if node == '*' else node + ':'}{item}: {where} parameter "
+                                  f"'{name}'{hint}{listing}")
+            for user in users:
+                default = to_parameters(classes[user](), "")[name]
+                label = f"{user}:{name}"
+                value = override_value(label, text, default)
+                check_value(label, value, field_specs(classes[user]).get(name, {}))
+                values[user][name] = value
+            out.setdefault(node, []).append(f"{name}:={override_text(value)}")
+    for node, given in values.items():
+        cls = classes[node]
+        if cls is None or not given:
+            continue
+        try:
+            params = dict(node_parameters(node, path, namespace), **given)
+            config = from_parameters(cls, params)
+            if hasattr(config, "validate"):
+                config.validate()
+        except ValueError as exc:
+            shown = " ".join(f"-p {node}:{k}:={override_text(v)}" for k, v in given.items())
+            raise ConfigError(f"{node}: {exc} (with {shown})") from None
+    return out
 
 
 def load_node_config(cls: type[T], node_name: str, path: str | Path | None = None) -> T:

@@ -26,7 +26,7 @@ from importlib.metadata import entry_points
 from pathlib import Path
 
 from perch_common import namespace as ros_namespace
-from perch_common.config import ConfigError, default_config_path, node_names
+from perch_common.config import ConfigError, check_overrides, default_config_path, node_names
 from perch_common.data import repo_root
 from perch_common.processes import child_environment, clean_dead_shm, stop_process
 from perch_common.threads import thread_environment
@@ -227,7 +227,9 @@ class GraphProcesses:
         self.env.update(thread_environment(self.env))
         use_perch_dds(self.env, network)
         self.namespace = ros_namespace.current(self.env) if namespace is None else ros_namespace.normalise(namespace)
-        self.overrides = parse_overrides(overrides)
+        # Every -p checked against what its node declares before anything starts (rcl would drop a
+        # wrongly typed override silently when the file sets the key, or the node would die on it).
+        self.overrides = check_overrides(parse_overrides(overrides), listed, self.config, self.namespace)
         if self.namespace:
             self.env[ros_namespace.NAMESPACE_ENV] = self.namespace
         self.processes: dict[str, subprocess.Popen] = {}
@@ -376,6 +378,18 @@ def running_graph(graph: GraphProcesses, wait: float = 2.0) -> list[str]:
         rclpy.try_shutdown(context=context)
 
 
+CONFIG_EXIT = 2   # perch_common.ros.node_main.run_node: the node stopped on a bad parameter
+
+
+def config_reason(graph: GraphProcesses, name: str) -> str:
+    """': <the error line>' from the node's log (its last `error:` line), '' without a log."""
+    if graph.log_dir is None or not (graph.log_dir / f"{name}.log").is_file():
+        return ""
+    lines = [line for line in (graph.log_dir / f"{name}.log").read_text(errors="replace").splitlines()
+             if line.startswith("error:")]
+    return f": {lines[-1].removeprefix('error:').strip()}" if lines else ""
+
+
 def _run(args) -> int:
     overrides = list(args.param)
     if args.up is not None:
@@ -419,6 +433,11 @@ def _run(args) -> int:
                 if ok or name in pending:
                     continue
                 code = graph.processes[name].returncode
+                if code == CONFIG_EXIT:   # restarting cannot help: the same parameters fail the same way
+                    print(f"perch launch: {name} refused its parameters (exit code {code}"
+                          f"{config_reason(graph, name)}); not restarting it, stopping the graph; fix the "
+                          "parameter and launch again", file=sys.stderr, flush=True)
+                    return 1
                 if args.no_respawn:
                     print(f"perch launch: {name} exited (code {code}); stopping the graph", file=sys.stderr)
                     return 1

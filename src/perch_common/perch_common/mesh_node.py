@@ -21,7 +21,7 @@ from perch_interfaces.srv import InspectMesh
 class MeshToolsConfig:
     """The perch_mesh_tools node's parameters."""
 
-    service_name: str = param("perch/inspect_mesh", "service to offer")
+    service_name: str = param("perch/inspect_mesh", "service to offer", read_only=True)
 
 
 class MeshToolsNode(Node):

@@ -26,7 +26,9 @@ class OperatorConfig:
 
     up_axis: str = param("+z", "gravity up direction of the meshes a mission is given")
     frame_id: str = param("map", "frame of the waypoints and proposals")
-    introspection: bool = param(True, "publish service introspection events (requests and replies) of /perch/crop")
+    # read_only: read when the node starts (its services, the stage caller); the rest is read per mission.
+    introspection: bool = param(True, "publish service introspection events (requests and replies) of /perch/crop",
+                                read_only=True)
     auto_accept: bool = param(False, "accept every proposal without waiting for an operator (unattended runs); "
                                      "a goal can also ask for it")
     exclusion_radius: float = param(0.3, "a rejected or failed perch excludes perching within this radius", "m",
@@ -39,9 +41,12 @@ class OperatorConfig:
     clean_given_mesh: bool = param(True, "run /perch/clean_mesh on a mesh given by file or message before cropping")
     optimise_on_full_mesh: bool = param(True,
                                         "optimise against the uncropped mesh (everything outside the crop still occludes)")
-    service_wait: float = param(5.0, "how long to wait for a stage's service to appear before failing", "s", low=0.0)
-    stage_timeout: float = param(300.0, "a stage that does not reply within this time fails the mission", "s", low=0.0)
-    gone_grace: float = param(2.0, "a stage whose service vanished for this long during a call fails the mission", "s", low=0.0)
+    service_wait: float = param(5.0, "how long to wait for a stage's service to appear before failing", "s", low=0.0,
+                                read_only=True)
+    stage_timeout: float = param(300.0, "a stage that does not reply within this time fails the mission", "s", low=0.0,
+                                 read_only=True)
+    gone_grace: float = param(2.0, "a stage whose service vanished for this long during a call fails the mission", "s",
+                              low=0.0, read_only=True)
     confirm_timeout: float = param(600.0, "how long a mission waits for operator decisions (0: until cancelled)", "s", low=0.0)
     client_grace: float = param(5.0, "a mission whose client left the graph this long ago is aborted (0: never)", "s", low=0.0)
     crop: CropConfig = field(default_factory=CropConfig)

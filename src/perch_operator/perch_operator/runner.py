@@ -111,24 +111,55 @@ def mission_nodes() -> list[str]:
 
 
 def choose_domain(out=sys.stderr) -> int:
-    """This shell's ROS domain when no process on this host uses it, else a free one (said so).
+    """The user's ROS_DOMAIN_ID, as given: Perch never moves itself to another domain (a viewer or
+    bridge on the user's domain must see the mission). Whether a Perch graph already runs there is
+    for `existing_perch_graph` to tell once the client node is up."""
+    from perch_common.launch import current_domain
 
-    `perch plan` never joins a graph it did not start (it may run other parameters): with the
-    current domain taken it moves its own graph to a free domain, or explains how to proceed.
-    """
-    from perch_common import namespace
-    from perch_common.launch import current_domain, domains_in_use, free_domain
+    return current_domain()
 
-    domain = current_domain()
-    if domain not in domains_in_use() or namespace.current():
-        return domain   # a namespace of its own already keeps the graphs apart on one domain
-    other = free_domain()
-    if other is None:
-        raise PerchError(f"ROS domain {domain} already has a graph and no other domain is free on this host; "
-                         "use it with --no-launch, or stop a graph")
-    out.write(f"perch: ROS domain {domain} already has a graph (use --no-launch to run on it); this mission "
-              f"starts its own on free domain {other}: decide with `ROS_DOMAIN_ID={other} perch operator ...`\n")
-    return other
+
+def existing_perch_graph(node, wait: float = 3.0) -> tuple[list[str], list[str]]:
+    """(services of a Perch mission graph found on this domain and namespace, why it cannot be used).
+
+    Looked for only when some process on this host takes part in the domain; discovery lists a
+    running graph's services within `wait` seconds. A graph is usable when every mission node's
+    service is there with this installation's types: service type names, and the RIHS01 hashes of
+    the coordinator's feedback and the stages' introspection events (interfaces changed since it
+    started, or another Perch version, would garble every message)."""
+    from perch_common.conventions import MISSION_FEEDBACK_TOPIC
+    from perch_common.launch import current_domain, domains_in_use
+    from perch_common.ros.msgdefs import type_hash
+    from perch_operator.recorder import EVENT_SUFFIX
+    from perch_operator.stages import STAGES
+
+    if current_domain() not in domains_in_use():
+        return [], []
+    kinds = {node.resolve_service_name(s.service): f"perch_interfaces/srv/{s.srv_type.__name__}"
+             for s in STAGES.values()}
+    wanted = [node.resolve_service_name(NODE_SERVICES[n][0]) for n in mission_nodes()]
+    deadline = time.monotonic() + wait
+    while True:
+        offered = dict(node.get_service_names_and_types())
+        found = [name for name in wanted if name in offered]
+        if len(found) == len(wanted) or time.monotonic() > deadline:
+            break
+        time.sleep(0.1)
+    if not found:
+        return [], []
+    problems = [f"{name} is missing" for name in wanted if name not in offered]
+    problems += [f"{name} has type {', '.join(offered[name])}, this Perch expects {kinds[name]}"
+                 for name in found if name in kinds and kinds[name] not in offered[name]]
+    hashed = {node.resolve_topic_name(MISSION_FEEDBACK_TOPIC): "perch_interfaces/action/PlanPerches_FeedbackMessage"}
+    hashed.update({name + EVENT_SUFFIX: kinds[name] + "_Event" for name in found if name in kinds})
+    for topic, type_name in hashed.items():
+        for info in node.get_publishers_info_by_topic(topic):
+            theirs, ours = str(info.topic_type_hash), type_hash(type_name)
+            if info.topic_type_hash.version > 0 and ours and theirs != ours:
+                problems.append(f"{topic} carries {type_name} {theirs[:15]}..., this Perch's is {ours[:15]}... "
+                                "(another version of perch_interfaces)")
+                break
+    return found, problems
 
 
 @dataclass

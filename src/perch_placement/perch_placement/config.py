@@ -187,4 +187,4 @@ class PlacementNodeConfig(PlacementConfig, StageNodeConfig[PlacementConfig]):
 
     scene_cache_faces: int = param(1_000_000, "faces the ray-cast scenes kept for re-plans may hold together "
                                    "(about 150 bytes each); a larger mesh's scene is freed after its request",
-                                   low=0)
+                                   low=0, read_only=True)   # the cache is made when the node starts

@@ -60,16 +60,21 @@ class ReconstructionConfig:
 class ReconstructionNodeConfig(ReconstructionConfig, StageNodeConfig[ReconstructionConfig]):
     """The node's parameters: the reconstruction settings plus live-input handling."""
 
-    color_topic: str = param("/camera/color/image_raw", "colour images (sensor_msgs/Image rgb8/bgr8/...)")
-    depth_topic: str = param("/camera/depth/image_raw", "depth images registered to colour (16UC1 mm or 32FC1 m)")
-    camera_info_topic: str = param("/camera/depth/camera_info", "sensor_msgs/CameraInfo of the depth stream")
-    pose_topic: str = param("/camera/pose", "world-from-camera poses (geometry_msgs/PoseStamped)")
+    # read_only: subscriptions and timers made at start-up. The rest is re-read for every bag
+    # reconstruction and cleaning, and for live input at the next /perch/reconstruct/reset.
+    color_topic: str = param("/camera/color/image_raw", "colour images (sensor_msgs/Image rgb8/bgr8/...)",
+                             read_only=True)
+    depth_topic: str = param("/camera/depth/image_raw", "depth images registered to colour (16UC1 mm or 32FC1 m)",
+                             read_only=True)
+    camera_info_topic: str = param("/camera/depth/camera_info", "sensor_msgs/CameraInfo of the depth stream",
+                                   read_only=True)
+    pose_topic: str = param("/camera/pose", "world-from-camera poses (geometry_msgs/PoseStamped)", read_only=True)
     pose_type: str = param("pose", "type on pose_topic: 'pose' (PoseStamped) or 'odometry' (nav_msgs/Odometry)",
-                           choices=("pose", "odometry"))
+                           choices=("pose", "odometry"), read_only=True)
     lossless_replay: bool = param(False, "subscribe reliable + transient-local as `perch bag play` publishes "
                                       "(no frame lost); false: best effort, matching camera drivers and "
-                                      "`ros2 bag play`")
-    compressed_images: bool = param(False, "colour and depth arrive as sensor_msgs/CompressedImage")
+                                      "`ros2 bag play`", read_only=True)
+    compressed_images: bool = param(False, "colour and depth arrive as sensor_msgs/CompressedImage", read_only=True)
     use_poses: bool = param(True, "live input: integrate the poses from pose_topic (false: RGB-D odometry)")
     gravity: list = param([0.0, 0.0, 0.0], "live input: gravity in the pose frame; zeros = estimate from floor/ceiling")
     queue_size: int = param(4, "frames waiting for integration; when full the OLDEST waiting frame is dropped "
@@ -77,7 +82,8 @@ class ReconstructionNodeConfig(ReconstructionConfig, StageNodeConfig[Reconstruct
     camera_info_timeout: float = param(5.0, "report an error when images arrive without camera info this long", "s", low=0.0)
     pose_wait: float = param(0.5, "how long a frame waits for its pose to arrive", "s", low=0.0)
     drain_timeout: float = param(60.0, "Reconstruct waits at most this long for queued frames", "s", low=0.0)
-    progress_period: float = param(1.0, "progress message period on /perch/reconstruct/progress", "s", low=0.0)
+    progress_period: float = param(1.0, "progress message period on /perch/reconstruct/progress", "s", low=0.0,
+                                   read_only=True)
     frame_id: str = param("map", "frame of the returned mesh")
 
     def validate(self) -> "ReconstructionNodeConfig":

@@ -196,9 +196,11 @@ class LiveIngest:
         """Frames dropped because integration fell behind."""
         return int(sum(self.dropped.values()))
 
-    def reset(self) -> None:
-        """Start over: empty volume, queues and statistics."""
+    def reset(self, config: ReconstructionNodeConfig | None = None) -> None:
+        """Start over: empty volume, queues and statistics (with `config`'s settings when given)."""
         with self._lock, self._volume_lock:
+            if config is not None:
+                self.config = config.validate()
             self._reset_state()
 
     def status(self) -> ReconstructionProgress:

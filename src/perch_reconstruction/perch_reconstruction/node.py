@@ -21,7 +21,7 @@ from perch_common.errors import EXPECTED
 from perch_common.frames import Alignment, aligned_frame_name
 from perch_common.ros.conversions import cached_mesh_to_msg, mesh_from_request, xyz
 from perch_common.ros.node_main import run_node
-from perch_common.ros.params import declare_config
+from perch_common.ros.params import declare_config, read_config
 from perch_common.ros.service import answering, create_stage_service
 from perch_common.ros.static_transforms import StaticTransformPublisher, alignment_to_msg
 from perch_interfaces import msg as pm
@@ -145,9 +145,13 @@ class ReconstructionNode(Node):
         self.progress.publish(progress_to_msg(status, self.get_clock().now().to_msg()))
 
     # --- services -------------------------------------------------------------------------------
+    def current_config(self) -> ReconstructionNodeConfig:
+        """The parameters now (a change while running applies to the next call; read-only ones never change)."""
+        return read_config(self, ReconstructionNodeConfig)
+
     @answering
     def _reconstruct(self, request, response):
-        c = self.config
+        c = self.current_config()
         try:
             if request.bag_path:
                 mesh, stats = self._reconstruct_bag(request)
@@ -173,7 +177,7 @@ class ReconstructionNode(Node):
         return response
 
     def _reconstruct_bag(self, request):
-        c = self.config
+        c = self.current_config()
         config = c.stage_config()
         if request.target_faces:
             config = dataclasses.replace(config, target_faces=int(request.target_faces))
@@ -187,19 +191,20 @@ class ReconstructionNode(Node):
         return reconstruct_bag(request.bag_path, config, bool(request.use_poses), topics, progress=progress)
 
     def _reset(self, request, response):
-        self.ingest.reset()
+        self.ingest.reset(self.current_config())   # live input takes the parameters as they are now
         response.success, response.message = True, "reconstruction cleared"
         self.get_logger().info("reset: volume, queue and counters cleared")
         return response
 
     @answering
     def _clean(self, request, response):
-        config = self.config.stage_config()
+        current = self.current_config()
+        config = current.stage_config()
         if request.target_faces:
             config = dataclasses.replace(config, target_faces=int(request.target_faces))
         gravity = xyz(request.gravity)
         given = mesh_from_request(request.mesh, "mesh to clean")
-        given.frame_id = request.mesh.header.frame_id or self.config.frame_id
+        given.frame_id = request.mesh.header.frame_id or current.frame_id
         mesh, report = clean_mesh_with_report(given, gravity if np.any(gravity) else None, config)
         mesh.frame_id = aligned_frame_name(given.frame_id)
         response.mesh = cached_mesh_to_msg(mesh, self.get_clock().now().to_msg())

@@ -3,7 +3,11 @@
 One convention for every Perch node: each field becomes a parameter whose descriptor carries its
 description, unit, range (FloatingPointRange / IntegerRange) and choices; a bad start-up value
 stops the node with one line naming the parameter (ConfigError, printed by run_node); a bad value
-set while running is rejected with the reason and the node keeps its old value.
+set while running is rejected with the reason and the node keeps its old value. A parameter the
+node reads only at start-up (`param(..., read_only=True)`) is read-only in its descriptor, so
+`ros2 param set` is refused ("parameter is read-only") instead of succeeding and changing nothing.
+An integer given for a float parameter (`stage_timeout: 60` in a file, `-p ...:=60`) is taken as
+that float, as a ROS user expects; rcl would refuse it as the wrong type.
 """
 
 from __future__ import annotations
@@ -34,8 +38,9 @@ def declare_config(node: Node, cls: type[T], prefix: str = "",
     """
     specs = field_specs(cls, prefix)
     for name, default in to_parameters(cls(), prefix).items():
+        described = descriptor(specs.get(name, {}), default)
         try:
-            node.declare_parameter(name, default, descriptor(specs.get(name, {}), default))
+            _declare(node, name, default, described)
         except (InvalidParameterValueException, InvalidParameterTypeException) as exc:
             raise ConfigError(f"{node.get_name()}: {_rejection(name, specs.get(name, {}), exc)}") from None
     try:
@@ -48,6 +53,18 @@ def declare_config(node: Node, cls: type[T], prefix: str = "",
     return config
 
 
+def _declare(node: Node, name: str, default: Any, described: ParameterDescriptor) -> None:
+    """declare_parameter, taking an integer override of a float parameter as that float."""
+    from rcl_interfaces.msg import ParameterType
+    from rclpy.parameter import Parameter
+
+    override = node._parameter_overrides.get(name)   # rclpy keeps the start-up overrides here
+    if (override is not None and isinstance(default, float) and override.type_ == Parameter.Type.INTEGER
+            and described.type in (ParameterType.PARAMETER_NOT_SET, ParameterType.PARAMETER_DOUBLE)):
+        node._parameter_overrides[name] = Parameter(name, Parameter.Type.DOUBLE, float(override.value))
+    node.declare_parameter(name, default, described)
+
+
 def read_config(node: Node, cls: type[T], prefix: str = "") -> T:
     """The current values of the parameters declared by `declare_config`."""
     names = to_parameters(cls(), prefix)
@@ -58,7 +75,8 @@ def read_config(node: Node, cls: type[T], prefix: str = "") -> T:
 def descriptor(spec: dict, default: Any) -> ParameterDescriptor:
     """The ROS descriptor of a `param` field: description [unit], range and choices."""
     text = spec.get("description", "")
-    out = ParameterDescriptor(description=f"{text} [{spec['unit']}]" if spec.get("unit") else text)
+    out = ParameterDescriptor(description=f"{text} [{spec['unit']}]" if spec.get("unit") else text,
+                              read_only=bool(spec.get("read_only")))
     bounds = spec.get("range")
     if bounds is not None and isinstance(default, int) and not isinstance(default, bool):
         low, high = (int(max(-_INT_LIMIT, min(_INT_LIMIT, b))) for b in bounds)
