@@ -55,13 +55,21 @@ def use_perch_dds(env: dict | None = None, network: bool | None = None) -> dict:
     Local (default): config/fastdds.xml (loopback UDP, shared memory, unicast peers on 127.0.0.1)
     with ROS_AUTOMATIC_DISCOVERY_RANGE=SYSTEM_DEFAULT, because rmw_fastrtps's LOCALHOST range would
     replace the profile's transports with ones bound to every interface. A profile of the user's
-    own (FASTRTPS_DEFAULT_PROFILES_FILE already set) is kept, with the LOCALHOST range.
+    own (FASTRTPS_DEFAULT_PROFILES_FILE already set) is kept, with the user's range (else LOCALHOST).
     Network (`network=True` or PERCH_NETWORK=1): config/fastdds_network.xml, discovery range left
     to the user. Both profiles drop a process that died unannounced after ~3 s, not ~20 s, and free
     each message's buffers with it (RMW_FASTRTPS_USE_QOS_FROM_XML=1 makes rmw_fastrtps apply that).
+
+    What the user set is honoured or refused, never widened (discovery_conflict): ROS_LOCALHOST_ONLY=1
+    and the LOCALHOST range are what the local profile does (on loopback only, stricter than
+    rmw_fastrtps's own LOCALHOST transports); OFF, or SUBNET without --network, and a host-only
+    setting with --network, raise ConfigError naming the setting and the fix.
     """
     target = os.environ if env is None else env
     network = network_requested(target) if network is None else network
+    conflict = discovery_conflict(target, network)
+    if conflict:
+        raise ConfigError(conflict)
     profile = dds_profile(network)
     if profile.is_file():
         target.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(profile))
@@ -74,10 +82,35 @@ def use_perch_dds(env: dict | None = None, network: bool | None = None) -> dict:
         if target.get("ROS_AUTOMATIC_DISCOVERY_RANGE") == "SYSTEM_DEFAULT" and _ours(target):
             target.pop("ROS_AUTOMATIC_DISCOVERY_RANGE")
     elif target["FASTRTPS_DEFAULT_PROFILES_FILE"] == str(profile):
+        # the loopback profile is the host-only setting: rmw's own (LOCALHOST_ONLY, LOCALHOST range)
+        # would swap its transports for ones bound to every interface
+        if target.get("ROS_LOCALHOST_ONLY") == "1":
+            target.pop("ROS_LOCALHOST_ONLY")
         target["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "SYSTEM_DEFAULT"
     else:
-        target["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+        target.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     return target
+
+
+def discovery_conflict(env: dict, network: bool) -> str:
+    """Why the user's ROS_LOCALHOST_ONLY / ROS_AUTOMATIC_DISCOVERY_RANGE cannot be honoured ('' if they can)."""
+    only = env.get("ROS_LOCALHOST_ONLY", "").strip()
+    wanted = env.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "").strip().upper()
+    if network:
+        if only == "1":
+            return ("ROS_LOCALHOST_ONLY=1 keeps ROS on this host but --network (PERCH_NETWORK=1) opens the graph "
+                    "to other hosts: unset one of them")
+        if wanted in ("LOCALHOST", "OFF"):
+            return (f"ROS_AUTOMATIC_DISCOVERY_RANGE={wanted} keeps ROS on this host but --network (PERCH_NETWORK=1) "
+                    "opens the graph to other hosts: unset one of them")
+        return ""
+    if wanted == "OFF":
+        return ("ROS_AUTOMATIC_DISCOVERY_RANGE=OFF turns discovery off, so Perch's processes could not find each "
+                "other; unset it (Perch keeps its graph on this host by default)")
+    if wanted == "SUBNET":
+        return ("ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET asks for a graph reachable from the subnet, but Perch keeps "
+                "its graph on this host unless --network (or PERCH_NETWORK=1): pass that, or unset it")
+    return ""
 
 
 def _ours(env: dict) -> bool:

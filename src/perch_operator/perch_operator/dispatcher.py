@@ -5,31 +5,94 @@ transient-local QoS, so even when started after the mission it gets exactly the 
 accepted waypoints (never an older mission's); each new set replaces the previous one. It prints
 them with the mission (goal) id and can keep a YAML file of them up to date. A real dispatcher
 replaces the print with flight orders.
+
+A set is accepted only from the coordinator that ran its mission: every writer of the waypoint
+topic must belong to the process (DDS participant, the GID's first 12 bytes) that serves the mission
+action, that process must be the only one serving it, and its goal status list must name the set's
+mission. A set that cannot be attributed within ATTRIBUTE_WITHIN seconds (another node writes on
+the topic, a second action server, an unknown mission) is refused with a log line naming the
+writers, and the previous set stays.
 """
 
 from __future__ import annotations
 
 import sys
+import time
 from pathlib import Path
 
 from rclpy.node import Node
 
+from perch_common.conventions import MISSION_STATUS_TOPIC
 from perch_interfaces.msg import PerchWaypointSet
 from perch_operator.mission_data import mission_id_text, waypoint_dict, write_waypoints_yaml
 from perch_operator.node import LATCHED_LAST
+
+WAYPOINT_SET_TOPIC = "perch/mission_waypoints"
+ATTRIBUTE_WITHIN = 5.0   # s for discovery to list a set's writers and the coordinator's goal status
+PREFIX = 12              # bytes of an endpoint GID naming its DDS participant (its process)
 
 
 class Dispatcher(Node):
     """Keeps the latest waypoint set: `mission` (hex goal id) and `received` (waypoint dicts)."""
 
-    def __init__(self, output: Path | None = None, name: str = "perch_dispatcher"):
-        super().__init__(name)
+    def __init__(self, output: Path | None = None, name: str = "perch_dispatcher", context=None):
+        super().__init__(name, context=context)
+        from action_msgs.msg import GoalStatusArray
+        from rclpy.qos import qos_profile_action_status_default
+
         self.output = output
         self.mission = ""
         self.received: list[dict] = []
-        self.create_subscription(PerchWaypointSet, "perch/mission_waypoints", self._on_set, LATCHED_LAST)
+        self.refused: list[str] = []              # why each refused set was refused
+        self._pending: list[tuple[float, PerchWaypointSet]] = []
+        self._goals: set[bytes] = set()            # missions the action's status has listed
+        self.create_subscription(GoalStatusArray, MISSION_STATUS_TOPIC, self._on_status,
+                                 qos_profile_action_status_default)
+        self.create_subscription(PerchWaypointSet, WAYPOINT_SET_TOPIC, self._on_set, LATCHED_LAST)
+        self.create_timer(0.2, self._settle)
+
+    def _on_status(self, msg) -> None:
+        self._goals |= {bytes(s.goal_info.goal_id.uuid) for s in msg.status_list}
 
     def _on_set(self, msg: PerchWaypointSet) -> None:
+        self._pending.append((time.monotonic(), msg))
+        self._settle()
+
+    def attribution(self, msg: PerchWaypointSet) -> tuple[bool, str]:
+        """(decided, why not): (True, '') when the set comes from the coordinator that ran its mission."""
+        def named(infos) -> dict[bytes, str]:
+            return {bytes(i.endpoint_gid)[:PREFIX]: f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos}
+
+        servers = named(self.get_publishers_info_by_topic(self.resolve_topic_name(MISSION_STATUS_TOPIC)))
+        writers = named(self.get_publishers_info_by_topic(self.resolve_topic_name(WAYPOINT_SET_TOPIC)))
+        if len(servers) > 1:
+            return True, f"more than one process serves the mission action ({', '.join(sorted(servers.values()))})"
+        foreign = {k: v for k, v in writers.items() if k not in servers}
+        if foreign:
+            return bool(servers), (f"{', '.join(sorted(foreign.values()))} also writes on {WAYPOINT_SET_TOPIC} and is not "
+                                   "the mission coordinator")
+        if not servers or not writers:
+            return False, "its writer or the mission coordinator is not listed in the graph"
+        if bytes(msg.mission_id.uuid) not in self._goals:
+            return False, f"the coordinator has not listed mission {mission_id_text(msg.mission_id)}"
+        return True, ""
+
+    def _settle(self) -> None:
+        """Accept or refuse the sets received, in order, once each can be attributed (or timed out)."""
+        while self._pending:
+            received, msg = self._pending[0]
+            decided, why = self.attribution(msg)
+            if not decided and time.monotonic() - received < ATTRIBUTE_WITHIN:
+                return
+            self._pending.pop(0)
+            if why:
+                self.refused.append(why)
+                self.get_logger().error(f"refused a waypoint set for mission {mission_id_text(msg.mission_id)}: "
+                                        f"{why}; keeping the previous set")
+            else:
+                self._accept(msg)
+
+    def _accept(self, msg: PerchWaypointSet) -> None:
         self.mission = mission_id_text(msg.mission_id)
         self.received = [waypoint_dict(w) for w in msg.waypoints]
         log = self.get_logger()
@@ -45,7 +108,10 @@ class Dispatcher(Node):
 def main(output: Path | None = None) -> int:
     """Run the dispatcher until Ctrl-C."""
     from perch_common import namespace
+    from perch_common.launch import use_perch_dds
     from perch_common.ros.node_main import run_node
+
+    use_perch_dds()   # host-only like the graph, unless PERCH_NETWORK=1
 
     # the graph's namespace (perch --namespace N dispatch) for the relative topic name
     return run_node(lambda: Dispatcher(output), ["dispatch", "--ros-args", *namespace.ros_arguments(namespace.current())],

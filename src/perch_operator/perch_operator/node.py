@@ -103,6 +103,7 @@ class OperatorNode(Node):
         self.action = ActionServer(self, PlanPerches, MISSION_ACTION, self._execute, callback_group=group,
                                    goal_callback=self._on_goal, cancel_callback=lambda _: CancelResponse.ACCEPT)
         self.operator: Operator | None = None
+        self._mission_state = ""   # the current mission's: running, succeeded, failed or cancelled
         self._busy = threading.Lock()
         self._next_proposal_id = 1
         self.get_logger().info("ready: /perch/crop, /perch/plan_perches, /perch/confirm, /perch/review_surfaces")
@@ -159,6 +160,7 @@ class OperatorNode(Node):
     def _run_mission(self, goal_handle) -> PlanPerches.Result:
         config = read_config(self, OperatorConfig)
         self._mission_id = UUID(uuid=goal_handle.goal_id.uuid)
+        self.operator, self._mission_state = None, "running"   # decisions now bind to this mission only
         self._shown, self._camera, self._view_scene, self._scene_markers = {}, None, None, None
         self._scan_shown = False
         self.waypoint_set_pub.publish(waypoint_set_msg(self._mission_id, [], self._frame_id(),
@@ -200,6 +202,7 @@ class OperatorNode(Node):
             result = mission.run(goal_handle.request)
             result.waypoints = [self._waypoint(p) for p in self.operator.book.accepted()]
             goal_handle.succeed()
+            self._mission_state = "succeeded"
             self.get_logger().info(f"mission done: {result.message}, "
                                    + ", ".join(f"{n} {s:.2f} s" for n, s in zip(result.stage_names,
                                                                                  result.stage_seconds)))
@@ -217,6 +220,8 @@ class OperatorNode(Node):
             self.get_logger().error(f"mission failed: {exc}")
             return self._failed(mission, str(exc))
         finally:
+            if self._mission_state == "running":
+                self._mission_state = "cancelled" if goal_handle.is_cancel_requested else "failed"
             if self.operator is not None:
                 self._next_proposal_id = self.operator.book.next_id
 
@@ -227,7 +232,33 @@ class OperatorNode(Node):
 
     # --- operator -----------------------------------------------------------------------------
 
+    def _unbound(self, request: srv.Confirm.Request) -> str:
+        """Why a decision does not bind to the current mission ('' when it does): decisions are taken
+        while the mission runs; once it succeeded only an accepted perch failing in flight is reported."""
+        if self.operator is None or not self._mission_state:
+            return (f"no mission has proposed anything (proposal {request.proposal_id} is unknown)"
+                    if not self._mission_state or self._mission_state == "running" else
+                    f"mission {self._mission_text()} {self._mission_state} before proposing anything; "
+                    f"proposal {request.proposal_id} is unknown")
+        if self._mission_state == "running":
+            return ""
+        if self._mission_state != "succeeded":
+            return (f"mission {self._mission_text()} {self._mission_state}: its proposals were never dispatched, "
+                    "decisions on them are refused; run a new mission")
+        if request.decision != srv.Confirm.Request.FAILED_IN_FLIGHT:
+            return (f"mission {self._mission_text()} has ended (succeeded): only an accepted perch failing in flight "
+                    "can still be reported; run a new mission to decide again")
+        return ""
+
+    def _mission_text(self) -> str:
+        return bytes(bytearray(self._mission_id.uuid)).hex()
+
     def _confirm(self, request: srv.Confirm.Request, response: srv.Confirm.Response) -> srv.Confirm.Response:
+        refused = self._unbound(request)
+        if refused:
+            response.success, response.message = False, refused
+            self.get_logger().warning(f"confirm refused: {refused}")
+            return response
         try:
             outcome = decide(self.stages, self.operator, request.proposal_id, Decision(request.decision),
                              request.reason, self._publish_proposal)

@@ -1,0 +1,146 @@
+"""Exposure and authority (issue 22, item 6): the user's discovery settings are honoured or refused,
+decisions bind to the current mission, and a dispatcher accepts a waypoint set only from the
+coordinator that ran its mission (a spoofing node on the same domain is refused)."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from perch_common.config import ConfigError
+from perch_common.launch import dds_profile, use_perch_dds
+
+
+def test_host_only_settings_are_honoured_by_the_loopback_profile():
+    for given in ({"ROS_LOCALHOST_ONLY": "1"}, {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}):
+        env = use_perch_dds(dict(given), network=False)
+        assert env["FASTRTPS_DEFAULT_PROFILES_FILE"] == str(dds_profile(False))
+        # rmw_fastrtps's own host-only transports bind every interface; the profile's are loopback only
+        assert env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "SYSTEM_DEFAULT" and "ROS_LOCALHOST_ONLY" not in env
+    # a user's own profile keeps the user's range
+    mine = use_perch_dds({"FASTRTPS_DEFAULT_PROFILES_FILE": "/mine.xml", "ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET"},
+                         network=True)
+    assert mine["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "SUBNET"
+
+
+@pytest.mark.parametrize("env, network, words", [
+    ({"ROS_AUTOMATIC_DISCOVERY_RANGE": "OFF"}, False, "turns discovery off"),
+    ({"ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET"}, False, "pass that, or unset it"),
+    ({"ROS_LOCALHOST_ONLY": "1"}, True, "ROS_LOCALHOST_ONLY=1 keeps ROS on this host"),
+    ({"ROS_AUTOMATIC_DISCOVERY_RANGE": "localhost"}, True, "unset one of them"),
+])
+def test_settings_perch_cannot_honour_are_refused_not_replaced(env, network, words):
+    given = dict(env)
+    with pytest.raises(ConfigError, match=words):
+        use_perch_dds(given, network=network)
+    assert given == env   # nothing replaced
+
+
+@pytest.mark.ros
+def test_every_client_process_uses_the_host_only_profile(monkeypatch):
+    import os
+
+    from perch_common.launch import use_perch_dds as apply
+
+    monkeypatch.delenv("FASTRTPS_DEFAULT_PROFILES_FILE", raising=False)
+    monkeypatch.delenv("PERCH_NETWORK", raising=False)
+    monkeypatch.setenv("ROS_LOCALHOST_ONLY", "1")
+    from perch_operator.runner import client_context
+
+    assert apply is use_perch_dds
+    with client_context():
+        assert os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"] == str(dds_profile(False))
+        assert os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "SYSTEM_DEFAULT"
+
+
+@pytest.mark.ros
+def test_confirms_bind_to_the_current_mission_and_a_spoofed_waypoint_set_is_refused():
+    """The real coordinator (its stages absent, so its mission fails after service_wait) in one
+    participant, a dispatcher in a second and a spoofing node in a third, all on one domain."""
+    from perch_common.ros import testing
+
+    testing.use_isolated_ros_env()
+    import rclpy
+    from rclpy.action import ActionClient
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+
+    from perch_interfaces.action import PlanPerches
+    from perch_interfaces.msg import PerchWaypoint, PerchWaypointSet
+    from perch_interfaces.srv import Confirm
+    from perch_operator.dispatcher import Dispatcher
+    from perch_operator.mission_data import mission_id_text
+    from perch_operator.node import LATCHED_LAST, OperatorNode
+
+    rclpy.init()   # the coordinator's (OperatorNode takes the default context)
+    contexts = [rclpy.get_default_context(), Context(), Context()]
+    for context in contexts[1:]:
+        rclpy.init(context=context)
+    executors = [SingleThreadedExecutor(context=c) for c in contexts]
+    nodes = []
+    try:
+        coordinator = OperatorNode()
+        coordinator.set_parameters([Parameter("service_wait", value=0.5)])
+        dispatcher = Dispatcher(name="honest_dispatcher", context=contexts[1])
+        spoofer = rclpy.create_node("spoofer", context=contexts[2])
+        nodes = [coordinator, dispatcher, spoofer]
+        for executor, node in zip(executors, nodes):
+            executor.add_node(node)
+
+        def spin(condition, timeout, what):
+            deadline = time.monotonic() + timeout
+            while time.monotonic() < deadline:
+                for executor in executors:
+                    executor.spin_once(timeout_sec=0.02)
+                value = condition()
+                if value:
+                    return value
+            raise AssertionError(f"{what} within {timeout:.0f} s")
+
+        client = rclpy.create_node("decider", context=contexts[2])
+        executors[2].add_node(client)
+        confirm = client.create_client(Confirm, "perch/confirm")
+        spin(lambda: confirm.service_is_ready(), 30, "the confirm service did not appear")
+
+        def decide(proposal_id: int, decision: int) -> Confirm.Response:
+            future = confirm.call_async(Confirm.Request(proposal_id=proposal_id, decision=decision))
+            spin(future.done, 30, "no confirm reply")
+            return future.result()
+
+        unknown = decide(1, Confirm.Request.ACCEPT)
+        assert not unknown.success and "unknown" in unknown.message, unknown.message
+
+        # A mission: the coordinator publishes its (empty) waypoint set, then fails (no stages).
+        actions = ActionClient(client, PlanPerches, "perch/plan_perches")
+        spin(actions.server_is_ready, 30, "the coordinator's action did not appear")
+        goal = PlanPerches.Goal(mesh_path="/nonexistent/room.ply")
+        sent = actions.send_goal_async(goal)
+        spin(sent.done, 30, "the goal was not answered")
+        handle = sent.result()
+        result = handle.get_result_async()
+        spin(result.done, 60, "the mission did not end")
+        mission = mission_id_text(handle.goal_id)
+        spin(lambda: dispatcher.mission == mission, 30, "the dispatcher did not accept the coordinator's set")
+        assert dispatcher.received == [] and not dispatcher.refused
+        # the mission failed: a decision on it is refused
+        late = decide(1, Confirm.Request.FAILED_IN_FLIGHT)
+        assert not late.success and mission in late.message, late.message
+
+        # A spoofing node publishes a set with a far-away perch for that very mission.
+        fake = PerchWaypoint(mission_id=handle.goal_id, drone_index=0, proposal_id=1)
+        fake.pose.pose.position.x, fake.pose.pose.position.y = 99.0, -99.0
+        publisher = spoofer.create_publisher(PerchWaypointSet, "perch/mission_waypoints", LATCHED_LAST)
+        publisher.publish(PerchWaypointSet(mission_id=handle.goal_id, waypoints=[fake]))
+        spin(lambda: dispatcher.refused, 30, "the spoofed set was neither accepted nor refused")
+        assert "/spoofer" in dispatcher.refused[0] and "not the mission coordinator" in dispatcher.refused[0]
+        assert dispatcher.received == [] and dispatcher.mission == mission   # the coordinator's set stays
+        actions.destroy()
+    finally:
+        for executor, node in zip(executors, nodes):
+            executor.remove_node(node)
+            node.destroy_node()
+        for context in contexts:
+            rclpy.try_shutdown(context=context)
+
