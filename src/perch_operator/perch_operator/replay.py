@@ -38,9 +38,13 @@ def replay(node, path: str | Path, check: bool = True, tol: Tolerance = Toleranc
            stages: list[str] | None = None, timeout: float = 300.0, wait: float = 10.0,
            out=None) -> list[CallOutcome]:
     """Re-send every recorded stage request (in order) and compare the replies when `check`."""
+    from perch_common.mcap_read import scan_mcap
     from perch_common.ros.testing import call_service
 
     out = out or sys.stdout
+    damage = scan_mcap(path).damage() if Path(path).is_file() else ""
+    if damage:   # a recording cut short (its recorder killed) or with corrupt chunks: replay what is there
+        out.write(f"perch: warning: damaged recording, replaying what could be read: {damage}\n")
     calls = [c for c in stage_calls(path) if c.request is not None and (stages is None or c.stage in stages)
              and not _mesh_resend(c)]
     if not calls:

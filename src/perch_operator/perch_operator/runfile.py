@@ -50,16 +50,18 @@ def iter_messages(path: str | Path, topics: list[str] | None = None) -> Iterator
     recording made with older definitions (read by its own schemas; fields added since keep their
     defaults).
     """
+    from perch_common.mcap_read import iter_mcap
+
     namespace = recorded_namespace(path)
     wanted = None if topics is None else [namespace + t for t in topics]
     readers: dict[int, Any] = {}
-    handle, reader = _open(path)
-    with handle:
-        for schema, channel, message in reader.iter_messages(topics=wanted, log_time_order=True):
-            topic = channel.topic[len(namespace):] if channel.topic.startswith(namespace + "/") else channel.topic
-            if schema.id not in readers:
-                readers[schema.id] = message_reader(schema.name, schema.data.decode())
-            yield topic, readers[schema.id](message.data), message.log_time
+    _open(path)[0].close()   # a missing file named as such
+    # A recording cut short (its recorder killed) is read as far as it goes (perch_common.mcap_read).
+    for schema, channel, message in iter_mcap(path, wanted):
+        topic = channel.topic[len(namespace):] if channel.topic.startswith(namespace + "/") else channel.topic
+        if schema.id not in readers:
+            readers[schema.id] = message_reader(schema.name, schema.data.decode())
+        yield topic, readers[schema.id](message.data), message.log_time
 
 
 def stage_calls(path: str | Path) -> list[StageCall]:
@@ -104,25 +106,25 @@ def resolve_mesh_ids(calls: list[StageCall]) -> None:
 
 def metadata(path: str | Path) -> dict[str, dict[str, Any]]:
     """Metadata records by name, JSON values decoded where they are JSON."""
-    handle, reader = _open(path)
+    from perch_common.mcap_read import scan_mcap
+
+    _open(path)[0].close()
     out: dict[str, dict[str, Any]] = {}
-    with handle:
-        for record in reader.iter_metadata():
-            values = {}
-            for key, value in record.metadata.items():
-                try:
-                    values[key] = json.loads(value)
-                except ValueError:
-                    values[key] = value
-            out[record.name] = values
+    for name, record in scan_mcap(path).metadata.items():   # read also from a recording without summary
+        values = {}
+        for key, value in record.items():
+            try:
+                values[key] = json.loads(value)
+            except ValueError:
+                values[key] = value
+        out[name] = values
     return out
 
 
 def channel_counts(path: str | Path) -> dict[str, int]:
-    """Messages per topic, from the file's summary."""
-    handle, reader = _open(path)
-    with handle:
-        summary = reader.get_summary()
-        if summary is None or summary.statistics is None:
-            return {}
-        return {summary.channels[cid].topic: n for cid, n in summary.statistics.channel_message_counts.items()}
+    """Messages per topic (those that could be read)."""
+    from perch_common.mcap_read import scan_mcap
+
+    _open(path)[0].close()
+    scan = scan_mcap(path)   # counted by reading, so a recording without summary is counted too
+    return {scan.channels[cid].topic: n for cid, n in scan.counts.items() if cid in scan.channels}

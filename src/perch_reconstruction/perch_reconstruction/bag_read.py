@@ -38,54 +38,52 @@ def _check_file(path: Path) -> None:
                          "or convert frames with `perch bag from-frames`)")
 
 
-def _reader(stream):
-    from mcap.reader import make_reader
+def _scan(path: Path):
+    from perch_common.mcap_read import McapReadError, scan_mcap
 
-    return make_reader(stream)
+    try:
+        return scan_mcap(path)
+    except McapReadError as exc:
+        raise PerchError(str(exc)) from None
+    except OSError as exc:
+        raise PerchError(f"{path}: cannot be read ({exc.strerror})") from None
 
 
 def bag_info(path: str | Path) -> dict:
-    """Topics (type, count), start, duration and Perch metadata; raises PerchError for bad files."""
+    """Topics (type, count), start, duration, Perch metadata and damage; raises PerchError for a file
+    that is not an MCAP. A damaged one (chunks failing their CRC, cut short, no summary) is read as
+    far as it goes: `problems` says what was lost, `recovered` that the counts are what could be read."""
     path = Path(path)
     _check_file(path)
-    try:
-        with open(path, "rb") as stream:
-            reader = _reader(stream)
-            summary = reader.get_summary()
-            metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
-    except PerchError:
-        raise
-    except Exception as exc:  # mcap raises several types for truncated/corrupt files
-        raise PerchError(f"{path}: corrupt or truncated MCAP ({type(exc).__name__}: {exc})") from exc
-    if summary is None or summary.statistics is None:
-        raise PerchError(f"{path}: MCAP without a summary (truncated recording?); re-index it with `mcap recover`")
-    stats = summary.statistics
+    scan = _scan(path)
     topics = {}
-    for cid, channel in summary.channels.items():
-        schema = summary.schemas.get(channel.schema_id)
+    for cid, channel in scan.channels.items():
+        schema = scan.schemas.get(channel.schema_id)
         topics[channel.topic] = {"type": schema.name if schema else "", "encoding": channel.message_encoding,
-                                 "count": int(stats.channel_message_counts.get(cid, 0))}
-    duration = (stats.message_end_time - stats.message_start_time) / 1e9 if stats.message_count else 0.0
-    gravity = metadata.get(PERCH_METADATA, {}).get("gravity")
-    return {"path": str(path), "messages": int(stats.message_count), "start_ns": int(stats.message_start_time),
+                                 "count": int(scan.counts.get(cid, 0))}
+    duration = (scan.end_ns - scan.start_ns) / 1e9 if scan.messages else 0.0
+    gravity = scan.metadata.get(PERCH_METADATA, {}).get("gravity")
+    return {"path": str(path), "messages": int(scan.messages), "start_ns": int(scan.start_ns),
             "duration_s": duration, "topics": dict(sorted(topics.items())),
             "gravity": None if gravity is None else [float(v) for v in gravity.split()],
-            "metadata": sorted(metadata)}
+            "metadata": sorted(scan.metadata), "problems": list(scan.problems), "recovered": not scan.intact,
+            "damage": scan.damage()}
 
 
 def iter_raw(path: str | Path, topics: list[str] | None = None) -> Iterator[RawMessage]:
-    """Messages in log-time order, undecoded."""
+    """Messages in log-time order (a damaged bag: what can be read, in file order), undecoded."""
+    from perch_common.mcap_read import iter_mcap
+
     path = Path(path)
     _check_file(path)
-    with open(path, "rb") as stream:
-        reader = _reader(stream)
-        try:
-            for schema, channel, message in reader.iter_messages(topics=topics, log_time_order=True):
-                yield RawMessage(channel.topic, schema.name if schema else "", message.log_time, message.data, schema)
-        except PerchError:
-            raise
-        except Exception as exc:
-            raise PerchError(f"{path}: corrupt MCAP data ({type(exc).__name__}: {exc})") from exc
+    _scan(path)
+    try:
+        for schema, channel, message in iter_mcap(path, topics):
+            yield RawMessage(channel.topic, schema.name if schema else "", message.log_time, message.data, schema)
+    except PerchError:
+        raise
+    except Exception as exc:  # damage the walk did not see (the file changed under us)
+        raise PerchError(f"{path}: corrupt MCAP data ({type(exc).__name__}: {exc})") from exc
 
 
 class _Decoder:
@@ -113,6 +111,7 @@ class BagFrames:
     frames: Iterator[RGBDFrame]
     assembler: FrameAssembler
     pose_frame_id: str = ""   # header.frame_id of the recorded poses (their world frame)
+    damage: str = ""          # what a damaged bag lost ('' for an intact one)
 
 
 def read_bag_frames(path: str | Path, topics: BagTopics = BagTopics(), depth_scale: float = 0.0,
@@ -124,6 +123,8 @@ def read_bag_frames(path: str | Path, topics: BagTopics = BagTopics(), depth_sca
     """
     info = bag_info(path)
     present = info["topics"]
+    if info["recovered"] and info["messages"] == 0:
+        raise PerchError(f"{info['damage']}: nothing to reconstruct")
     missing = [t for t in (topics.color, topics.depth, topics.camera_info) if t not in present]
     if missing:
         listing = ", ".join(f"{t} ({v['type']})" for t, v in present.items()) or "none"
@@ -167,7 +168,10 @@ def read_bag_frames(path: str | Path, topics: BagTopics = BagTopics(), depth_sca
             yield frame
 
     count = min(present[topics.color]["count"], present[topics.depth]["count"])
-    return BagFrames(intrinsics, gravity, count, has_poses, frames(), assembler, pose_frame_id)
+    damage = ""
+    if info["recovered"]:
+        damage = (f"damaged bag, read as far as it goes ({count} frame(s) recovered): " + "; ".join(info["problems"]))
+    return BagFrames(intrinsics, gravity, count, has_poses, frames(), assembler, pose_frame_id, damage)
 
 
 def check_sizes(frame: RGBDFrame, intrinsics: Intrinsics, topics: BagTopics) -> None:

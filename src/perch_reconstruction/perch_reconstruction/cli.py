@@ -114,6 +114,10 @@ def _info(args) -> int:
         print(f"  {topic:<{width}}  {t['count']:>6}  {t['type']} ({t['encoding']})")
     if info["gravity"] is not None:
         print(f"  gravity (world frame): {info['gravity']}")
+    for problem in info["problems"]:
+        print(f"  DAMAGED: {problem}")
+    if info["recovered"]:
+        print("  the counts above are what could be read; `perch reconstruct` and `perch plan --bag` use them")
     return 0
 
 

@@ -206,4 +206,6 @@ def reconstruct_bag(path: str | Path, config: ReconstructionConfig, use_poses: b
     frame_id = (bag.pose_frame_id or "map") if use_poses else ODOMETRY_FRAME
     mesh, stats = reconstruct_frames(bag.frames, bag.intrinsics, config, use_poses, bag.gravity, clean, progress,
                                      frame_id=frame_id)
+    if bag.damage and stats.clean is not None:   # said in the reply, first
+        stats.clean.warnings.insert(0, bag.damage)
     return mesh, stats

@@ -81,12 +81,12 @@ def test_not_an_mcap(tmp_path):
 
 
 def test_truncated_bag(synthetic_bag, tmp_path):
+    """Read as far as it goes, and said so (test_bag_damage has the cases)."""
     data = synthetic_bag.read_bytes()
     path = tmp_path / "cut.mcap"
     path.write_bytes(data[: len(data) // 2])
-    with pytest.raises(PerchError, match="cut.mcap"):
-        bag = read_bag_frames(path)
-        list(bag.frames)
+    bag = read_bag_frames(path)
+    assert 0 < len(list(bag.frames)) < 40 and "the file is cut short, with no summary" in bag.damage
 
 
 def test_empty_frame_list_writes_nothing(tmp_path, synthetic):
