@@ -242,6 +242,7 @@ def load_mesh(path: str | Path, validate: bool = True, scale: float = 1.0) -> Me
                         f"({type(exc).__name__}: {exc})") from exc
     if not isinstance(loaded, trimesh.Trimesh):
         raise MeshError(f"{path}: holds no triangle mesh")
+    refuse_truncated(path, len(loaded.vertices), len(loaded.faces))
     if len(loaded.faces) == 0:
         points = len(loaded.vertices) or _point_count(path)
         if points:
@@ -255,6 +256,43 @@ def load_mesh(path: str | Path, validate: bool = True, scale: float = 1.0) -> Me
         colors = np.asarray(visual.to_color().vertex_colors)[:, :3]
     mesh = Mesh(np.asarray(loaded.vertices) * scale, np.asarray(loaded.faces), colors)
     return validate_mesh(mesh, str(path)) if validate else mesh
+
+
+_OBJ_RECORDS = (b"v", b"vt", b"vn", b"vp", b"f", b"l", b"p")
+
+
+def refuse_truncated(path: Path, vertices: int, faces: int) -> None:
+    """Raise MeshError for a mesh file whose body was cut short (loaders read such a file silently,
+    and a mission would plan on part of the room): a PLY with fewer elements than its header
+    declares, an OBJ whose last line is a data record cut mid-line."""
+    suffix = path.suffix.lower()
+    if suffix == ".ply":
+        with open(path, "rb") as stream:
+            head = stream.read(65536)
+        end = head.find(b"end_header")
+        declared = {}
+        for line in head[:end if end >= 0 else 0].splitlines():
+            words = line.split()
+            if len(words) == 3 and words[0] == b"element" and words[1] in (b"vertex", b"face") and words[2].isdigit():
+                declared[words[1].decode()] = int(words[2])
+        # Polygons load as several triangles (more faces than declared), never as fewer.
+        for name, found in (("vertex", vertices), ("face", faces)):
+            if name in declared and found < declared[name]:
+                raise MeshError(f"{path}: holds {found:,} of the {declared[name]:,} {name} elements its header "
+                                "declares: the file is truncated (cut short); copy or export it again")
+    elif suffix == ".obj":
+        size = path.stat().st_size
+        with open(path, "rb") as stream:
+            stream.seek(max(0, size - 4096))
+            tail = stream.read()
+        if not tail or tail.endswith((b"\n", b"\r")):
+            return
+        last = tail.splitlines()[-1].strip()
+        if last.split(b" ", 1)[0] in _OBJ_RECORDS:
+            shown = last[:40].decode(errors="replace")
+            raise MeshError(f"{path}: ends in the middle of a line ('{shown}'), as a file cut short does: it is "
+                            "probably truncated and Perch will not plan on part of a room. Copy or export it "
+                            "again (if it is complete, end it with a line break)")
 
 
 def _point_count(path: Path) -> int:
