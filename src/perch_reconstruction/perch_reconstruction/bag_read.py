@@ -10,7 +10,7 @@ import numpy as np
 
 from perch_common.errors import PerchError
 from perch_reconstruction import images, msgdefs
-from perch_reconstruction.bag_write import PERCH_METADATA, BagTopics
+from perch_reconstruction.bag_write import PERCH_METADATA, TF_STATIC_TOPIC, TF_TOPIC, BagTopics
 from perch_reconstruction.frames import Intrinsics, RGBDFrame
 from perch_reconstruction.sync import FrameAssembler, PoseBuffer
 
@@ -115,7 +115,8 @@ class BagFrames:
 
 
 def read_bag_frames(path: str | Path, topics: BagTopics = BagTopics(), depth_scale: float = 0.0,
-                    sync_tolerance_ns: int = 5_000_000, pose_tolerance_ns: int = 20_000_000) -> BagFrames:
+                    sync_tolerance_ns: int = 5_000_000, pose_tolerance_ns: int = 20_000_000,
+                    tf_world_frame: str = "map", tf_camera_frame: str = "") -> BagFrames:
     """Check the bag has the expected topics and return its synchronised frames (lazily decoded).
 
     Poses (PoseStamped or Odometry on topics.pose) are attached when one lies within
@@ -144,7 +145,12 @@ def read_bag_frames(path: str | Path, topics: BagTopics = BagTopics(), depth_sca
         break
     poses = PoseBuffer(capacity=10**7)
     has_poses = topics.pose in present and present[topics.pose]["type"] in msgdefs.POSE_TYPES
-    pose_frame_id = ""
+    if not has_poses and TF_TOPIC in present:
+        # Poses only as tf (how robots publish them): the chain camera -> ... -> world frame.
+        tf_poses = _tf_poses(path, present, topics, decode, tf_world_frame, tf_camera_frame, pose_tolerance_ns)
+        if tf_poses is not None:
+            poses, has_poses = tf_poses, True
+    pose_frame_id = tf_world_frame if has_poses and topics.pose not in present else ""   # tf: the world frame
     if has_poses:
         for raw in iter_raw(path, [topics.pose]):
             msg = decode(raw)
@@ -172,6 +178,29 @@ def read_bag_frames(path: str | Path, topics: BagTopics = BagTopics(), depth_sca
     if info["recovered"]:
         damage = (f"damaged bag, read as far as it goes ({count} frame(s) recovered): " + "; ".join(info["problems"]))
     return BagFrames(intrinsics, gravity, count, has_poses, frames(), assembler, pose_frame_id, damage)
+
+
+def _tf_poses(path, present: dict, topics: BagTopics, decode, world: str, camera: str,
+              tolerance_ns: int) -> PoseBuffer | None:
+    """world-from-camera at every colour image's stamp, composed from the bag's /tf and /tf_static
+    (camera: the images' header frame_id unless given); None when no chain links the two frames."""
+    from perch_reconstruction.tf_buffer import TransformBuffer
+
+    buffer = TransformBuffer(capacity=10**7)
+    for raw in iter_raw(path, [t for t in (TF_TOPIC, TF_STATIC_TOPIC) if t in present]):
+        buffer.add_message(decode(raw), static=raw.topic == TF_STATIC_TOPIC)
+    stamps, poses = [], PoseBuffer(capacity=10**7)
+    for raw in iter_raw(path, [topics.color]):
+        msg = decode(raw)
+        camera = camera or msg.header.frame_id
+        stamps.append(images.stamp_ns(msg))
+    if not camera or buffer.chain(world, camera) is None:
+        return None
+    for stamp in stamps:
+        pose = buffer.lookup(world, camera, stamp, tolerance_ns)
+        if pose is not None:
+            poses.add(stamp, pose)
+    return poses
 
 
 def check_sizes(frame: RGBDFrame, intrinsics: Intrinsics, topics: BagTopics) -> None:

@@ -57,12 +57,17 @@ def register_bag(sub) -> None:
     conv = bag.add_parser("from-frames", help="TUM/7-Scenes-style folder -> ROS 2 MCAP bag")
     conv.add_argument("frames", help="folder with frame-*.color.jpg, frame-*.depth.png (mm), poses, intrinsics")
     conv.add_argument("-o", "--output", required=True, help="bag file to write (.mcap)")
-    conv.add_argument("--fps", type=float, default=30.0, help="frame rate of the time stamps")
+    conv.add_argument("--fps", type=float, default=30.0,
+                      help="frame rate of the time stamps when the folder has no timestamps.txt")
+    conv.add_argument("--start", default="now", metavar="TIME",
+                      help="time of the first frame when the folder has no timestamps.txt: 'now' (default), "
+                           "Unix seconds or ISO 8601 (2024-05-01T10:00:00Z)")
     conv.add_argument("--limit", type=int, default=0, help="convert at most this many frames")
     conv.add_argument("--step", type=int, default=1, help="take every N-th frame")
     conv.add_argument("--compressed", action="store_true", help="CompressedImage (JPEG colour, PNG depth)")
-    conv.add_argument("--pose-type", choices=("pose", "odometry"), default="pose",
-                      help="geometry_msgs/PoseStamped or nav_msgs/Odometry")
+    conv.add_argument("--pose-type", choices=("pose", "odometry", "tf"), default="pose",
+                      help="poses as geometry_msgs/PoseStamped, nav_msgs/Odometry or only as /tf (they go on /tf "
+                           "in every case)")
     conv.add_argument("--no-poses", action="store_true", help="leave the poses out")
     _topic_args(conv)
     conv.set_defaults(func=_from_frames)
@@ -81,22 +86,33 @@ def register_bag(sub) -> None:
 
 
 def _from_frames(args) -> int:
+    import sys
+    import time
+
     from perch_reconstruction.bag_write import write_bag
-    from perch_reconstruction.frames import iter_folder_frames, open_frame_folder
+    from perch_reconstruction.frames import folder_stamps, iter_folder_frames, open_frame_folder, parse_start
 
     if args.fps <= 0:
         raise ValueError(f"--fps must be > 0, got {args.fps}")
     refuse_overwriting_inputs([args.output], [args.frames])
     folder = open_frame_folder(args.frames, limit=args.limit or None, step=args.step)
+    stamps, source = folder_stamps(folder, args.fps, parse_start(args.start))
+    print(f"perch bag from-frames: {len(folder)} frames, stamps from {source}", file=sys.stderr, flush=True)
+    shown = [time.monotonic()]
 
     def frames():
-        for frame in iter_folder_frames(folder, args.fps):
+        for i, frame in enumerate(iter_folder_frames(folder, stamps=stamps)):
             if args.no_poses:
                 frame.pose = None
+            if time.monotonic() - shown[0] >= 1.0 or i + 1 == len(folder):
+                shown[0] = time.monotonic()
+                print(f"perch bag from-frames: {i + 1}/{len(folder)} frames ({100 * (i + 1) // len(folder)} %)",
+                      file=sys.stderr, flush=True)
             yield frame
 
     result = write_bag(args.output, frames(), folder.intrinsics, gravity=folder.gravity, topics=_topics(args),
                        compressed=args.compressed, pose_type=args.pose_type)
+    result["stamps_from"] = source
     print(json.dumps(result, indent=2))
     return 0
 

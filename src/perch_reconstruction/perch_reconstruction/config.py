@@ -29,6 +29,10 @@ class ReconstructionConfig:
     # Time synchronisation
     sync_tolerance: float = param(0.005, "colour and depth stamps pair when this close", "s", low=0.0)
     pose_tolerance: float = param(0.02, "a pose stamp must lie this close to the frame stamp", "s", low=0.0)
+    # Poses from /tf (when there is no pose topic): the chain from the camera frame up to the world
+    # frame, moving edges from /tf (e.g. odom -> base_link) and the mount from /tf_static.
+    tf_world_frame: str = param("map", "poses from /tf: the fixed frame the mesh is built in (map, odom)")
+    tf_camera_frame: str = param("", "poses from /tf: the camera's frame ('' = the images' header frame_id)")
     # Cleaning (also the /perch/clean_mesh service defaults)
     merge_distance: float = param(1e-5, "vertices closer than this are merged", "m", low=0.0)
     min_piece_diameter: float = param(0.3, "connected pieces with a smaller bounding-box diagonal are removed", "m", low=0.0)
@@ -69,8 +73,9 @@ class ReconstructionNodeConfig(ReconstructionConfig, StageNodeConfig[Reconstruct
     camera_info_topic: str = param("/camera/depth/camera_info", "sensor_msgs/CameraInfo of the depth stream",
                                    read_only=True)
     pose_topic: str = param("/camera/pose", "world-from-camera poses (geometry_msgs/PoseStamped)", read_only=True)
-    pose_type: str = param("pose", "type on pose_topic: 'pose' (PoseStamped) or 'odometry' (nav_msgs/Odometry)",
-                           choices=("pose", "odometry"), read_only=True)
+    pose_type: str = param("pose", "type on pose_topic: 'pose' (PoseStamped) or 'odometry' (nav_msgs/Odometry); "
+                                   "'tf': poses from /tf and /tf_static instead (tf_world_frame, tf_camera_frame)",
+                           choices=("pose", "odometry", "tf"), read_only=True)
     lossless_replay: bool = param(False, "subscribe reliable + transient-local as `perch bag play` publishes "
                                       "(no frame lost); false: best effort, matching camera drivers and "
                                       "`ros2 bag play`", read_only=True)
@@ -91,8 +96,9 @@ class ReconstructionNodeConfig(ReconstructionConfig, StageNodeConfig[Reconstruct
         super().validate()
         if self.queue_size < 1:
             raise ValueError(f"reconstruction config: queue_size must be >= 1, got {self.queue_size}")
-        if self.pose_type not in ("pose", "odometry"):
-            raise ValueError(f"reconstruction config: pose_type must be 'pose' or 'odometry', got '{self.pose_type}'")
+        if self.pose_type not in ("pose", "odometry", "tf"):
+            raise ValueError(f"reconstruction config: pose_type must be 'pose', 'odometry' or 'tf', "
+                             f"got '{self.pose_type}'")
         if len(self.gravity) != 3:
             raise ValueError(f"reconstruction config: gravity needs 3 numbers, got {list(self.gravity)}")
         return self

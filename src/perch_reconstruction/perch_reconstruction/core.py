@@ -198,10 +198,11 @@ def reconstruct_bag(path: str | Path, config: ReconstructionConfig, use_poses: b
 
     config = config.validate()
     bag = read_bag_frames(path, topics, config.depth_scale, int(config.sync_tolerance * 1e9),
-                          int(config.pose_tolerance * 1e9))
+                          int(config.pose_tolerance * 1e9), config.tf_world_frame, config.tf_camera_frame)
     if use_poses and not bag.has_poses:
-        raise PerchError(f"{path}: no pose topic {topics.pose} (PoseStamped or Odometry); "
-                         "reconstruct with odometry instead (--odometry / use_poses=false)")
+        raise PerchError(f"{path}: no pose topic {topics.pose} (PoseStamped or Odometry) and no /tf chain from the "
+                         f"images' frame up to '{config.tf_world_frame}' (tf_world_frame); reconstruct with "
+                         "odometry instead (--odometry / use_poses=false)")
     # The mesh's own frame: the recorded poses' world frame, or with odometry the first camera's.
     frame_id = (bag.pose_frame_id or "map") if use_poses else ODOMETRY_FRAME
     mesh, stats = reconstruct_frames(bag.frames, bag.intrinsics, config, use_poses, bag.gravity, clean, progress,

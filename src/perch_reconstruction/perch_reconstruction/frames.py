@@ -157,8 +157,63 @@ def open_frame_folder(path: str | Path, limit: int | None = None, step: int = 1)
     return FrameFolder(root, stems, intrinsics, gravity, has_poses)
 
 
-def iter_folder_frames(folder: FrameFolder, fps: float = 30.0, start_ns: int = 0) -> Iterator[RGBDFrame]:
-    """The folder's frames in order, stamped at `fps`."""
+def iter_folder_frames(folder: FrameFolder, fps: float = 30.0, start_ns: int = 0,
+                       stamps: list[int] | None = None) -> Iterator[RGBDFrame]:
+    """The folder's frames in order, stamped with `stamps` (ns), else at `fps` from `start_ns`."""
     period_ns = int(round(1e9 / fps))
     for i in range(len(folder)):
-        yield folder.load(i, start_ns + i * period_ns)
+        yield folder.load(i, stamps[i] if stamps is not None else start_ns + i * period_ns)
+
+
+TIMESTAMPS_FILE = "timestamps.txt"   # `SECONDS NAME` per line (TUM's rgb.txt layout), NAME a frame's stem or file
+
+
+def folder_stamps(folder: FrameFolder, fps: float, start_ns: int) -> tuple[list[int], str]:
+    """Each frame's stamp (ns) and where they came from: the folder's own timestamps.txt when it has
+    one (every frame listed, strictly increasing), else `start_ns` + i / fps."""
+    path = folder.root / TIMESTAMPS_FILE
+    if not path.is_file():
+        period = 1e9 / fps
+        return [start_ns + int(round(i * period)) for i in range(len(folder))], \
+            f"--start {start_ns / 1e9:.3f} at {fps:g} fps"
+    listed: dict[str, int] = {}
+    for number, line in enumerate(path.read_text().splitlines(), 1):
+        words = line.split()
+        if not words or words[0].startswith("#"):
+            continue
+        try:
+            seconds = float(words[0])
+        except ValueError:
+            raise PerchError(f"{path}:{number}: expected 'SECONDS NAME', got '{line.strip()}'") from None
+        if len(words) < 2:
+            raise PerchError(f"{path}:{number}: expected 'SECONDS NAME', got '{line.strip()}'")
+        listed[Path(words[1]).name.split(".")[0]] = int(round(seconds * 1e9))
+    missing = [s for s in folder.stems if s not in listed]
+    if missing:
+        raise PerchError(f"{path}: no time stamp for {len(missing)} frame(s) (first: {missing[0]}); list every "
+                         f"frame or remove the file to stamp at --fps from --start")
+    stamps = [listed[s] for s in folder.stems]
+    if any(b <= a for a, b in zip(stamps, stamps[1:])):
+        raise PerchError(f"{path}: time stamps must increase from frame to frame")
+    return stamps, path.name
+
+
+def parse_start(text: str) -> int:
+    """`--start`: 'now', Unix seconds, or ISO 8601 (a time without zone is UTC) -> ns since the epoch."""
+    import datetime
+    import time
+
+    text = text.strip()
+    if text.lower() == "now":
+        return time.time_ns()
+    try:
+        return int(round(float(text) * 1e9))
+    except ValueError:
+        pass
+    try:
+        when = datetime.datetime.fromisoformat(text.replace("Z", "+00:00"))
+    except ValueError:
+        raise PerchError(f"--start {text!r}: use 'now', Unix seconds or ISO 8601 (2024-05-01T10:00:00Z)") from None
+    if when.tzinfo is None:
+        when = when.replace(tzinfo=datetime.timezone.utc)
+    return int(round(when.timestamp() * 1e9))

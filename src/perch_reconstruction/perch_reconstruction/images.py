@@ -152,6 +152,13 @@ def _pose_dict(matrix: np.ndarray) -> dict:
             "orientation": {"x": float(q[0]), "y": float(q[1]), "z": float(q[2]), "w": float(q[3])}}
 
 
+def transform_fields(matrix: np.ndarray, stamp: int, frame_id: str, child_frame_id: str) -> dict:
+    """geometry_msgs/TransformStamped fields of a 4x4 parent-from-child transform."""
+    pose = _pose_dict(matrix)
+    return {"header": header(stamp, frame_id), "child_frame_id": child_frame_id,
+            "transform": {"translation": pose["position"], "rotation": pose["orientation"]}}
+
+
 def pose_stamped_fields(matrix: np.ndarray, stamp: int, frame_id: str) -> dict:
     """geometry_msgs/PoseStamped fields of a 4x4 pose."""
     return {"header": header(stamp, frame_id), "pose": _pose_dict(matrix)}

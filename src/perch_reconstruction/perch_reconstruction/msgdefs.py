@@ -13,9 +13,10 @@ COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
 CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
 POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
 ODOMETRY = "nav_msgs/msg/Odometry"
+TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 IMAGE_TYPES = (IMAGE, COMPRESSED_IMAGE)
 POSE_TYPES = (POSE_STAMPED, ODOMETRY)
-SUPPORTED = (*IMAGE_TYPES, CAMERA_INFO, *POSE_TYPES)
+SUPPORTED = (*IMAGE_TYPES, CAMERA_INFO, *POSE_TYPES, TF_MESSAGE)
 
 
 def message_definition(type_name: str) -> str:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import sys
+import threading
 
 import numpy as np
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
@@ -33,6 +34,7 @@ from perch_reconstruction.config import ReconstructionNodeConfig
 from perch_reconstruction.core import reconstruct_bag
 from perch_reconstruction.live import LiveIngest
 from perch_reconstruction.progress import ReconstructionProgress, bag_progress
+from perch_reconstruction.tf_buffer import TransformBuffer
 
 # ReconstructionProgress fields copied by name (uint32 counters, float64 seconds)
 _COUNTERS = ("frames_received", "frames_integrated", "frames_dropped", "frames_without_pose", "frames_lost",
@@ -84,7 +86,18 @@ class ReconstructionNode(Node):
         self.create_subscription(ImageType, c.depth_topic, self._on_depth, qos, callback_group=inputs)
         self.create_subscription(CameraInfo, c.camera_info_topic, self._on_info, input_qos(c.lossless_replay, 10),
                                  callback_group=meta)
-        if c.pose_topic:
+        self.tf = TransformBuffer(capacity=10_000)
+        self._tf_pending: list[int] = []   # stamps of moving transforms not yet turned into poses
+        self._tf_lock = threading.Lock()
+        if c.pose_type == "tf":   # poses as robots publish them: the camera's chain in /tf and /tf_static
+            from tf2_msgs.msg import TFMessage
+
+            self.create_subscription(TFMessage, "tf", lambda m: self._on_tf(m, False),
+                                     input_qos(c.lossless_replay, 100), callback_group=meta)
+            self.create_subscription(TFMessage, "tf_static", lambda m: self._on_tf(m, True),
+                                     QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                                                durability=DurabilityPolicy.TRANSIENT_LOCAL), callback_group=meta)
+        elif c.pose_topic:
             if c.pose_type == "odometry":
                 from nav_msgs.msg import Odometry as PoseType
             else:
@@ -102,7 +115,8 @@ class ReconstructionNode(Node):
                                          (srv.CleanMesh, STAGE_SERVICES["clean"], self._clean)):
             create_stage_service(self, srv_type, name, callback, c.introspection, callback_group=services)
         self.get_logger().info(f"ready: /perch/reconstruct, /perch/clean_mesh; listening on {c.color_topic}, "
-                               f"{c.depth_topic}, {c.camera_info_topic}" + (f", {c.pose_topic}" if c.pose_topic else ""))
+                               f"{c.depth_topic}, {c.camera_info_topic}" + (", /tf" if c.pose_type == "tf" else
+                                                                            f", {c.pose_topic}" if c.pose_topic else ""))
 
     # --- live input -----------------------------------------------------------------------------
     def _guard(self, topic: str, work) -> None:
@@ -114,6 +128,9 @@ class ReconstructionNode(Node):
     def _on_color(self, msg) -> None:
         t = self.config.color_topic
         self._check_frames(color=msg.header.frame_id)
+        if self._tf_pending:
+            with self._tf_lock:
+                self._poses_from_tf()
         self._guard(t, lambda: self.ingest.on_color(images.stamp_ns(msg), images.color_from_msg(msg, t)))
 
     def _on_depth(self, msg) -> None:
@@ -139,6 +156,28 @@ class ReconstructionNode(Node):
 
     def _on_pose(self, msg) -> None:
         self.ingest.on_pose(images.stamp_ns(msg), images.pose_from_msg(msg))
+
+    def _on_tf(self, msg, static: bool) -> None:
+        """Keep the transforms; each moving one gives the camera's pose at its stamp (when the chain
+        from the camera frame up to tf_world_frame is complete)."""
+        with self._tf_lock:   # colour images (another callback group) may turn pending stamps into poses
+            self.tf.add_message(msg, static)
+            if not static:
+                self._tf_pending.extend(sorted({images.stamp_ns(t) for t in msg.transforms}))
+                del self._tf_pending[:-1000]   # bounded while the camera frame is not known yet
+                self._poses_from_tf()
+
+    def _poses_from_tf(self) -> None:
+        c = self.config
+        camera = c.tf_camera_frame or self._frame_ids.get("color", "")
+        if not camera or self.tf.chain(c.tf_world_frame, camera) is None:
+            return   # kept until the images' frame (first colour image) and the mount (/tf_static) are known
+        tolerance = int(c.pose_tolerance * 1e9)
+        for stamp in self._tf_pending:
+            pose = self.tf.lookup(c.tf_world_frame, camera, stamp, tolerance)
+            if pose is not None:
+                self.ingest.on_pose(stamp, pose)
+        self._tf_pending.clear()
 
     def _publish_status(self) -> None:
         status = self._offline_status or self.ingest.status()

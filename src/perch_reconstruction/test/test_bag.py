@@ -23,8 +23,8 @@ def test_round_trip_is_identical(synthetic, tmp_path, compressed, pose_type):
     path = tmp_path / "rt.mcap"
     result = write_bag(path, frames, intrinsics, gravity=np.array([0.1, 0.0, -0.99]), compressed=compressed,
                        pose_type=pose_type)
-    assert result["messages"] == {t: 5 for t in (BagTopics.color, BagTopics.depth, BagTopics.camera_info,
-                                                 BagTopics.pose)}
+    assert result["messages"] == {**{t: 5 for t in (BagTopics.color, BagTopics.depth, BagTopics.camera_info,
+                                                    BagTopics.color_info, BagTopics.pose, "/tf")}, "/tf_static": 1}
     bag, back = _read_all(path)
     assert bag.intrinsics == intrinsics
     assert bag.has_poses and len(back) == 5
@@ -65,7 +65,8 @@ def test_bag_is_standard_ros2_mcap(synthetic_bag):
 
 def test_messages_come_in_time_order(synthetic_bag):
     times = [m.log_time_ns for m in iter_raw(synthetic_bag)]
-    assert times == sorted(times) and len(times) == 4 * 40
+    # per frame: colour, depth, both camera infos, pose and /tf; /tf_static once
+    assert times == sorted(times) and len(times) == 6 * 40 + 1
 
 
 def test_missing_file_is_named(tmp_path):
@@ -128,16 +129,22 @@ def _assert_rosbag2_layout(path, expected_counts: dict[str, int]) -> None:
         reader = make_reader(f)
         records = {r.name: r.metadata for r in reader.iter_metadata()}
         channels = reader.get_summary().channels.values()
+        # sensors as drivers offer them, /tf_static latched as a static broadcaster, /tf as tf broadcasters
+        offered = {"/tf_static": ("RELIABLE", "TRANSIENT_LOCAL", 1), "/tf": ("RELIABLE", "VOLATILE", 100)}
         for channel in channels:
             [qos] = parse_qos(channel.metadata["offered_qos_profiles"])
-            assert (qos.reliability.name, qos.durability.name, qos.depth) == ("RELIABLE", "VOLATILE", 10)
+            assert (qos.reliability.name, qos.durability.name, qos.depth) == offered.get(
+                channel.topic, ("RELIABLE", "VOLATILE", 10))
+            assert channel.metadata["topic_type_hash"].startswith("RIHS01_")   # as rosbag2 Jazzy writes
     described = yaml.safe_load(records["rosbag2"]["serialized_metadata"])
     assert described["version"] == 9 and described["storage_identifier"] == "mcap"
     assert described["message_count"] == sum(expected_counts.values())
     listed = {t["topic_metadata"]["name"]: t["message_count"] for t in described["topics_with_message_count"]}
     assert listed == expected_counts
     for topic in described["topics_with_message_count"]:
-        assert parse_qos(topic["topic_metadata"]["offered_qos_profiles"])[0].depth == 10
+        assert parse_qos(topic["topic_metadata"]["offered_qos_profiles"])[0].depth == \
+            {"/tf_static": 1, "/tf": 100}.get(topic["topic_metadata"]["name"], 10)
+        assert topic["topic_metadata"]["type_description_hash"].startswith("RIHS01_")
 
 
 def _assert_every_message_decodes(path, expected_counts: dict[str, int]) -> None:
@@ -170,6 +177,7 @@ def test_from_frames_bag_of_the_real_kitchen_decodes_everywhere(kitchen_dir, tmp
                            "-o", str(path), "--limit", "20"], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     counts = json.loads(done.stdout)["messages"]
-    assert counts == {t: 20 for t in (BagTopics.color, BagTopics.depth, BagTopics.camera_info, BagTopics.pose)}
+    assert counts == {**{t: 20 for t in (BagTopics.color, BagTopics.depth, BagTopics.camera_info, BagTopics.color_info,
+                                         BagTopics.pose, "/tf")}, "/tf_static": 1}
     _assert_rosbag2_layout(path, counts)
     _assert_every_message_decodes(path, counts)
