@@ -3,6 +3,8 @@ true up, for the rotated-world tests and `perch bench up`."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -48,3 +50,34 @@ def oriented(mesh, true_up: np.ndarray, orientation: str):
     transform = orientation_transform(true_up, orientation)
     return mesh.transformed(transform), transform[:3, :3] @ (np.asarray(true_up, np.float64)
                                                              / np.linalg.norm(true_up)), transform
+
+# Rotations the corpus benchmark tries each scan in besides its own frame (`perch bench scans`).
+CORPUS_ORIENTATIONS = ("y-up", "y-down", "tilt-25", "tilt-35")
+MANIFEST = ("meshes", "scans", "MANIFEST.tsv")
+_NAMED_AXES = {"+x": (1, 0, 0), "-x": (-1, 0, 0), "+y": (0, 1, 0), "-y": (0, -1, 0), "+z": (0, 0, 1), "-z": (0, 0, -1)}
+
+
+def corpus_scans() -> list[tuple[str, Path, np.ndarray]]:
+    """Every real scan of the shared data with its true up: (name, path, up) for the REAL_SCANS found
+    and each row of meshes/scans/MANIFEST.tsv (its `up` column: '+y' or 'x,y,z'). Absent files are left out."""
+    from perch_common.data import shared_file
+
+    scans = []
+    for name, up in REAL_SCANS.items():
+        path = shared_file("meshes", name)
+        if path is not None:
+            scans.append((name, path, up))
+    manifest = shared_file(*MANIFEST)
+    if manifest is None:
+        return scans
+    rows = manifest.read_text().splitlines()
+    header = rows[0].split("\t") if rows else []
+    for row in rows[1:]:
+        cells = dict(zip(header, row.split("\t")))
+        path = manifest.parent / cells.get("file", "")
+        if not cells.get("file") or not path.is_file():
+            continue
+        text = cells["up"].strip()
+        up = np.array(_NAMED_AXES.get(text) or [float(c) for c in text.split(",")], np.float64)
+        scans.append((cells["file"], path, up / np.linalg.norm(up)))
+    return scans

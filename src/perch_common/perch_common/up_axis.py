@@ -9,8 +9,20 @@ The sign never relies on how complete the ceiling is. Votes, each in [-1, 1] alo
   scanner, so their normals point up (needs normals pointing into free space, as scans have);
 - furniture tops lie low: tables, seats and beds sit in the lower half of the room height;
 - the floor is the more complete of the two extreme planes (weak: furniture hides floor);
-- the cameras' image-down axes point down (RGB-D input; a camera is rarely held upside down).
+- the cameras' image-down axes point down (RGB-D input; a camera is rarely held upside down);
+- the file's header names an exporter whose world is y-up (perch_common.file_conventions): strong
+  evidence for the axis near its up and for its sign, but the geometry can overrule it (a file turned
+  upright after export), and then the estimate is not confident.
 A recorded gravity direction wins over all of them.
+
+Face orientation: the votes that read which way a face points need normals into free space. A scan
+whose windings are all inverted (its walls, floor and ceiling face away from the room: HoloLens
+exports with flipped triangles) is recognised by the planes at the ends of the room axes, which in
+any room face inward, and its normals are flipped before the votes (said in the notes).
+
+Confidence is calibrated on the real-scan corpus (`perch bench scans`): an estimate is confident
+only when no other room axis comes close (a close competitor caps it below CONFIDENT, so the messages
+never call one estimate both confident and weak) and enough agreeing evidence decides the sign.
 """
 
 from __future__ import annotations
@@ -20,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from perch_common.file_conventions import FileConvention, file_convention_of
 from perch_common.transforms import parse_up_axis
 
 COS_10 = float(np.cos(np.radians(10.0)))
@@ -34,8 +47,11 @@ SMOOTH_STEPS = 200         # at most this many smooth-kernel steps after them (s
 SMOOTH_TOLERANCE = 1e-12   # rad: they stop when the axis moves less than this
 SAMPLES = 20000           # faces standing for the scan (a uniform sample by index above this)
 SEARCH_SAMPLES = 4000     # of those, used for the coarse direction search (1000 directions; a uniform subset)
-AXIS_VOTES = ("furniture tops face up", "cameras' image-down axes point down")
-FILE_CONVENTIONS = {".glb": "+y", ".gltf": "+y"}  # glTF 2.0 is +y up by its specification; others +z
+EXPORTER_VOTE = "the file's exporter is y-up"
+AXIS_VOTES = ("furniture tops face up", "cameras' image-down axes point down", EXPORTER_VOTE)
+INWARD_MIN = 0.3          # below this share of the room's end planes facing inward, the windings are inverted
+AXIS_SUPPORT_MIN = 0.3    # an axis with less planar area than this share of the best one's is their cross product
+CONTRARY = 0.5            # a vote this strong against a given --up refuses it (with no strong vote for it)
 
 
 @dataclass
@@ -62,6 +78,9 @@ class UpEstimate:
     votes: list[UpVote] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     centroid: np.ndarray = field(default_factory=lambda: np.zeros(3))  # area-weighted, of the scan
+    considered: list[str] = field(default_factory=list)  # every room axis weighed, best first: '+y (score 2.9)'
+    windings_inverted: bool = False       # the scan's normals pointed out of the room and were flipped
+    _sample: tuple | None = field(default=None, repr=False)  # (normals, areas, centroids, hint) the votes read
 
     def aligned_rotation(self, up: np.ndarray | None = None) -> np.ndarray:
         """The rotation into the scan's gravity-aligned frame for `up` (default: this estimate's up)."""
@@ -83,6 +102,14 @@ class UpEstimate:
         """'+z', '-y', ... when within 1 degree of a file axis, else the three components."""
         return axis_name(self.up)
 
+    def votes_along(self, axis: np.ndarray) -> list[UpVote]:
+        """The sign evidence for `axis` being up, read from the same faces as the estimate ([] without them)."""
+        if self._sample is None:
+            return []
+        normals, areas, centroids, hint = self._sample
+        axis = np.asarray(axis, np.float64) / np.linalg.norm(axis)
+        return _sign_votes(axis, normals, areas, centroids, hint)
+
     def toward(self, direction: np.ndarray) -> np.ndarray:
         """The estimated axis with the sign nearer `direction` (for when only the sign is in doubt)."""
         return self.up if self.up @ np.asarray(direction, np.float64) >= 0 else -self.up
@@ -99,11 +126,12 @@ def axis_name(up: np.ndarray) -> str:
 
 def estimate_up(normals: np.ndarray, areas: np.ndarray, centroids: np.ndarray,
                 down_hint: np.ndarray | None = None, gravity: np.ndarray | None = None,
-                seed: int = 0) -> UpEstimate:
+                seed: int = 0, convention: FileConvention | None = None) -> UpEstimate:
     """The up direction of a room scan from face normals, areas and centroids (see the module doc).
 
     down_hint: rough gravity, e.g. the mean image-down axis of the cameras; gravity: a recorded
-    gravity direction (wins). Deterministic for a given seed.
+    gravity direction (wins); convention: the file's (counts only when its header named an exporter).
+    Deterministic for a given seed.
     """
     normals = np.asarray(normals, np.float64)
     areas = np.asarray(areas, np.float64)
@@ -122,7 +150,7 @@ def estimate_up(normals: np.ndarray, areas: np.ndarray, centroids: np.ndarray,
     if len(areas) == 0 or not areas.sum() > 0:
         return UpEstimate(np.array([0.0, 0.0, 1.0]), 0.0, "none", notes=["no faces with area"])
     areas = areas * (total_area / areas.sum())
-    axes = np.stack([_refine(a, normals, areas) for a in _room_axes(normals, areas)])
+    axes = _orthogonal(np.stack([_refine(a, normals, areas) for a in _room_axes(normals, areas)]), normals, areas)
     centroid = areas @ centroids / areas.sum()
     if gravity is not None and np.linalg.norm(gravity) > 1e-9:
         up = -np.asarray(gravity, np.float64) / np.linalg.norm(gravity)
@@ -130,45 +158,115 @@ def estimate_up(normals: np.ndarray, areas: np.ndarray, centroids: np.ndarray,
     hint = None
     if down_hint is not None and np.linalg.norm(down_hint) > 1e-9:
         hint = -np.asarray(down_hint, np.float64) / np.linalg.norm(down_hint)
+    notes = []
+    inward = _inward_share(axes, normals, areas, centroids)
+    inverted = inward < INWARD_MIN
+    if inverted:
+        normals = -normals
+        notes.append(f"windings inverted: only {inward:.0%} of the planes at the ends of the room axes face into "
+                     "the room; normals flipped for the evidence")
     extents = np.array([np.diff(np.percentile(centroids @ a, [1, 99]))[0] for a in axes])
+    exporter = convention if convention is not None and convention.from_exporter else None
+    exporter_up = parse_up_axis(exporter.axis) if exporter else None
     candidates = []
     for i, axis in enumerate(axes):
         votes = _sign_votes(axis, normals, areas, centroids, hint)
         thin = float(extents.min() / max(extents[i], 1e-9))
         # Rooms are wider than tall (the main cue); one-sided horizontal faces add to it. Position votes
         # say nothing about the axis: walls between rooms sit anywhere across the plan.
-        one_sided = sum(abs(v.vote) * min(v.weight, 1.0) for v in votes if v.name in AXIS_VOTES)
-        candidates.append((2.0 * thin + one_sided, axis, votes, thin))
+        geometry = 2.0 * thin + sum(abs(v.vote) * min(v.weight, 1.0) for v in votes if v.name in AXIS_VOTES)
+        candidates.append([geometry, axis, votes, thin, geometry])
+    geometry_order = sorted(range(3), key=lambda k: -candidates[k][0])
+    geometry_clear = candidates[geometry_order[0]][0] - candidates[geometry_order[1]][0] >= 0.5
+    conflict = ""
+    if exporter_up is not None:
+        near = int(np.argmax(np.abs(axes @ exporter_up)))
+        if abs(axes[near] @ exporter_up) < COS_10:
+            notes.append(f"the header names {exporter.exporter} ({exporter.axis} up), but no room axis lies within "
+                         "10 deg of it: not used")
+        elif geometry_clear and near != geometry_order[0]:
+            conflict = (f"conflicting: the header names {exporter.exporter} ({exporter.axis} up) but the room's geometry "
+                        f"clearly makes {axis_name(axes[geometry_order[0]])} the vertical axis")
+        else:
+            along = float(np.sign(axes[near] @ exporter_up))
+            vote = UpVote(EXPORTER_VOTE, along, 1.5, f"the header names {exporter.exporter}, whose files are "
+                                                        f"{exporter.axis} up")
+            candidates[near][2] = candidates[near][2] + [vote]
+            candidates[near][0] += 1.0
     order = sorted(range(3), key=lambda k: -candidates[k][0])
-    score, axis, votes, thin = candidates[order[0]]
+    score, axis, votes, thin, _ = candidates[order[0]]
     runner_up = candidates[order[1]][0]
     plane_share = float(areas[np.max(np.abs(normals @ axes.T), axis=1) > COS_10].sum() / areas.sum())
     total_weight = sum(v.weight for v in votes)
     agreement = sum(v.vote * v.weight for v in votes) / total_weight if total_weight > 0 else 0.0
     up = axis if agreement >= 0 else -axis
-    notes = [f"room axes: {plane_share:.0%} of the area lies within 10 deg of three orthogonal directions; "
-             f"extents along them {', '.join(f'{e:.2f}' for e in extents)} m"]
+    notes.insert(0, f"room axes: {plane_share:.0%} of the area lies within 10 deg of three orthogonal directions; "
+                    f"extents along them {', '.join(f'{e:.2f}' for e in extents)} m")
     axis_margin = min(1.0, (score - runner_up) / 0.5)
-    if axis_margin < 1.0:
-        notes.append(f"weak: another room axis is almost as likely to be up (score {score:.2f} vs {runner_up:.2f})")
     strong = [v for v in votes if v.weight >= 0.5 and abs(v.vote) >= 0.3]
     if any(v.vote * agreement < 0 for v in strong):
         notes.append("conflicting: " + ", ".join(f"{v.name} {v.vote:+.2f}" for v in strong))
+    if conflict:
+        notes.append(conflict)
     # The sign is sure when about 1.5 votes' worth of evidence agrees by 60 % or more; the axis
-    # when enough of the area is planar along the room axes and no other axis comes close.
+    # when enough of the area is planar along the room axes and no other axis comes close: a
+    # close competitor caps it below CONFIDENT (on the corpus such axes were wrong as often as right).
     sign_confidence = float(min(1.0, abs(agreement) / 0.6) * min(1.0, total_weight / 1.5))
     axis_confidence = float(min(1.0, plane_share / 0.25) * max(axis_margin, 0.0))
+    if axis_margin < 1.0 or conflict:
+        axis_confidence = min(axis_confidence, 0.98 * CONFIDENT * max(axis_margin, 0.0))
     confidence = sign_confidence * axis_confidence
+    if axis_margin < 1.0:
+        notes.append(f"weak: another room axis is almost as likely to be up (score {score:.2f} vs {runner_up:.2f})")
     if confidence < CONFIDENT:
         notes.append(f"weak evidence (confidence {confidence:.2f} < {CONFIDENT})")
+    considered = []
+    for k in order:
+        c_score, c_axis, c_votes, _, _ = candidates[k]
+        weight = sum(v.weight for v in c_votes)
+        c_agreement = sum(v.vote * v.weight for v in c_votes) / weight if weight > 0 else 0.0
+        considered.append(f"{axis_name(c_axis if c_agreement >= 0 else -c_axis)} (score {c_score:.2f})")
     if agreement < 0:  # say the evidence along the chosen direction
-        votes = _sign_votes(up, normals, areas, centroids, hint)
+        votes = _sign_votes(up, normals, areas, centroids, hint) + [
+            UpVote(v.name, -v.vote, v.weight, v.detail) for v in votes if v.name == EXPORTER_VOTE]
     return UpEstimate(up, confidence, "scan", axis_confidence, sign_confidence, axes, plane_share, votes, notes,
-                      centroid)
+                      centroid, considered, bool(inverted), (normals, areas, centroids, hint))
+
+
+def _inward_share(axes: np.ndarray, normals: np.ndarray, areas: np.ndarray, centroids: np.ndarray) -> float:
+    """Area share of the planes at both ends of the three room axes (walls, floor, ceiling) whose normals
+    face into the room: ~1 for a scan with normals into free space, ~0 when every winding is inverted."""
+    inward = total = 0.0
+    for axis in axes:
+        cos, height = normals @ axis, centroids @ axis
+        low, high = np.percentile(height, [1, 99])
+        span = max(high - low, 1e-9)
+        aligned = np.abs(cos) > COS_10
+        at_low, at_high = aligned & (height <= low + EXTREME_SHARE * span), aligned & (height >= high - EXTREME_SHARE * span)
+        inward += float(areas[at_low & (cos > 0)].sum() + areas[at_high & (cos < 0)].sum())
+        total += float(areas[at_low | at_high].sum())
+    return inward / total if total > 0 else 1.0
+
+
+def _orthogonal(axes: np.ndarray, normals: np.ndarray, areas: np.ndarray) -> np.ndarray:
+    """The refined axes, with one that few faces support (less than AXIS_SUPPORT_MIN of the best-supported
+    one's area: the floor strip of a single depth view) replaced by the cross product of the other two,
+    its sign kept: the walls then give the vertical, as they do on a partial scan."""
+    support = np.array([float(areas[np.abs(normals @ a) > COS_10].sum()) for a in axes])
+    weak = int(np.argmin(support))
+    if support[weak] >= AXIS_SUPPORT_MIN * support.max():
+        return axes
+    others = [k for k in range(3) if k != weak]
+    first = axes[others[0]]
+    second = axes[others[1]] - (axes[others[1]] @ first) * first
+    crossed = np.cross(first, second / np.linalg.norm(second))
+    axes = axes.copy()
+    axes[weak] = crossed if crossed @ axes[weak] >= 0 else -crossed
+    return axes
 
 
 def estimate_mesh_up(mesh, down_hint: np.ndarray | None = None, gravity: np.ndarray | None = None,
-                     seed: int = 0) -> UpEstimate:
+                     seed: int = 0, convention: FileConvention | None = None) -> UpEstimate:
     """estimate_up for a perch_common.mesh.Mesh.
 
     Above FACE_SUBSET faces a uniform random subset of faces stands for the mesh (areas scaled to
@@ -184,7 +282,7 @@ def estimate_mesh_up(mesh, down_hint: np.ndarray | None = None, gravity: np.ndar
     cross = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
     doubled = np.linalg.norm(cross, axis=1)
     normals = np.divide(cross, doubled[:, None], out=np.zeros_like(cross), where=doubled[:, None] > 0)
-    return estimate_up(normals, 0.5 * doubled * scale, corners.mean(axis=1), down_hint, gravity, seed)
+    return estimate_up(normals, 0.5 * doubled * scale, corners.mean(axis=1), down_hint, gravity, seed, convention)
 
 
 def _room_axes(normals: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -283,8 +381,9 @@ class UpAxisError(ValueError):
 
 
 def file_convention(path: str | Path | None) -> str:
-    """The up axis a file format implies: '+y' for glTF/GLB (by its specification), else '+z'."""
-    return FILE_CONVENTIONS.get(Path(path).suffix.lower(), "+z") if path else "+z"
+    """The up convention of a mesh file as text: '+y (exporter: Unity)' when its header names a known
+    y-up exporter, '+y' for glTF/GLB (by its specification), else '+z' (see perch_common.file_conventions)."""
+    return file_convention_of(path).text()
 
 
 @dataclass
@@ -296,21 +395,35 @@ class UpChoice:
     estimate: UpEstimate
     warnings: list[str] = field(default_factory=list)
 
+    @property
+    def confirmed(self) -> bool:
+        """True when the up axis was given, recorded, or estimated confidently (not a fallback)."""
+        return self.source != "file convention"
+
+
+class UnsureUpError(UpAxisError):
+    """`--up auto` on an estimate that is not confident, where nobody reviews the result (auto-accept)."""
+
 
 def choose_up(text: str, mesh, convention: str = "+z", option: str = "--up",
-              down_hint: np.ndarray | None = None, gravity: np.ndarray | None = None) -> UpChoice:
+              down_hint: np.ndarray | None = None, gravity: np.ndarray | None = None,
+              require_confident: bool = False) -> UpChoice:
     """The up axis for `mesh` given the user's setting `text` ("auto", "+z", "-y", "x y z").
 
-    auto: the estimate when confident, else `convention` (the file format's, see file_convention)
-    with a warning; when the estimate's axis is clear and lies more than 10 deg from the convention's,
-    that axis with the convention's sign. A given axis the mesh contradicts raises UpAxisError naming the axis the mesh
-    suggests and `option`.
+    auto: the estimate when confident, else `convention` (the file's, see file_convention) with a
+    warning; when the estimate's axis is clear and lies more than 10 deg from the convention's, that
+    axis with the convention's sign. With `require_confident` (an auto-accepted mission) an estimate
+    that is not confident raises UnsureUpError naming the axes considered and `option` instead.
+    A given axis the mesh contradicts raises UpAxisError naming the axis the mesh suggests and `option`.
     """
-    estimate = estimate_mesh_up(mesh, down_hint, gravity)
+    file = FileConvention.parse(convention)
+    estimate = estimate_mesh_up(mesh, down_hint, gravity, convention=file)
     if text.strip().lower() == "auto":
         if estimate.confident:
             return UpChoice(estimate.up, estimate.source if estimate.source == "gravity" else "estimate", estimate)
-        fallback = parse_up_axis(convention)
+        if require_confident:
+            raise UnsureUpError(unsure_message(estimate, option))
+        fallback = parse_up_axis(file.axis)
         # The convention's axis itself, unless the estimate clearly found another vertical (more than
         # 10 deg from it): then that axis, the convention choosing only its sign. An unsure estimate a
         # few degrees off the convention must not tilt the plan.
@@ -318,19 +431,39 @@ def choose_up(text: str, mesh, convention: str = "+z", option: str = "--up",
             fallback = estimate.toward(fallback)
         return UpChoice(fallback, "file convention", estimate, [
             f"up axis: the estimate ({estimate.axis_name()}) is not confident ({estimate.confidence:.2f}); using "
-            f"{axis_name(fallback)} from the file's convention ({convention} up). Check it, and pass {option} AXIS "
+            f"{axis_name(fallback)} from the file's convention ({file.text()} up). Check it, and pass {option} AXIS "
             "if it is wrong"])
     given = parse_up_axis(text)
     problem = contradiction(given, estimate)
     if problem:
-        raise UpAxisError(f"{option} {text.strip()} contradicts the mesh: {problem}. The mesh suggests up "
-                          f"{estimate.axis_name()} (confidence {estimate.confidence:.2f}): pass {option} "
-                          f"{_option_value(estimate.up)} (or {option} auto)")
+        suggestion = (f"The mesh suggests up {estimate.axis_name()} (confidence {estimate.confidence:.2f}): pass "
+                      f"{option} {_option_value(estimate.up)} (or {option} auto)") if estimate.confident else (
+            f"The estimate is not confident ({estimate.confidence:.2f}; it considered "
+            f"{', '.join(estimate.considered) or 'no axis'}): pass the true up, e.g. {option} "
+            f"{_option_value(estimate.up)} if that is it")
+        raise UpAxisError(f"{option} {text.strip()} contradicts the mesh: {problem}. {suggestion}")
     return UpChoice(given, "given", estimate)
 
 
+def unsure_message(estimate: UpEstimate, option: str = "--up") -> str:
+    """Why an auto-accepted mission stops on an unsure up estimate: the axes considered and what to pass."""
+    considered = ", ".join(estimate.considered) or axis_name(estimate.up)
+    reasons = [n for n in estimate.notes if n.startswith(("weak:", "conflicting"))]
+    return (f"up axis not confident ({estimate.confidence:.2f}): considered {considered}"
+            + (f" ({'; '.join(reasons)})" if reasons else "")
+            + f". An auto-accepted mission does not place drones on a guessed up axis: pass {option} AXIS "
+            f"(e.g. {option} {_option_value(estimate.up)} if that is up; `perch mesh info FILE` shows the evidence), "
+            "or run without --auto-accept to review every proposal")
+
+
 def contradiction(up: np.ndarray, estimate: UpEstimate) -> str:
-    """Why the mesh contradicts `up` ('' when it does not)."""
+    """Why the mesh contradicts `up` ('' when it does not).
+
+    A confident estimate refuses an axis it contradicts. An unsure one still reads the mesh's evidence
+    along `up`: furniture tops facing down along it, or the faces between its floor and ceiling sitting
+    in the upper half (things would hang from its floor), refuse it unless another vote says it is up
+    (on a single depth view the end planes can: a floor strip under a lintel).
+    """
     up = np.asarray(up, np.float64) / np.linalg.norm(up)
     if estimate.source == "gravity":
         angle = np.degrees(np.arccos(np.clip(up @ estimate.up, -1, 1)))
@@ -339,15 +472,25 @@ def contradiction(up: np.ndarray, estimate: UpEstimate) -> str:
         return ""
     if np.max(np.abs(estimate.axes @ up)) < COS_10:
         return "no dominant plane lies within 10 deg of it"
-    if not estimate.confident:
-        return ""
     along = float(up @ estimate.up)
-    if along < -COS_10:
-        facing = next((v for v in estimate.votes if v.name == "furniture tops face up"), None)
-        reason = "furniture tops face down along it" if facing and facing.weight > 0.3 else "the evidence points the other way"
-        return reason
-    if along < COS_10:
-        return "its dominant planes are walls: the floor and ceiling lie across another axis"
+    votes = estimate.votes_along(up)
+    facing = next((v for v in votes if v.name == "furniture tops face up"), None)
+    if estimate.confident:
+        if along < -COS_10:
+            return "furniture tops face down along it" if facing and facing.vote < 0 and facing.weight > 0.3 \
+                else "the evidence points the other way"
+        if along < COS_10:
+            return "its dominant planes are walls: the floor and ceiling lie across another axis"
+        return ""
+    # Unsure which axis is up: the evidence along the given one still refuses what cannot be up.
+    low = next((v for v in votes if v.name == "furniture tops lie low"), None)
+    if facing is None or low is None or any(v.vote >= CONTRARY and v.weight >= 0.25 for v in votes):
+        return ""
+    if facing.weight >= 0.5 and facing.vote <= -CONTRARY:
+        return "furniture tops face down along it"
+    if low.weight >= 0.25 and low.vote <= -CONTRARY:
+        return ("the horizontal faces between its floor and ceiling sit in its upper half: things would hang "
+                "from its floor")
     return ""
 
 

@@ -1,0 +1,244 @@
+"""`perch bench scans`: Perch on every real scan of the shared data, as a new user runs it.
+
+    perch bench scans --json                      # every scan, own frame + 4 rotations, 5 cameras
+    perch bench scans --only holo2 --no-rotations # one scan family in its own frame
+    perch bench scans --no-missions               # the up estimate alone (seconds, not minutes)
+
+The corpus: the three older scans of ../shared/data/meshes and every row of meshes/scans/MANIFEST.tsv
+(its true up column), each in its own frame (the file's header and format convention count) and in
+the rotations y-up, y-down, tilt-25 and tilt-35 (perch_common.scan_orientations; a rotated copy is a
+bare mesh: no header, the default convention, as a re-exported file would be).
+
+Per scan and orientation: the up estimate's error (deg), sign and stated confidence, then one mission
+with default settings, `--up auto`, auto-accept and 5 cameras on one graph hosted in this process
+(started once): whether it placed anything or stopped (and why), the up it planned on, cameras
+placed, and per perch Perch's own safety evidence (every PerchEvidence field of its proposal), the
+project checker's verdict and the perch's observed-space share when the installed packages provide
+them (null with a note otherwise), and seconds. The calibration table bins the stated confidence
+and gives the share of right estimates (<= 3 deg, right sign) in each bin and among those labelled
+confident (the target: 1.0).
+
+Run time: ~0.15 s a case for the estimate; a mission 3-15 s on a quiet 2-core machine (55 cases:
+roughly 5-10 min; `--no-rotations` about a fifth of that).
+"""
+
+from __future__ import annotations
+
+import os
+import time
+
+import numpy as np
+
+from perch_common.bench import emit, peak_rss_mb
+
+MAX_ANGLE_DEG = 3.0
+CAMERAS = 5
+BINS = (0.0, 0.25, 0.5, 0.75, 0.9, 1.0001)
+APARTMENT_TARGET = ("apartment.ply", "apartment_target.ply", 1.2)
+
+
+def register(sub) -> None:
+    """Add `perch bench scans` to the CLI."""
+    p = sub.add_parser("scans", help="every real scan in its own frame and 4 rotations: up error and confidence, "
+                                     "cameras, safety evidence, checker verdicts, observed share, calibration")
+    p.add_argument("--only", action="append", default=[], metavar="TEXT",
+                   help="only scans whose file name contains TEXT (repeatable)")
+    p.add_argument("--no-rotations", action="store_true", help="each scan in its own frame only")
+    p.add_argument("--no-missions", action="store_true", help="the up estimate only (no graph, no missions)")
+    p.add_argument("--cameras", type=int, default=CAMERAS, help=f"cameras per mission (default {CAMERAS})")
+    p.add_argument("--json", action="store_true", help="print JSON (the only output format)")
+    p.set_defaults(func=_run)
+
+
+def cases(only=(), rotations: bool = True):
+    """(scan name, orientation, mesh, true up, file path or None, target) for every case of the corpus."""
+    from perch_common.data import shared_file
+    from perch_common.mesh import load_mesh
+    from perch_common.scan_orientations import CORPUS_ORIENTATIONS, corpus_scans, oriented
+
+    for name, path, true_up in corpus_scans():
+        if only and not any(text in name for text in only):
+            continue
+        mesh = load_mesh(path)
+        target = None
+        if name == APARTMENT_TARGET[0] and shared_file("meshes", APARTMENT_TARGET[1]):
+            target = load_mesh(shared_file("meshes", APARTMENT_TARGET[1]))
+        yield name, "own", mesh, np.asarray(true_up, np.float64), path, target
+        for orientation in CORPUS_ORIENTATIONS if rotations else ():
+            rotated, up, transform = oriented(mesh, true_up, orientation)
+            yield name, orientation, rotated, up, None, target.transformed(transform) if target else None
+
+
+def up_error(up: np.ndarray, true_up: np.ndarray) -> tuple[float, bool]:
+    """(angle in degrees between the axes, whether the sign is right)."""
+    cos = float(np.clip(np.asarray(up, np.float64) @ true_up / np.linalg.norm(up), -1.0, 1.0))
+    return round(float(np.degrees(np.arccos(abs(cos)))), 3), cos > 0
+
+
+def estimate_case(mesh, true_up: np.ndarray, path) -> dict:
+    """The up estimate as `--up auto` makes it for this input (with its file's header when it has one)."""
+    from perch_common.up_axis import choose_up, file_convention
+
+    start = time.perf_counter()
+    choice = choose_up("auto", mesh, file_convention(path))
+    seconds = time.perf_counter() - start
+    estimate = choice.estimate
+    angle, sign = up_error(estimate.up, true_up)
+    used_angle, used_sign = up_error(choice.up, true_up)
+    return {"up_error_deg": angle, "sign_right": sign, "right": sign and angle <= MAX_ANGLE_DEG,
+            "confidence": round(estimate.confidence, 3), "confident": estimate.confident,
+            "up_source": choice.source, "auto_up_error_deg": used_angle, "auto_sign_right": used_sign,
+            "considered": list(getattr(estimate, "considered", [])), "up_seconds": round(seconds, 3)}
+
+
+def calibration(rows: list[dict]) -> dict:
+    """Share of right estimates per confidence bin, and among those labelled confident."""
+    table = []
+    for low, high in zip(BINS[:-1], BINS[1:]):
+        inside = [r for r in rows if low <= r["confidence"] < high]
+        right = sum(r["right"] for r in inside)
+        table.append({"confidence": f"[{low:.2f}, {min(high, 1.0):.2f}{']' if high > 1 else ')'}",
+                      "cases": len(inside), "right": right,
+                      "share_right": round(right / len(inside), 3) if inside else None})
+    confident = [r for r in rows if r["confident"]]
+    return {"bins": table, "confident": {"cases": len(confident), "right": sum(r["right"] for r in confident),
+                                         "share_right": round(sum(r["right"] for r in confident) / len(confident), 3)
+                                         if confident else None},
+            "not_confident": {"cases": len(rows) - len(confident),
+                              "right": sum(r["right"] for r in rows if not r["confident"])}}
+
+
+def _run(args) -> int:
+    started = time.perf_counter()
+    rows, missions = [], None
+    runner = None if args.no_missions else _MissionRunner(args.cameras)
+    try:
+        for name, orientation, mesh, true_up, path, target in cases(args.only, not args.no_rotations):
+            row = {"scan": name, "orientation": orientation, "faces": mesh.num_faces}
+            row.update(estimate_case(mesh, true_up, path))
+            if runner is not None:
+                row.update(runner.run(mesh, true_up, path, target))
+            rows.append(row)
+    finally:
+        if runner is not None:
+            missions = runner.notes
+            runner.stop()
+    wrong_confident = [f"{r['scan']} {r['orientation']}" for r in rows if r["confident"] and not r["right"]]
+    summary = {"cases": len(rows), "right": sum(r["right"] for r in rows),
+               "not_confident": sum(not r["confident"] for r in rows),
+               "confident_but_wrong": wrong_confident,
+               "right_or_honest": not wrong_confident,
+               "max_up_error_deg_when_confident": max((r["up_error_deg"] for r in rows if r["confident"]), default=None)}
+    if runner is not None:
+        summary.update({
+            "missions_stopped": sum(not r["mission_success"] for r in rows),
+            "cameras_placed": sum(r["cameras"] for r in rows),
+            "checker_failures": None if any(r["checker"] is None for r in rows)
+            else sum(not v["safe"] for r in rows for v in r["checker"]),
+            "internal_errors": sum("internal error" in r["mission_message"].lower() for r in rows)})
+    return emit({"cases": rows, "calibration": calibration(rows), "summary": summary,
+                 "notes": missions or [], "targets": {"up_error_deg": MAX_ANGLE_DEG, "confident_share_right": 1.0},
+                 "seconds": round(time.perf_counter() - started, 1), "peak_rss_mb": peak_rss_mb(),
+                 "load_average_1min": round(os.getloadavg()[0], 2)})
+
+
+class _MissionRunner:
+    """One graph in this process (started once) and a mission per case, with the proposals' evidence."""
+
+    def __init__(self, cameras: int):
+        import rclpy
+
+        from perch_common.launch import use_perch_dds
+        from perch_interfaces.msg import Proposal
+        from perch_operator.node import LATCHED
+        from perch_operator.runner import choose_domain, client_context, graph_ros_args, start_own_graph
+
+        self.cameras = cameras
+        self.notes: list[str] = []
+        use_perch_dds()
+        domain = choose_domain()
+        self._context = client_context(graph_ros_args(None, [], None), domain)
+        self._context.__enter__()
+        self.node = rclpy.create_node("perch_bench_scans")
+        self.proposals: dict[int, Proposal] = {}
+        self.node.create_subscription(Proposal, "perch/proposals", lambda m: self.proposals.__setitem__(m.id, m),
+                                      LATCHED)
+        self.graph = start_own_graph(self.node, "one-process", domain)
+        self.checker = _project_checker(self.notes)
+
+    def run(self, mesh, true_up: np.ndarray, path, target) -> dict:
+        from perch_common.ros.conversions import mesh_to_msg
+        from perch_common.ros.static_transforms import alignment_from_msg
+        from perch_common.up_axis import file_convention
+        from perch_interfaces import msg as pm
+        from perch_interfaces.action import PlanPerches
+        from perch_operator.client import run_mission
+        from perch_operator.runner import spin_for
+
+        goal = PlanPerches.Goal(num_cameras=self.cameras, auto_accept=True, seed=-1, up_axis="auto",
+                                up_convention=file_convention(path), mesh=mesh_to_msg(mesh))
+        if target is not None:  # the apartment's own target footprint, extruded 1.2 m along the true up
+            goal.target = pm.TargetVolume(kind=pm.TargetVolume.KIND_EXTRUDED_FOOTPRINT, footprint=mesh_to_msg(target),
+                                          height=float(APARTMENT_TARGET[2]))
+        else:
+            goal.target = pm.TargetVolume(kind=pm.TargetVolume.KIND_DEFAULT)
+        first_id = max(self.proposals, default=0)
+        start = time.perf_counter()
+        try:
+            result = run_mission(self.node, goal, timeout=900)
+        except Exception as exc:  # noqa: BLE001 - a failing case is a row of the table, not the end of it
+            return {"mission_success": False, "mission_message": f"internal error: {type(exc).__name__}: {exc}",
+                    "cameras": 0, "perches": [], "checker": [], "mission_seconds": round(time.perf_counter() - start, 2)}
+        seconds = time.perf_counter() - start
+        spin_for(self.node, 0.3)   # the last proposals' messages
+        accepted = sorted((p for i, p in self.proposals.items() if i > first_id and p.status == p.STATUS_ACCEPTED),
+                          key=lambda p: p.placement.drone_index)
+        row = {"mission_success": bool(result.success), "mission_message": result.message[:400],
+               "cameras": len(result.placements), "mission_seconds": round(seconds, 2)}
+        if result.success:
+            used = alignment_from_msg(result.alignment).up
+            row["planned_up_error_deg"], row["planned_sign_right"] = up_error(used, true_up)
+        row["perches"] = [_perch_row(p) for p in accepted]
+        row["checker"] = self.checker(mesh, true_up, row["perches"]) if self.checker else None
+        for perch, verdict in zip(row["perches"], row["checker"] or []):
+            if perch["observed_share"] is None:  # Perch's evidence lacks it: the checker's measure
+                perch["observed_share"] = verdict["observed_share"]
+        return row
+
+    def stop(self) -> None:
+        self.graph.stop()
+        self.node.destroy_node()
+        self._context.__exit__(None, None, None)
+
+
+def _perch_row(proposal) -> dict:
+    """A perch's position (input frame) and every field of its safety evidence, as the proposal carries them."""
+    evidence = proposal.evidence
+    fields = {name: round(float(getattr(evidence, name)), 3) for name in evidence.get_fields_and_field_types()
+              if isinstance(getattr(evidence, name), (int, float))}
+    from scipy.spatial.transform import Rotation
+
+    pose = proposal.placement.drone_pose
+    q = pose.orientation
+    normal = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()[:, 2]  # drone z: the surface normal
+    return {"proposal_id": proposal.id, "drone": proposal.placement.drone_index,
+            "position": [pose.position.x, pose.position.y, pose.position.z], "normal": normal.round(5).tolist(),
+            "evidence": fields, "observed_share": fields.get("observed_share")}
+
+
+def _project_checker(notes: list[str]):
+    """The project's perch checker (perch_filtering.perch_check) on the placed perches with the TRUE up,
+    or None (with a note) when the installed packages lack it."""
+    try:
+        from perch_filtering.perch_check import check_perches
+    except ImportError as exc:
+        notes.append(f"checker: perch_filtering.perch_check is not importable ({exc}); the checker column is null")
+        return None
+
+    def check(mesh, true_up, perches: list[dict]) -> list[dict]:
+        positions = np.array([p["position"] for p in perches], np.float64).reshape(-1, 3)
+        normals = np.array([p["normal"] for p in perches], np.float64).reshape(-1, 3)
+        return [{"safe": v.safe, "reasons": v.reasons, "kind": v.kind,
+                 "observed_share": round(float(v.observed_share), 3)}
+                for v in check_perches(mesh, positions, normals, true_up)]
+    return check
