@@ -40,6 +40,21 @@ class MissionData:
     alignment: Alignment = field(default_factory=lambda: Alignment("map", np.eye(3), "none", 0.0))
 
 
+    @property
+    def input_frame(self) -> str:
+        """The frame the user gave the input in (waypoints, tables, console lines)."""
+        return self.alignment.input_frame
+
+    @property
+    def aligned_frame(self) -> str:
+        """The gravity-aligned frame the stages worked in (only in views labelled so)."""
+        return self.alignment.aligned_frame
+
+    def position_in_input(self, pose) -> np.ndarray:
+        """The position of a gravity-aligned 4x4 pose (a placement's, a rejected perch's) in the input frame."""
+        return self.alignment.pose_to_input(np.asarray(pose, np.float64))[:3, 3]
+
+
 def load_mission(path: str | Path) -> MissionData:
     """Read the stage replies, proposals and waypoints of one recorded mission."""
     from perch_common.ros.conversions import (

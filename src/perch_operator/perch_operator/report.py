@@ -75,11 +75,13 @@ def perch_text(data: MissionData) -> str:
     if not data.placements:
         return ""
     where = {w.get("drone_index"): w.get("position") for w in data.waypoints}
-    lines = ["perches (safety evidence: the worst values over each perch's region):"]
+    lines = [f"perches (positions in the input frame '{data.input_frame}'; safety evidence: the worst values "
+             "over each perch's region):"]
     for p in data.placements:
         region = next((r for r in data.regions if r.id == p.region_id), None)
         kind = region.surface_class.name.lower() if region is not None else "?"
         pos = where.get(p.drone_index)
+        pos = pos if pos is not None else data.position_in_input(p.drone_pose)
         at = f"({pos[0]:.2f}, {pos[1]:.2f}, {pos[2]:.2f}) m" if pos is not None else "(?)"
         evidence = evidence_text(region.evidence) if region is not None else "evidence not measured"
         lines.append(f"  drone {p.drone_index}  {kind:<7}  at {at}  {evidence}")
@@ -124,8 +126,10 @@ def _evidence_cells(data: MissionData, p) -> tuple:
     region = next((r for r in data.regions if r.id == p.region_id), None)
     e = region.evidence if region is not None else None
     if e is None or e.support_share < 0:
-        return ("–",) * 4
-    return (f"{e.approach_clearance:.2f}", f"{e.free_fall:.2f}", _pct(e.support_share), f"{100 * e.flatness_rms:.1f}")
+        return ("–",) * 5
+    observed = min(e.approach_observed, e.fall_observed)
+    return (f"{e.approach_clearance:.2f}", f"{e.free_fall:.2f}", _pct(e.support_share), f"{100 * e.flatness_rms:.1f}",
+            _pct(observed) if observed >= 0 else "–")
 
 
 def _pct(value) -> str:
@@ -160,17 +164,26 @@ def write_report(data: MissionData, out_dir: str | Path, title: str = "Perch mis
     if stages:
         parts += ["<h2>Stage times</h2>",
                   _table(["stage", "seconds"], [(n, f"{t:.2f}") for n, t in stages])]
-    parts += ["<h2>Overview from above</h2>",
-              "<p>Ceiling cut away. Green: perch regions; orange: target volume; blue: accepted cameras with "
+    here = html.escape(data.input_frame)
+    parts += [f"<p>Frames: every table gives positions in the input frame <b>{here}</b> (the frame of "
+              "waypoints.yaml). Only the overview picture is drawn in the gravity-aligned frame <b>"
+              f"{html.escape(data.aligned_frame)}</b> (the input frame turned so that up is +z), as labelled.</p>",
+              "<h2>Overview from above</h2>",
+              f"<p>Gravity-aligned frame {html.escape(data.aligned_frame)}, seen from above (+z up). Ceiling cut away. "
+              "Green: perch regions; orange: target volume; blue: accepted cameras with "
               "their viewing direction; red: rejected perches with their exclusion radius.</p>",
               "<img src='report_files/overview.png' alt='overview from above'>",
-              "<h2>Cameras</h2>", _table(
-                  ["drone", "region", "x (m)", "y (m)", "z (m)", "pan (°)", "tilt (°)", "gain", "coverage",
-                   "approach (m)", "free fall (m)", "support", "flatness (cm)"],
-                  [(*_camera_row(p), *_evidence_cells(data, p)) for p in data.placements]),
-              "<p>Safety evidence: the worst values over the perch's region. Approach: free depth of the approach "
-              "prism; free fall below the window; support: share of the window on scanned surface; flatness: RMS "
-              "distance of that surface to the perch plane. Distances saturate at twice the required values.</p>"]
+              f"<h2>Cameras (input frame {here})</h2>", _table(
+                  ["drone", "region", f"x (m, {data.input_frame})", f"y (m, {data.input_frame})",
+                   f"z (m, {data.input_frame})", "pan (°)", "tilt (°)", "gain", "coverage",
+                   "approach (m)", "free fall (m)", "support", "flatness (cm)", "observed"],
+                  [(*_camera_row(p, data.position_in_input(p.drone_pose)), *_evidence_cells(data, p))
+                   for p in data.placements]),
+              "<p>Drone positions on the perch, in the input frame. Safety evidence: the worst values over the perch's "
+              "region. Approach: free depth of the approach prism; free fall below the window; support: share of the "
+              "window on scanned surface; flatness: RMS distance of that surface to the perch plane; observed: the "
+              "smaller share of the approach prism and of the fall corridor lying in space the scan observed. "
+              "Distances saturate at twice the required values.</p>"]
     if data.removals:
         cv2.imwrite(str(files / "removed_by_filter.png"), removal_picture(data))
         parts += ["<h2>Area removed by each filter (largest surfaces, m²)</h2>", _table(
@@ -185,11 +198,11 @@ def write_report(data: MissionData, out_dir: str | Path, title: str = "Perch mis
     else:
         parts.append("<p>Simulated views need perch_placement's renderer (not installed here).</p>")
     if data.rejected:
-        parts += ["<h2>Rejected or failed perches</h2>", _table(
-            ["x (m)", "y (m)", "z (m)", "reason"],
-            [(*(f"{v:.2f}" for v in np.asarray(p.drone_pose)[:3, 3]), html.escape(r)) for p, r in data.rejected])]
-    parts += ["<h2>Waypoints</h2>", _table(
-        ["drone", "proposal", "position (m)", "approach (m)"],
+        parts += [f"<h2>Rejected or failed perches (input frame {here})</h2>", _table(
+            [f"x (m, {data.input_frame})", f"y (m, {data.input_frame})", f"z (m, {data.input_frame})", "reason"],
+            [(*(f"{v:.2f}" for v in data.position_in_input(p.drone_pose)), html.escape(r)) for p, r in data.rejected])]
+    parts += [f"<h2>Waypoints (input frame {here})</h2>", _table(
+        ["drone", "proposal", f"position (m, {data.input_frame})", f"approach (m, {data.input_frame})"],
         [(str(w["drone_index"]), str(w["proposal_id"]), _vec(w["position"]), _vec(w["approach"]))
          for w in latest_waypoints(data.waypoints)]), "</body></html>"]
     path = out_dir / "report.html"
@@ -201,8 +214,8 @@ def _vec(v) -> str:
     return "(" + ", ".join(f"{x:.2f}" for x in v) + ")"
 
 
-def _camera_row(p) -> tuple:
-    x, y, z = np.asarray(p.drone_pose)[:3, 3]
+def _camera_row(p, position) -> tuple:
+    x, y, z = position
     return (str(p.drone_index), str(p.region_id), f"{x:.2f}", f"{y:.2f}", f"{z:.2f}",
             f"{math.degrees(p.pan):.0f}", f"{math.degrees(p.tilt):.0f}", f"{p.marginal_gain:.4f}",
             _pct(p.coverage))

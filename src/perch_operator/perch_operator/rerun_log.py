@@ -1,6 +1,7 @@
 """A rerun recording (.rrd) of one mission: mesh, surfaces by class, what the filters removed,
 perch regions, target volume and its points coloured by score, camera frustums with their
-simulated views, waypoints and rejected perches."""
+simulated views, waypoints and rejected perches. The recording's root is the input frame; the
+entity `frames` names the frame of each part."""
 
 from __future__ import annotations
 
@@ -38,6 +39,7 @@ def write_rrd(data: MissionData, path: str | Path, views: list | None = None) ->
     # stages worked in, placed in it by the mission's alignment (waypoints are logged at the root).
     rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
     rec.log("world", rr.Transform3D(mat3x3=data.alignment.to_input()[:3, :3]), static=True)
+    rec.log("frames", rr.TextDocument(frames_markdown(data), media_type=rr.MediaType.MARKDOWN), static=True)
     if data.mesh is not None:
         rec.log("world/mesh", _mesh3d(rr, data.mesh), static=True)
     _log_surfaces(rr, rec, data)
@@ -110,9 +112,19 @@ def _log_cameras(rr, rec, data: MissionData, views: list | None) -> None:
         positions = np.array([w["position"] for w in latest])
         approach = np.array([w["approach"] for w in latest])
         rec.log("waypoints", rr.Points3D(positions, colors=[(30, 90, 230)], radii=0.06,
-                                         labels=[f"drone {w['drone_index']}" for w in latest]), static=True)
+                                         labels=[f"drone {w['drone_index']} ({w.get('frame_id') or data.input_frame})"
+                                                 for w in latest]), static=True)
         rec.log("waypoints/approach", rr.Arrows3D(origins=approach, vectors=positions - approach,
                                                   colors=[(30, 90, 230)]), static=True)
+
+
+def frames_markdown(data: MissionData) -> str:
+    """Which frame each entity of the recording is in (the root is the input frame)."""
+    return "\n".join([
+        f"- **root** (`waypoints`, `waypoints/approach`): the input frame `{data.input_frame}`, as waypoints.yaml",
+        f"- **world** and below (mesh, surfaces, regions, target, cameras, rejected perches): the gravity-aligned "
+        f"frame `{data.aligned_frame}` (up is +z), placed in `{data.input_frame}` by the mission's alignment, so "
+        f"the viewer shows everything in `{data.input_frame}`"])
 
 
 def _summary_markdown(data: MissionData) -> str:
