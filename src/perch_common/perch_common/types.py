@@ -86,14 +86,17 @@ class PerchEvidence:
 
     approach_clearance: free depth of the approach prism; free_fall: free fall below the window;
     both saturate at the filter's lookahead. support_share: share of the window on scanned surface
-    within tolerance of the perch plane; flatness_rms: RMS distance of that surface to the plane.
-    NOT_MEASURED (-1) where unknown.
+    within tolerance of the perch plane; flatness_rms: RMS distance of that surface to the plane;
+    approach_observed / fall_observed: share of the approach prism / fall corridor lying in space the
+    scan observed (perch_filtering.observed). NOT_MEASURED (-1) where unknown.
     """
 
     approach_clearance: float = NOT_MEASURED
     free_fall: float = NOT_MEASURED
     support_share: float = NOT_MEASURED
     flatness_rms: float = NOT_MEASURED
+    approach_observed: float = NOT_MEASURED  # share of the approach prism in space the scan observed
+    fall_observed: float = NOT_MEASURED      # share of the fall corridor (column) in observed space
 
 
 @dataclass

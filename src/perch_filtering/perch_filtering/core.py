@@ -35,10 +35,11 @@ from perch_common.raycast import RayScene
 from perch_common.raycast import ray_scene as shared_ray_scene
 from perch_common.target import TargetVolume
 from perch_common.timing import Laps
-from perch_common.types import NOT_MEASURED, FilterRemoval, PerchEvidence, PerchRegion, Surface
+from perch_common.types import NOT_MEASURED, FilterRemoval, PerchEvidence, PerchRegion, Surface, SurfaceClass
 from perch_filtering.checks import approach_clearance, free_fall, geometry_in_front
 from perch_filtering.config import FilterConfig
 from perch_filtering.holes import hole_patches
+from perch_filtering.observed import unobserved_share
 from perch_filtering.orientation import class_enabled, find_floor, orient, oriented_copy, visibility_scores, winding_votes
 from perch_filtering.raster import SurfaceRaster, erode_window, rasterise, window_kernel
 from perch_filtering.regions import mask_polygons, triangulate
@@ -127,10 +128,15 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
     _visibility(work, scene, RayScene(patches) if patches is not None else None,
                 target.sample(config.visibility_points, seed=config.seed), config)
     clock.lap("line_of_sight")
+    reached = _reachability([w for w in work if w.raster is not None], grid, scene.mesh, config)
+    clock.lap("reachability")
+    for w, kept in reached:
+        _observed(w, kept, scene, up, config)
+    clock.lap("observed")
     regions: list[PerchRegion] = []
-    for w, kept in _reachability([w for w in work if w.raster is not None], grid, scene.mesh, config):
+    for w, kept in reached:
         regions.extend(_regions(w, kept, len(regions), mesh.frame_id, config))
-    clock.lap("reachability_regions")
+    clock.lap("regions")
     removals = [w.removal for w in work]
     result = FilterResult(regions, removals, oriented, "", floor_height, floor_ids,
                           [o.decided_by for o in orientations], time.perf_counter() - start, clock.laps)
@@ -240,6 +246,36 @@ def _reachability(work: list[_Work], grid: FlightGrid, mesh: Mesh,
     return out
 
 
+def _observed(w: _Work, kept: np.ndarray, scene: RayScene, up: np.ndarray, config: FilterConfig) -> None:
+    """The observed-space rule (perch_filtering.observed): at most max_unobserved_share of a perch's
+    approach prism and of its fall corridor (column below ceilings) may lie in space the scan does not
+    enclose. Runs on the cells every other filter kept (the rays are the costly part); the area it
+    removes counts to obstacle_clearance (approach) and recovery_height (fall), whose volumes these are."""
+    s = config
+    start = s.surface_depth + s.cell  # in front of what counts as the surface itself
+    half_u = 0.5 * s.window_width + s.approach_margin
+    half_v = 0.5 * s.window_height + s.approach_margin
+    approach = unobserved_share(scene, w.raster, kept, (-half_u, half_u), (-half_v, half_v),
+                                (start, max(s.approach_distance, start + s.cell)), s.enclosed_escape_share)
+    if w.surface.surface_class == SurfaceClass.WALL:  # the corridor below the window, 2 radii deep
+        fall = unobserved_share(scene, w.raster, kept, (-half_u, half_u),
+                                (-(0.5 * s.window_height + s.min_recovery_height), 0.5 * s.window_height),
+                                (start, max(2 * s.drone_radius, start + s.cell)), s.enclosed_escape_share)
+    elif float(w.surface.frame.normal @ up) < 0:  # the column below a ceiling (or a downward surface)
+        fall = unobserved_share(scene, w.raster, kept, (-half_u, half_u), (-half_v, half_v),
+                                (start, max(s.min_recovery_height, start + s.cell)), s.enclosed_escape_share)
+    else:  # landing: no fall
+        fall = np.zeros(w.raster.shape, np.float32)
+    limit = s.max_unobserved_share + 1e-6
+    approach_bad = kept & (approach > limit)
+    fall_bad = kept & ~approach_bad & (fall > limit)
+    w.removal.obstacle_clearance += float(approach_bad.sum() * w.raster.cell_area)
+    w.removal.recovery_height += float(fall_bad.sum() * w.raster.cell_area)
+    kept &= ~(approach_bad | fall_bad)
+    w.removal.area_kept = float(kept.sum() * w.raster.cell_area)
+    w.evidence.update(approach_observed=1.0 - approach, fall_observed=1.0 - fall)
+
+
 def _regions(w: _Work, kept: np.ndarray, first_id: int, frame_id: str, config: FilterConfig) -> list[PerchRegion]:
     """One region per connected piece of kept cells: polygons with holes, a triangulated mesh and the
     region's safety evidence (its worst cell's)."""
@@ -261,7 +297,7 @@ def _evidence(w: _Work, kept: np.ndarray, mine: np.ndarray) -> PerchEvidence:
     """Worst value over the region's cells of each evidence map (NOT_MEASURED when a map is missing)."""
     values = {}
     for name, worst in (("approach_clearance", np.min), ("free_fall", np.min), ("support_share", np.min),
-                        ("flatness_rms", np.max)):
+                        ("flatness_rms", np.max), ("approach_observed", np.min), ("fall_observed", np.min)):
         cells = w.evidence[name][kept][mine] if name in w.evidence and mine.any() else np.zeros(0)
         values[name] = float(worst(cells)) if len(cells) else NOT_MEASURED
     return PerchEvidence(**values)

@@ -1,0 +1,85 @@
+"""Observed versus unknown space on a bare mesh: which part of a perch's approach prism and fall
+corridor the scan actually saw.
+
+A mesh carries no camera poses, so "observed" is what the scan encloses: a point is observed when at
+most `enclosed_escape_share` of the rays cast from it in ESCAPE_DIRECTIONS fixed directions leave
+the model without a hit. Inside a scanned room almost every ray ends on a wall, floor or ceiling (a
+doorway or window opening lets a minority out; a room without ceiling lets out less than half); in
+front of an isolated wall fragment at the scan's edge, with nothing scanned below or in front of it,
+most rays escape. Space behind a scan's edge, or under a fragment whose floor was never scanned, is
+therefore unknown, and a drone may neither approach nor fall through it.
+
+Per surface the rule is evaluated on a coarse grid in the surface's plane frame (NODE_SPACING apart,
+DEPTH_LAYERS layers across each volume's depth), only where live cells' volumes reach; each cell's
+unobserved share is the share of the grid nodes inside its volume that are not enclosed (a box sum).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from perch_common.raycast import RayScene
+from perch_filtering.raster import SurfaceRaster
+
+ESCAPE_DIRECTIONS = 32  # rays per grid node (Fibonacci sphere, fixed)
+NODE_SPACING = 0.15     # m between grid nodes along the plane
+DEPTH_LAYERS = 3        # node layers across a volume's depth
+
+
+def sphere_directions(count: int) -> np.ndarray:
+    """(count, 3) unit directions spread evenly over the sphere (Fibonacci lattice, deterministic)."""
+    k = np.arange(count) + 0.5
+    z = 1.0 - 2.0 * k / count
+    r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
+    phi = k * np.pi * (3.0 - np.sqrt(5.0))
+    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
+
+
+def escape_shares(scene: RayScene, points: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """Per point, the share of rays in `directions` that leave the model without a hit."""
+    if not len(points):
+        return np.zeros(0)
+    origins = np.repeat(points, len(directions), axis=0)
+    hits = scene.cast(origins, np.tile(directions, (len(points), 1)))
+    return (~hits.hit).reshape(len(points), len(directions)).mean(axis=1)
+
+
+def unobserved_share(scene: RayScene, raster: SurfaceRaster, alive: np.ndarray, u_range: tuple[float, float],
+                     v_range: tuple[float, float], depth_range: tuple[float, float],
+                     enclosed_escape_share: float) -> np.ndarray:
+    """Per cell of `alive`, the share of its volume (plane offsets u_range x v_range around the cell,
+    depth_range along the normal) the scan does not enclose; 0 elsewhere."""
+    out = np.zeros(raster.shape, np.float32)
+    if not alive.any():
+        return out
+    step = max(1, int(round(NODE_SPACING / raster.cell)))
+    spacing = step * raster.cell
+    # Node offsets (in nodes) covering each volume, and the node grid reaching every live cell's volume.
+    lo_u, hi_u = int(np.floor(u_range[0] / spacing)), int(np.ceil(u_range[1] / spacing))
+    lo_v, hi_v = int(np.floor(v_range[0] / spacing)), int(np.ceil(v_range[1] / spacing))
+    rows, cols = np.nonzero(alive)
+    node_r, node_c = np.round(rows / step).astype(np.int64), np.round(cols / step).astype(np.int64)
+    r0, c0 = node_r.min() + lo_v, node_c.min() + lo_u
+    shape = (node_r.max() + hi_v - r0 + 1, node_c.max() + hi_u - c0 + 1)
+    live = np.zeros(shape, bool)
+    live[node_r - r0, node_c - c0] = True
+    needed = np.zeros(shape, bool)  # every node some live node's volume reaches
+    for dv in range(lo_v, hi_v + 1):
+        for du in range(lo_u, hi_u + 1):
+            needed[dv - lo_v:shape[0] - hi_v + dv, du - lo_u:shape[1] - hi_u + du] |= \
+                live[-lo_v:shape[0] - hi_v, -lo_u:shape[1] - hi_u]
+    nr, nc = np.nonzero(needed)
+    uv = np.column_stack([raster.u0 + (nc + c0) * spacing, raster.v0 + (nr + r0) * spacing])
+    depths = depth_range[0] + (np.arange(DEPTH_LAYERS) + 0.5) / DEPTH_LAYERS * (depth_range[1] - depth_range[0])
+    points = np.concatenate([raster.frame.to_world(uv, np.full(len(uv), d)) for d in depths])
+    escaped = escape_shares(scene, points, sphere_directions(ESCAPE_DIRECTIONS)) > enclosed_escape_share
+    unknown = np.zeros(shape, np.float64)
+    np.add.at(unknown, (nr, nc), escaped.reshape(DEPTH_LAYERS, -1).mean(axis=0))
+    # Box mean over each live node's volume (integral image; the grid covers every live volume).
+    total = np.pad(unknown, ((1, 0), (1, 0))).cumsum(0).cumsum(1)
+    rr, cc = node_r - r0, node_c - c0
+    a, b = rr + lo_v, rr + hi_v + 1
+    c, d = cc + lo_u, cc + hi_u + 1
+    sums = total[b, d] - total[a, d] - total[b, c] + total[a, c]
+    out[rows, cols] = sums / ((hi_v - lo_v + 1) * (hi_u - lo_u + 1))
+    return out
