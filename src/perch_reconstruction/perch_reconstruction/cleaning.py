@@ -11,9 +11,15 @@ import numpy as np
 from perch_common.mesh import Mesh, MeshError, validate_mesh
 from perch_common.up_axis import UpEstimate, estimate_mesh_up
 from perch_reconstruction.config import ReconstructionConfig
-from perch_reconstruction.mesh_ops import cluster_vertices, remove_small_pieces, weld_vertices
+from perch_reconstruction.mesh_ops import cluster_vertices, remove_small_pieces, weld_close_vertices, weld_vertices
 
 PRECLUSTER_FACTOR = 2
+SOUP_VERTICES_PER_FACE = 2.0   # welded meshes have ~0.5 vertices per face; a soup that did not weld ~3
+SOUP_WELD_FRACTION = 0.01      # a soup is re-welded at this fraction of its median edge ...
+SOUP_WELD_MAX = 1e-3           # m ... at most
+REWIND_SHARE = 0.01            # re-wind when more than this share of shared edges is inconsistent
+NOTABLE_SHARE = 0.001          # duplicate/degenerate faces are reported above this share
+FALLING_APART = 0.5            # warn when pieces below min_piece_diameter held more than this share of faces
 # fast_simplification keeps the mesh being decimated in module-global state: one decimation at a time.
 _DECIMATION_LOCK = threading.Lock()
 
@@ -79,15 +85,56 @@ def _decimated_clean(mesh: Mesh, config: ReconstructionConfig, report: CleanRepo
     still too slow for 1M-face TSDF meshes, while clustering at about the voxel size loses nothing
     the later collapse would keep.
     """
-    welded = weld_vertices(mesh, config.merge_distance)
+    welded = repair_mesh(mesh, config.merge_distance, report)
     if config.min_piece_diameter > 0:
         welded, report.pieces_removed_faces = remove_small_pieces(welded, config.min_piece_diameter)
+        if welded.num_faces and report.pieces_removed_faces > FALLING_APART * mesh.num_faces:
+            report.warnings.append(f"{report.pieces_removed_faces:,} of {mesh.num_faces:,} faces were in pieces "
+                                   f"smaller than min_piece_diameter {config.min_piece_diameter} m: most of the "
+                                   "mesh falls apart into fragments")
     target = int(config.target_faces)
     if not target or welded.num_faces <= target:
         return welded
     if welded.num_faces > PRECLUSTER_FACTOR * target:
         welded = cluster_vertices(welded, PRECLUSTER_FACTOR * target)
     return quadric_decimate(welded, target)
+
+
+def repair_mesh(mesh: Mesh, merge_distance: float, report: CleanReport) -> Mesh:
+    """Weld coincident corners and drop duplicate and degenerate faces; re-weld a triangle soup whose
+    corners miss each other by more than merge_distance; remove needle slivers; re-wind a mesh whose
+    windings flip from face to face. Each repair is said in report.warnings (perch_common.mesh_health)."""
+    from perch_common.mesh_health import needle_mask, winding_flips
+
+    welded = weld_vertices(mesh, merge_distance)
+    if welded.num_vertices > SOUP_VERTICES_PER_FACE * welded.num_faces and welded.num_faces > 1:
+        # Most corners met no other: a soup exported with float32 rounding. Weld at 1 % of its typical edge.
+        corners = welded.triangles()
+        typical = float(np.median(np.linalg.norm(corners[:, 1] - corners[:, 0], axis=1)))
+        distance = min(SOUP_WELD_MAX, SOUP_WELD_FRACTION * typical)
+        if distance > merge_distance:
+            rewelded = weld_close_vertices(welded, distance)
+            report.warnings.append(f"repaired a triangle soup: corners welded at {distance:.2g} m (merge_distance "
+                                   f"{merge_distance:g} m joined too few: {welded.num_vertices:,} vertices for "
+                                   f"{welded.num_faces:,} faces)")
+            welded = rewelded
+    dropped = mesh.num_faces - welded.num_faces
+    if dropped > NOTABLE_SHARE * mesh.num_faces:   # a handful is ordinary in scans: said only when notable
+        report.warnings.append(f"removed {dropped:,} duplicate or degenerate faces")
+    needles = needle_mask(welded)
+    if needles.any():
+        report.warnings.append(f"removed {int(needles.sum()):,} needle slivers (triangles spanning space, "
+                               "almost no wider than a line)")
+        welded = welded.submesh(~needles)
+    # ~1.5 shared edges per face; a few flipped faces (real scans have some) are left as they are.
+    flips, inconsistent = winding_flips(welded.faces, REWIND_SHARE * 1.5 * welded.num_faces)
+    if inconsistent > REWIND_SHARE * 1.5 * welded.num_faces:
+        faces = welded.faces.copy()
+        faces[flips] = faces[flips][:, ::-1]
+        report.warnings.append(f"re-wound {int(flips.sum()):,} faces that faced the other way from their "
+                               "neighbours (inconsistent windings)")
+        welded = Mesh(welded.vertices, faces, welded.vertex_colors, frame_id=welded.frame_id)
+    return welded
 
 
 def quadric_decimate(mesh: Mesh, target: int) -> Mesh:

@@ -77,6 +77,26 @@ def weld_vertices(mesh: Mesh, distance: float) -> Mesh:
     return _remap(mesh, inverse, count, average=False)
 
 
+def weld_close_vertices(mesh: Mesh, distance: float) -> Mesh:
+    """Merge vertices closer than `distance` to one another (chains included), wherever they lie:
+    a grid (weld_vertices) splits near-coincident corners that straddle a cell border, which the
+    jittered corners of an exported triangle soup do at any cell size."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    pairs = cKDTree(mesh.vertices).query_pairs(distance, output_type="ndarray")
+    n = mesh.num_vertices
+    graph = coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    count, label = connected_components(graph, directed=False)
+    # Number the clusters by their first vertex: the output keeps the input's order.
+    first = np.full(count, n, np.int64)
+    np.minimum.at(first, label, np.arange(n))
+    rank = np.empty(count, np.int64)
+    rank[np.argsort(first)] = np.arange(count)
+    return _remap(mesh, rank[label], count, average=False)
+
+
 def remove_small_pieces(mesh: Mesh, min_diameter: float) -> tuple[Mesh, int]:
     """Drop connected pieces whose bounding-box diagonal is below min_diameter; returns (mesh, faces removed)."""
     from scipy.sparse import coo_matrix

@@ -1,0 +1,176 @@
+"""Mesh health: what makes a real-world mesh slow or wrong to plan on, counted, and repaired where it can be.
+
+- Triangle soup: most faces share no vertex with another face (every corner stored per face), so
+  no piece is bigger than one triangle until corners at the same place are welded.
+- Duplicate faces: the same three corner positions more than once (in any order or winding).
+- Inconsistent windings: two faces sharing an edge that run it in the same direction, i.e. one of
+  them faces the other way (a surface whose normals flip from face to face).
+- Needle slivers: triangles far longer than the mesh's typical edge and almost no wider (altitude
+  below 1/1000 of the longest edge): they span empty space, block clearance tests and carry no
+  surface worth a perch.
+
+Everything is vectorised (numpy, scipy.sparse); about 0.3 s per 100k faces.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from perch_common.mesh import Mesh
+
+NEEDLE_ASPECT = 1e-3        # altitude / longest edge below this: a sliver
+NEEDLE_LENGTH = 10.0        # ... and longer than this many median edge lengths: a needle across space
+SOUP_SHARE = 0.5            # more than this share of faces without a neighbour: a triangle soup
+
+
+@dataclass
+class MeshHealth:
+    """Counts of what `inspect_health` found; `lines()` says each in words."""
+
+    faces: int
+    isolated_faces: int = 0          # faces sharing no edge with another (after welding coincident corners)
+    duplicate_faces: int = 0
+    inconsistent_edges: int = 0      # shared edges run the same way by both faces
+    flipped_faces: int = 0           # faces to turn over for a consistent winding (per piece, the minority)
+    needle_slivers: int = 0
+    soup: bool = False               # most faces share no vertex index with another (before welding)
+    notes: list[str] = field(default_factory=list)
+
+    def lines(self) -> list[str]:
+        """One line per problem found (empty: healthy)."""
+        out = []
+        if self.soup:
+            out.append(f"triangle soup: most of the {self.faces:,} faces share no vertex with another "
+                       "(corners at the same place are separate vertices; the clean stage welds them)")
+        if self.duplicate_faces:
+            out.append(f"{self.duplicate_faces:,} duplicate faces (same corners as another face)")
+        if self.flipped_faces:
+            out.append(f"inconsistent windings: {self.flipped_faces:,} faces face the other way from their "
+                       f"neighbours ({self.inconsistent_edges:,} shared edges run the same way)")
+        if self.needle_slivers:
+            out.append(f"{self.needle_slivers:,} needle slivers (triangles over {NEEDLE_LENGTH:g}x the median edge "
+                       f"long and under 1/{1 / NEEDLE_ASPECT:g} of that wide)")
+        if self.isolated_faces > SOUP_SHARE * self.faces and not self.soup:
+            out.append(f"{self.isolated_faces:,} of {self.faces:,} faces share no edge with another")
+        return out + self.notes
+
+
+def weld_positions(vertices: np.ndarray, faces: np.ndarray, distance: float) -> np.ndarray:
+    """Faces re-indexed so that corners within `distance` (on a grid of that size) share one vertex."""
+    if len(vertices) == 0:
+        return faces
+    key = np.floor((vertices - vertices.min(axis=0)) / max(distance, 1e-12)).astype(np.int64)
+    span = key.max(axis=0) + 1
+    if float(span[0]) * float(span[1]) * float(span[2]) < 2.0 ** 62:   # one int64 per cell
+        _, inverse = np.unique((key[:, 0] * span[1] + key[:, 1]) * span[2] + key[:, 2], return_inverse=True)
+    else:
+        _, inverse = np.unique(np.ascontiguousarray(key).view(np.dtype((np.void, 24))).ravel(), return_inverse=True)
+    return inverse.ravel()[faces]
+
+
+def _edge_keys(directed: np.ndarray, count: int) -> np.ndarray:
+    """One int64 per undirected edge (its two vertex indices, smaller first)."""
+    low, high = np.minimum(directed[:, 0], directed[:, 1]), np.maximum(directed[:, 0], directed[:, 1])
+    return low.astype(np.int64) * count + high
+
+
+def _edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(E,2) directed edges (a->b as each face runs them) and the face of each."""
+    directed = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    owner = np.tile(np.arange(len(faces)), 3)
+    return directed, owner
+
+
+def needle_mask(mesh: Mesh) -> np.ndarray:
+    """Faces that are needle slivers (see NEEDLE_ASPECT, NEEDLE_LENGTH)."""
+    if mesh.num_faces == 0:
+        return np.zeros(0, bool)
+    corners = mesh.triangles()
+    lengths = np.linalg.norm(corners[:, [1, 2, 0]] - corners, axis=2)
+    longest = lengths.max(axis=1)
+    altitude = 2.0 * mesh.face_areas() / np.maximum(longest, 1e-300)
+    typical = float(np.median(lengths))
+    return (altitude < NEEDLE_ASPECT * longest) & (longest > NEEDLE_LENGTH * typical)
+
+
+def winding_flips(faces: np.ndarray, at_least: float = 0) -> tuple[np.ndarray, int]:
+    """(faces to turn over so that every piece is wound consistently, shared edges run the same way);
+    with `at_least`, no faces are chosen (only counted) unless more edges than that are inconsistent.
+
+    Faces are joined across edges shared by exactly two faces; within each piece the winding of the
+    majority is kept. A piece that cannot be wound consistently (a Moebius-like strip) keeps the
+    first consistent winding a breadth-first walk finds.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import breadth_first_order, connected_components
+
+    n = len(faces)
+    flips = np.zeros(n, bool)
+    if n == 0:
+        return flips, 0
+    directed, owner = _edges(faces)
+    _, edge_id, counts = np.unique(_edge_keys(directed, int(faces.max()) + 1), return_inverse=True,
+                                   return_counts=True)
+    edge_id = edge_id.ravel()
+    shared = counts[edge_id] == 2
+    order = np.argsort(edge_id[shared], kind="stable")
+    uses = np.flatnonzero(shared)[order].reshape(-1, 2)     # the two uses of each manifold edge
+    first, second = uses[:, 0], uses[:, 1]
+    same_way = directed[first, 0] == directed[second, 0]     # both faces run the edge a->b: inconsistent
+    inconsistent = int(same_way.sum())
+    if not inconsistent or inconsistent <= at_least:
+        return flips, inconsistent
+    fa, fb = owner[first], owner[second]
+    # 1: consistent neighbours, 2: one of the two must turn over.
+    relation = np.where(same_way, 2, 1).astype(np.int8)
+    graph = coo_matrix((relation, (fa, fb)), shape=(n, n)).tocsr()
+    count, label = connected_components(graph, directed=False)
+    # One breadth-first walk over every piece: a virtual root (n) joined consistently to each piece's
+    # first face; parity along the walk says which faces turn over relative to that face.
+    roots = np.unique(label, return_index=True)[1]
+    rows = np.concatenate([fa, np.full(len(roots), n)])
+    cols = np.concatenate([fb, roots])
+    values = np.concatenate([relation, np.ones(len(roots), np.int8)])
+    forest = coo_matrix((values, (rows, cols)), shape=(n + 1, n + 1)).tocsr()
+    forest = forest.maximum(forest.T).tocsr()
+    walk, parent = breadth_first_order(forest, n, directed=False, return_predecessors=True)
+    children = walk[1:]
+    turn = np.asarray(forest[children, parent[children]]).ravel() == 2
+    parity = np.zeros(n + 1, bool)
+    parents = parent[children]
+    for child, above, flip in zip(children.tolist(), parents.tolist(), turn.tolist()):
+        parity[child] = parity[above] ^ flip   # parents come before their children in breadth-first order
+    parity = parity[:n]
+    turned = np.bincount(label, weights=parity, minlength=count)
+    sizes = np.bincount(label, minlength=count)
+    flips = parity ^ (2 * turned > sizes)[label]   # keep each piece's majority winding
+    return flips, inconsistent
+
+
+def inspect_health(mesh: Mesh, weld_distance: float = 1e-5) -> MeshHealth:
+    """Count the problems of `mesh` (its arrays are not changed)."""
+    health = MeshHealth(mesh.num_faces)
+    if mesh.num_faces == 0:
+        return health
+    faces = mesh.faces
+    used = np.bincount(faces.ravel(), minlength=mesh.num_vertices)
+    health.soup = mesh.num_faces > 1 and float((used[faces] == 1).all(axis=1).mean()) > SOUP_SHARE
+    welded = weld_positions(mesh.vertices, faces, weld_distance)
+    rows = np.ascontiguousarray(np.sort(welded, axis=1)).view(np.dtype((np.void, 24))).ravel()
+    _, first = np.unique(rows, return_index=True)
+    health.duplicate_faces = mesh.num_faces - len(first)
+    keep = np.zeros(mesh.num_faces, bool)
+    keep[first] = True
+    proper = keep & (welded[:, 0] != welded[:, 1]) & (welded[:, 1] != welded[:, 2]) & (welded[:, 0] != welded[:, 2])
+    kept = welded[proper]
+    directed, owner = _edges(kept)
+    _, edge_id, counts = np.unique(_edge_keys(directed, int(welded.max()) + 1), return_inverse=True,
+                                   return_counts=True)
+    alone = np.bincount(owner[counts[edge_id.ravel()] > 1], minlength=len(kept)) == 0
+    health.isolated_faces = int(alone.sum())
+    flips, health.inconsistent_edges = winding_flips(kept)
+    health.flipped_faces = int(flips.sum())
+    health.needle_slivers = int(needle_mask(mesh).sum())
+    return health
