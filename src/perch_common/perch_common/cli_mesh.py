@@ -6,7 +6,7 @@ import json
 
 from perch_common.mesh import inspect_mesh, load_mesh
 from perch_common.mesh_health import inspect_health
-from perch_common.up_axis import estimate_mesh_up, file_convention
+from perch_common.up_axis import choose_up, file_convention
 
 
 def register(sub) -> None:
@@ -32,13 +32,15 @@ def mesh_summary(path: str, scale: float = 1.0) -> dict:
                "problems": problems.fatal + [w for w in problems.warnings if "duplicate faces" not in w] + health}
     if not problems.fatal:
         lo, hi = mesh.bounds()
-        estimate = estimate_mesh_up(mesh)
+        convention = file_convention(path)
+        estimate = choose_up("auto", mesh, convention).estimate   # as `--up auto` sees it (header included)
         summary.update({
             "bounds_min": lo.round(4).tolist(), "bounds_max": hi.round(4).tolist(),
             "size": (hi - lo).round(4).tolist(), "area_m2": round(float(mesh.face_areas().sum()), 3),
             "up_estimate": estimate.up.round(4).tolist(), "up_axis": estimate.axis_name(),
             "up_confidence": round(estimate.confidence, 3), "up_confident": estimate.confident,
-            "up_evidence": estimate.evidence(), "file_convention_up": file_convention(path)})
+            "up_evidence": estimate.evidence(), "file_convention_up": convention,
+            "up_considered": estimate.considered, "windings_inverted": estimate.windings_inverted})
     return summary
 
 
@@ -52,7 +54,8 @@ def _info(args) -> int:
     if "size" in s:
         print(f"  bounds {s['bounds_min']} .. {s['bounds_max']} (size {s['size']} m, area {s['area_m2']} m^2)")
         verdict = "confident" if s["up_confident"] else (
-            f"NOT confident: `--up auto` falls back to the file's convention {s['file_convention_up']}")
+            f"NOT confident: `--up auto` falls back to the file's convention {s['file_convention_up']}, and an "
+            "--auto-accept mission stops; considered " + ", ".join(s["up_considered"]))
         print(f"  up axis {s['up_axis']} (estimate {s['up_estimate']}, confidence {s['up_confidence']:.2f}, {verdict})")
         for line in s["up_evidence"]:
             print(f"    {line}")

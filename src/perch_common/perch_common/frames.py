@@ -17,6 +17,7 @@ from perch_common.transforms import rotation_between
 from perch_common.types import CameraPlacement
 
 ALIGNED_SUFFIX = "_gravity_aligned"
+UNCONFIRMED_SOURCE = "file convention"   # the up source of a fallback (perch_common.up_axis.choose_up)
 Z_UP = np.array([0.0, 0.0, 1.0])
 
 
@@ -70,6 +71,15 @@ class Alignment:
         return Alignment(input_frame, gravity_aligned_rotation(up, axes, reference), up_source, up_confidence)
 
     @property
+    def up_unconfirmed(self) -> str:
+        """'' when the up axis was given, recorded or estimated confidently; otherwise the note every
+        proposal of the mission carries (the up axis is the file's convention, a fallback)."""
+        if self.up_source != UNCONFIRMED_SOURCE:
+            return ""
+        return (f"up axis unconfirmed: the estimate was not confident ({self.up_confidence:.2f}); up "
+                f"{_axis_text(self.up)} is a fallback; check it (perch mesh info FILE) or pass --up AXIS")
+
+    @property
     def aligned_frame(self) -> str:
         """Name of the gravity-aligned frame."""
         return aligned_frame_name(self.input_frame)
@@ -113,3 +123,9 @@ class Alignment:
         to_aligned = self.to_aligned()
         return replace(placement, drone_pose=to_aligned @ np.asarray(placement.drone_pose, np.float64),
                        camera_pose=to_aligned @ np.asarray(placement.camera_pose, np.float64))
+
+
+def _axis_text(up: np.ndarray) -> str:
+    from perch_common.up_axis import axis_name
+
+    return axis_name(up)

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from perch_common.file_conventions import FileConvention, file_convention_of
+from perch_common.file_conventions import DEFAULT_CONVENTION, FileConvention, file_convention_of
 from perch_common.transforms import parse_up_axis
 
 COS_10 = float(np.cos(np.radians(10.0)))
@@ -203,8 +203,11 @@ def estimate_up(normals: np.ndarray, areas: np.ndarray, centroids: np.ndarray,
     notes.insert(0, f"room axes: {plane_share:.0%} of the area lies within 10 deg of three orthogonal directions; "
                     f"extents along them {', '.join(f'{e:.2f}' for e in extents)} m")
     axis_margin = min(1.0, (score - runner_up) / 0.5)
+    if agreement < 0:  # say the evidence along the chosen direction
+        votes = _sign_votes(up, normals, areas, centroids, hint) + [
+            UpVote(v.name, -v.vote, v.weight, v.detail) for v in votes if v.name == EXPORTER_VOTE]
     strong = [v for v in votes if v.weight >= 0.5 and abs(v.vote) >= 0.3]
-    if any(v.vote * agreement < 0 for v in strong):
+    if any(v.vote < 0 for v in strong):
         notes.append("conflicting: " + ", ".join(f"{v.name} {v.vote:+.2f}" for v in strong))
     if conflict:
         notes.append(conflict)
@@ -226,9 +229,6 @@ def estimate_up(normals: np.ndarray, areas: np.ndarray, centroids: np.ndarray,
         weight = sum(v.weight for v in c_votes)
         c_agreement = sum(v.vote * v.weight for v in c_votes) / weight if weight > 0 else 0.0
         considered.append(f"{axis_name(c_axis if c_agreement >= 0 else -c_axis)} (score {c_score:.2f})")
-    if agreement < 0:  # say the evidence along the chosen direction
-        votes = _sign_votes(up, normals, areas, centroids, hint) + [
-            UpVote(v.name, -v.vote, v.weight, v.detail) for v in votes if v.name == EXPORTER_VOTE]
     return UpEstimate(up, confidence, "scan", axis_confidence, sign_confidence, axes, plane_share, votes, notes,
                       centroid, considered, bool(inverted), (normals, areas, centroids, hint))
 
@@ -429,9 +429,17 @@ def choose_up(text: str, mesh, convention: str = "+z", option: str = "--up",
         # few degrees off the convention must not tilt the plan.
         if estimate.axis_confidence >= CONFIDENT and abs(estimate.up @ fallback) < COS_10:
             fallback = estimate.toward(fallback)
+        elif not file.from_exporter and file.axis == DEFAULT_CONVENTION and abs(estimate.up @ fallback) < COS_10:
+            # OBJ, PLY, STL have no up convention: +z would be a guess with no evidence at all, the
+            # estimate's best axis is one with some (both stay unconfirmed).
+            return UpChoice(estimate.up, "file convention", estimate, [
+                f"up axis: the estimate ({estimate.axis_name()}) is not confident ({estimate.confidence:.2f}) and "
+                f"the file's format has no up convention; using the estimate's best guess {estimate.axis_name()} "
+                f"(considered {', '.join(estimate.considered)}). Check it, and pass {option} AXIS if it is wrong"])
         return UpChoice(fallback, "file convention", estimate, [
             f"up axis: the estimate ({estimate.axis_name()}) is not confident ({estimate.confidence:.2f}); using "
-            f"{axis_name(fallback)} from the file's convention ({file.text()} up). Check it, and pass {option} AXIS "
+            f"{axis_name(fallback)} from the file's convention ({file.axis} up"
+            f"{f': its header names {file.exporter}' if file.exporter else ''}). Check it, and pass {option} AXIS "
             "if it is wrong"])
     given = parse_up_axis(text)
     problem = contradiction(given, estimate)
@@ -496,7 +504,7 @@ def contradiction(up: np.ndarray, estimate: UpEstimate) -> str:
 
 def _option_value(up: np.ndarray) -> str:
     name = axis_name(up)
-    return name if name[0] in "+-" else f"'{name}'"
+    return name if len(name) == 2 else f"'{name}'"   # '+y', or three components quoted for the shell
 
 
 def up_for_file(text: str, mesh, path: str | Path | None, option: str = "--up") -> UpChoice:

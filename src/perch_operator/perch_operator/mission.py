@@ -200,7 +200,9 @@ class Mission:
         """
         text = goal.up_axis or self.options.input_up
         convention = goal.up_convention or file_convention(goal.mesh_path or None)
-        choice = choose_up(text, mesh_from_msg(mesh_msg, "mission mesh"), convention)
+        # Auto-accepted, nobody checks the up axis: an unsure estimate stops the mission (UnsureUpError).
+        choice = choose_up(text, mesh_from_msg(mesh_msg, "mission mesh"), convention,
+                           require_confident=self.options.auto_accept or goal.auto_accept)
         for warning in choice.warnings:
             self.notes.append(warning)
             self.feedback("clean", self._fraction(), warning)
@@ -229,6 +231,7 @@ class Mission:
         events = []
         for slot, placement in enumerate(placements):
             proposal = operator.book.propose(slot, placement_from_msg(placement))
+            proposal.reason = operator.alignment.up_unconfirmed   # '' unless the up axis is a fallback
             events.append(copy.copy(proposal))   # as proposed: deciding changes the book's own
             if operator.auto_accept:
                 events.append(operator.book.decide(proposal.id, Decision.ACCEPT, "auto_accept policy"))
@@ -290,7 +293,9 @@ def replan_slot(caller: StageCaller, operator: Operator, slot: int) -> Proposal 
         operator.book.leave_empty(slot)
         return None
     operator.scores = (reply.fitness, reply.coverage, reply.mean_uncertainty)
-    return operator.book.propose(slot, placement_from_msg(reply.placements[0]))
+    proposal = operator.book.propose(slot, placement_from_msg(reply.placements[0]))
+    proposal.reason = operator.alignment.up_unconfirmed   # '' unless the up axis is a fallback
+    return proposal
 
 
 @dataclass
