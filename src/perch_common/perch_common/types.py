@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from enum import IntEnum
 
@@ -158,3 +159,9 @@ class CameraPlacement:
     fitness: float = 0.0
     coverage: float = 0.0
     mean_uncertainty: float = 0.0
+    # Robustness of the whole arrangement with respect to this camera (perch_placement.robustness; NaN: not assessed)
+    contribution: float = math.nan           # fitness lost when this camera is removed
+    expected_contribution: float = math.nan  # its mean under the landing error
+    p5_contribution: float = math.nan        # its 5th percentile under the landing error
+    coverage_without: float = math.nan       # coverage with this camera removed
+    kview_coverage_without: float = math.nan  # k-view coverage with this camera removed

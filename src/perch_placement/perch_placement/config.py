@@ -13,6 +13,8 @@ from perch_common.transforms import parse_up_axis
 
 # The search methods (perch_placement.search.METHODS holds one function for each).
 METHOD_NAMES = ("pso", "celf", "random", "grid", "naive")
+# What the search maximises (perch_placement.search.context.SearchContext.alternative_objective).
+OBJECTIVES = ("fitness", "expected", "kview", "worst_case")
 
 # Intel RealSense D435 depth stream: 1280 x 720 px, 87 x 58 degrees field of view.
 D435_FX = 640.0 / math.tan(math.radians(87.0 / 2))
@@ -127,6 +129,26 @@ class PsoConfig:
 
 
 @dataclass
+class LandingError:
+    """Where a perching drone really lands (perch_placement.robustness). Defaults: the issue's stated
+    scale of a perching miss (centimetres to a decimetre, 10 cm / 10 deg), taken as one standard
+    deviation so that the robustness figures are on the cautious side of what a dry-adhesive
+    gripper's landing achieves."""
+
+    position_sigma: float = param(0.10, "landing offset standard deviation along each in-plane axis of the perch",
+                                  "m", low=0.0, high=2.0)
+    yaw_sigma_deg: float = param(10.0, "landing yaw (about the surface normal) standard deviation", "deg",
+                                 low=0.0, high=180.0)
+    gimbal_reaim: bool = param(False, "after landing the gimbal re-aims at the planned view within its pan/tilt "
+                               "range (false: it keeps its angles relative to the body and turns with the drone)")
+    samples: int = param(64, "Monte-Carlo landings per assessment (common random numbers for every arrangement)",
+                         low=1, high=100000)
+    search_samples: int = param(8, "landings per candidate in the robust objective (common random numbers)",
+                                low=1, high=10000)
+    seed: int = param(0, "seed of the landing draws", low=0)
+
+
+@dataclass
 class PlacementConfig:
     """Everything the placement search needs besides the scene."""
 
@@ -153,9 +175,23 @@ class PlacementConfig:
     camera_profile: str = param("",
         "named camera profile (d435, d455, d405, zed2) overriding camera.*; empty: use camera.*",
         choices=("",) + tuple(CAMERA_PROFILES))
+    kview_k: int = param(2, "k-view coverage: a point needs this many cameras ...", low=1, high=100)
+    kview_angle_deg: float = param(30.0, "... with at least one pair of views this far apart at the point", "deg",
+                                   low=0.0, high=180.0)
+    objective: str = param("fitness",
+        "what each camera's search maximises: fitness (the nominal one) | expected (mean fitness under the "
+        "landing error) | kview (fitness + kview_weight x k-view coverage) | worst_case (fitness + "
+        "resilience_weight x coverage after losing the worst camera)", choices=OBJECTIVES)
+    kview_weight: float = param(0.5, "weight of k-view coverage in the kview objective", low=0.0, high=100.0)
+    resilience_weight: float = param(0.5, "weight of the worst single-loss coverage in the worst_case objective",
+                                     low=0.0, high=100.0)
+    certificate: bool = param(True, "report the LP upper bound on the best coverage over the candidate set")
+    certificate_seconds: float = param(2.0, "time limit of the certificate's linear program", "s",
+                                       low=0.01, high=3600.0)
     camera: CameraSpec = field(default_factory=CameraSpec)
     drone: DroneSpec = field(default_factory=DroneSpec)
     pso: PsoConfig = field(default_factory=PsoConfig)
+    landing: LandingError = field(default_factory=LandingError)
 
     def resolved(self) -> "PlacementConfig":
         """The configuration with the camera profile applied, checked."""

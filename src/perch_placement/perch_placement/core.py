@@ -23,6 +23,7 @@ from perch_placement.cache import PlacementCache, mesh_digest
 from perch_placement.config import PlacementConfig
 from perch_placement.fitness import Evaluator, placement_cameras
 from perch_placement.perches import Perch, Perches, seat_on_scan
+from perch_placement.robustness import Arrangement, Assessment, LandingSampler, assess
 from perch_placement.search import METHODS, SearchContext
 from perch_placement.shortfall import shortfall_sentence
 
@@ -45,6 +46,9 @@ class PlacementResult:
     candidate_evaluations: int = 0      # candidate gains scored from the cached candidate set
     target_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     cpu_seconds: float = 0.0            # CPU time of this process (all threads) during the call
+    assessment: Assessment | None = None  # landing error, k-view coverage, loss of each camera (all cameras)
+    coverage_bound: float = float("nan")  # LP upper bound on the best coverage on the candidate set
+    certificate_status: str = ""           # how the bound was obtained, or why it is missing
 
 
 def scene_for(mesh: Mesh) -> RayScene:
@@ -81,7 +85,8 @@ def optimise(mesh: Mesh, regions: list[PerchRegion], target: TargetVolume, num_c
         evaluator.commit(*placement_cameras(fixed))
     fixed_state = evaluator.info, evaluator.seen  # replaced, never modified in place, by the searches
     ctx = SearchContext(perches, evaluator, cfg, np.random.default_rng(seed), tuple(exclusions),
-                        [np.asarray(p.drone_pose, np.float64)[:3, 3] for p in fixed], len(fixed), cache, digest)
+                        [np.asarray(p.drone_pose, np.float64)[:3, 3] for p in fixed], len(fixed), cache, digest,
+                        Arrangement.of(fixed) if fixed else None)
     if num_cameras == 0:
         outcome_perches, reason = [], ""
     else:
@@ -94,15 +99,72 @@ def optimise(mesh: Mesh, regions: list[PerchRegion], target: TargetVolume, num_c
     bound = float("nan")
     if cfg.compute_bound and outcome_perches:
         bound = ctx.online_bound(len(outcome_perches))
+    assessment = assess_arrangement(evaluator, list(fixed) + placements, cfg)
+    for placement, i in zip(placements, range(len(fixed), len(fixed) + len(placements))):
+        annotate(placement, assessment, i)
+    certificate = None
+    if cfg.certificate and num_cameras > 0:
+        from perch_placement.certificate import coverage_certificate
+
+        certificate = coverage_certificate(ctx.candidates(), fixed_state[1], num_cameras, cfg.drone.min_spacing,
+                                           cfg.certificate_seconds)
     seconds = time.perf_counter() - start
+    text = _message(method, num_cameras, placements, score, bound,
+                    shortfall_sentence(regions, num_cameras, len(placements), cfg.drone.min_spacing,
+                                       reason, _capacity(perches, cfg, len(placements), num_cameras)) or reason)
+    text += robustness_sentence(assessment, cfg, certificate, float(score.coverage))
     return PlacementResult(placements, float(score.fitness), float(score.coverage),
-                           float(score.mean_uncertainty), bound, evaluator.evaluations, seconds,
-                           _message(method, num_cameras, placements, score, bound,
-                                    shortfall_sentence(regions, num_cameras, len(placements), cfg.drone.min_spacing,
-                                                       reason, _capacity(perches, cfg, len(placements), num_cameras))
-                                    or reason),
+                           float(score.mean_uncertainty), bound, evaluator.evaluations, seconds, text,
                            evaluator.ray_tests, evaluator.candidate_evaluations, points,
-                           time.process_time() - cpu_start)
+                           time.process_time() - cpu_start, assessment,
+                           certificate.coverage_bound if certificate else float("nan"),
+                           certificate.status if certificate else "not computed")
+
+
+def landing_sampler(cfg: PlacementConfig, samples: int | None = None) -> LandingSampler:
+    """The configured landing-error model's seeded sampler (`samples` landings; default the assessment's)."""
+    land = cfg.landing
+    return LandingSampler(land.position_sigma, land.yaw_sigma_deg, samples or land.samples, land.seed,
+                          land.gimbal_reaim, cfg.drone.pan_range_deg, cfg.drone.tilt_range_deg)
+
+
+def assess_arrangement(evaluator: Evaluator, placements: list, cfg: PlacementConfig) -> Assessment:
+    """The robustness of every camera in `placements` (fixed and added) under the configured model."""
+    return assess(evaluator, Arrangement.of(placements), landing_sampler(cfg), cfg.kview_k, cfg.kview_angle_deg)
+
+
+def annotate(placement: CameraPlacement, assessment: Assessment, i: int) -> None:
+    """Copy camera i's robustness figures onto its placement."""
+    placement.contribution = float(assessment.contribution[i])
+    placement.expected_contribution = float(assessment.expected_contribution[i])
+    placement.p5_contribution = float(assessment.p5_contribution[i])
+    placement.coverage_without = float(assessment.coverage_without[i])
+    placement.kview_coverage_without = float(assessment.kview_without[i])
+
+
+def robustness_sentence(a: Assessment, cfg: PlacementConfig, certificate, coverage: float) -> str:
+    """The reply's robustness part: landing error, k-view coverage, loss of one camera, certificate."""
+    if a is None or not len(a.contribution):
+        return ""
+    land = cfg.landing
+    text = (f"; under landing error ({100 * land.position_sigma:g} cm, {land.yaw_sigma_deg:g} deg, {a.samples} "
+            f"samples) fitness {a.expected_fitness:.4f} expected, {a.p5_fitness:.4f} at the 5th percentile"
+            f"; {cfg.kview_k}-view coverage (pair >= {cfg.kview_angle_deg:g} deg) {100 * a.kview_coverage:.1f} %")
+    if len(a.contribution) > 1:
+        text += (f"; losing one camera leaves coverage {100 * a.worst_coverage_without:.1f} % at worst "
+                 f"({100 * a.mean_coverage_without:.1f} % mean), {cfg.kview_k}-view "
+                 f"{100 * a.worst_kview_without:.1f} % at worst")
+    if certificate is not None:
+        if np.isfinite(certificate.coverage_bound) and coverage > certificate.coverage_bound + 1e-9:
+            text += (f"; certificate: coverage {100 * coverage:.1f} % beats the LP bound on the candidate set "
+                     f"({100 * certificate.coverage_bound:.1f} %): the search found perches off its grid")
+        elif np.isfinite(certificate.coverage_bound):
+            text += (f"; certificate: coverage is within {100 * max(certificate.gap(coverage), 0.0):.1f} % of the "
+                     f"best possible on this candidate set (LP bound {100 * certificate.coverage_bound:.1f} %, "
+                     "which bounds fitness too)")
+        else:
+            text += f"; certificate: {certificate.status}"
+    return text
 
 
 def _placements(evaluator: Evaluator, perches: Perches, chosen: list[Perch], fixed_state: tuple,

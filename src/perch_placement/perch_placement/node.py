@@ -83,6 +83,14 @@ class PlacementNode(Node):
         response.fitness, response.coverage = result.fitness, result.coverage
         response.mean_uncertainty, response.upper_bound = result.mean_uncertainty, result.upper_bound
         response.evaluations = int(result.evaluations)
+        a = result.assessment
+        response.expected_fitness, response.p5_fitness = a.expected_fitness, a.p5_fitness
+        response.kview_coverage = a.kview_coverage
+        response.worst_coverage_without_one = a.worst_coverage_without
+        response.mean_coverage_without_one = a.mean_coverage_without
+        response.worst_kview_coverage_without_one = a.worst_kview_without
+        response.mean_kview_coverage_without_one = a.mean_kview_without
+        response.coverage_bound = result.coverage_bound
         response.success = len(result.placements) > 0 or count == 0
         response.message = result.message
         return response

@@ -325,7 +325,9 @@ def placement_to_msg(p: CameraPlacement) -> pm.CameraPlacement:
         drone_index=int(p.drone_index), region_id=int(p.region_id), drone_pose=pose_msg(p.drone_pose),
         camera_pose=pose_msg(p.camera_pose), pan=float(p.pan), tilt=float(p.tilt), zoom=float(p.zoom),
         marginal_gain=float(p.marginal_gain), fitness=float(p.fitness), coverage=float(p.coverage),
-        mean_uncertainty=float(p.mean_uncertainty))
+        mean_uncertainty=float(p.mean_uncertainty), contribution=float(p.contribution),
+        expected_contribution=float(p.expected_contribution), p5_contribution=float(p.p5_contribution),
+        coverage_without=float(p.coverage_without), kview_coverage_without=float(p.kview_coverage_without))
 
 
 def placement_from_msg(msg: pm.CameraPlacement) -> CameraPlacement:
@@ -334,7 +336,9 @@ def placement_from_msg(msg: pm.CameraPlacement) -> CameraPlacement:
         drone_index=msg.drone_index, region_id=msg.region_id, drone_pose=pose_matrix(msg.drone_pose),
         camera_pose=pose_matrix(msg.camera_pose), pan=msg.pan, tilt=msg.tilt, zoom=msg.zoom,
         marginal_gain=msg.marginal_gain, fitness=msg.fitness, coverage=msg.coverage,
-        mean_uncertainty=msg.mean_uncertainty)
+        mean_uncertainty=msg.mean_uncertainty, contribution=msg.contribution,
+        expected_contribution=msg.expected_contribution, p5_contribution=msg.p5_contribution,
+        coverage_without=msg.coverage_without, kview_coverage_without=msg.kview_coverage_without)
 
 
 def exclusion_to_msg(zone: ExclusionZone) -> pm.ExclusionZone:

@@ -14,6 +14,7 @@ from perch_placement.candidates import CandidateGreedy, CandidateSet, cached_can
 from perch_placement.config import PlacementConfig
 from perch_placement.fitness import Evaluator
 from perch_placement.perches import Perch, Perches
+from perch_placement.robustness import Arrangement, KViewState, LandingSampler, RobustState, worst_loss_coverage
 
 
 @dataclass
@@ -30,6 +31,8 @@ class SearchContext:
     fixed_count: int = 0                         # how many of `others` are fixed drones
     cache: PlacementCache | None = None          # keeps the unconstrained candidate set between requests
     scene_key: str = ""                          # content digest of the scene's mesh (cache key)
+    fixed_cameras: Arrangement | None = None     # the fixed cameras (the robust and k-view objectives use them)
+    placed: list = field(default_factory=list)   # Perch of each camera committed by the search, in order
     _candidates: CandidateSet | None = None
     _plane: Perches | None = None
 
@@ -57,6 +60,55 @@ class SearchContext:
         state = CandidateGreedy(self.candidates(), self.evaluator.info, self.evaluator.seen,
                                 self.config.drone.min_spacing)
         return state.online_bound(k)
+
+    def arrangement(self) -> Arrangement:
+        """The committed cameras (fixed, then placed) as one arrangement."""
+        parts = ([self.fixed_cameras] if self.fixed_cameras is not None else []) + \
+            [perch_arrangement(p) for p in self.placed]
+        if not parts:
+            return Arrangement(np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros(0), np.zeros((0, 3, 3)))
+        return Arrangement(*(np.concatenate([getattr(a, f) for a in parts]) for f in
+                             ("camera_position", "camera_rotation", "zoom", "drone_rotation")))
+
+    def alternative_objective(self) -> Callable[[np.ndarray], np.ndarray] | None:
+        """The configured objective other than the nominal fitness, for one more camera on top of the
+        committed ones (None for `fitness`): `expected` fitness under landing error (common random
+        numbers, landing.search_samples landings), fitness + kview_weight x k-view coverage (`kview`),
+        or fitness + resilience_weight x coverage after losing the worst camera (`worst_case`)."""
+        cfg = self.config
+        if cfg.objective == "fitness":
+            return None
+        committed = self.arrangement()
+        if cfg.objective == "expected":
+            land = cfg.landing
+            sampler = LandingSampler(land.position_sigma, land.yaw_sigma_deg, land.search_samples, land.seed,
+                                     land.gimbal_reaim, cfg.drone.pan_range_deg, cfg.drone.tilt_range_deg)
+            state = RobustState(self.evaluator, sampler, committed)
+
+            def extra(cands: Arrangement) -> np.ndarray:
+                return state.fitness(cands).mean(axis=0)
+        elif cfg.objective == "kview":
+            kview = KViewState(self.evaluator, committed, cfg.kview_k, cfg.kview_angle_deg)
+
+            def extra(cands: Arrangement) -> np.ndarray:
+                return self.objective_nominal(cands) + cfg.kview_weight * kview.coverage(cands)
+        else:
+            def extra(cands: Arrangement) -> np.ndarray:
+                return self.objective_nominal(cands) + cfg.resilience_weight * worst_loss_coverage(
+                    self.evaluator, committed, cands)
+
+        def objective(x: np.ndarray) -> np.ndarray:
+            perch = self.perches.decode(x)
+            ok = self.perches.feasible(perch, np.array(self.others).reshape(-1, 3), self.exclusions)
+            out = np.zeros(len(perch))
+            if ok.any():
+                out[ok] = extra(perch_arrangement(perch.take(np.flatnonzero(ok))))
+            return out
+        return objective
+
+    def objective_nominal(self, cands: Arrangement) -> np.ndarray:
+        """Fitness (B,) of adding each camera of an arrangement to the committed ones."""
+        return self.evaluator.evaluate(cands.camera_position, cands.camera_rotation, cands.zoom)
 
     def objective(self, x: np.ndarray) -> np.ndarray:
         """Fitness (B,) of adding one camera at each encoding x (B,D); infeasible perches score 0."""
@@ -151,6 +203,7 @@ def _restore(ctx: SearchContext, base: tuple, placed: list[Perch]) -> None:
     info, seen, others = base
     ctx.evaluator.set_state(info, seen)
     ctx.others[:] = others
+    ctx.placed.clear()
     for perch in placed:
         commit(ctx, perch)
 
@@ -159,6 +212,12 @@ def commit(ctx: SearchContext, perch: Perch) -> None:
     """Add a chosen camera to the evaluator and its drone to the spacing constraint."""
     ctx.evaluator.commit(perch.camera_position, perch.camera_rotation, perch.zoom)
     ctx.others.append(perch.drone_position[0])
+    ctx.placed.append(perch)
+
+
+def perch_arrangement(perch: Perch) -> Arrangement:
+    """Decoded perches as an arrangement of cameras."""
+    return Arrangement(perch.camera_position, perch.camera_rotation, perch.zoom, perch.drone_rotation)
 
 
 def no_gain_reason(ctx: SearchContext, placed: int) -> str:

@@ -21,7 +21,29 @@ def _best_camera(ctx: SearchContext) -> tuple[np.ndarray, float]:
     swarm = local_best_pso(ctx.objective, ctx.perches.dims, pso, ctx.rng, initial)
     x, f, _ = polish(ctx.objective, swarm.best, swarm.fitness, ctx.rng, pso.polish_rounds, pso.polish_samples,
                      pso.polish_step)
+    alternative = ctx.alternative_objective()
+    if alternative is not None:
+        x = _alternative_choice(ctx, alternative, swarm, x)
+        f = float(ctx.objective(x[None])[0])
     return x, f
+
+
+ALTERNATIVES = 8  # the swarm's best particles re-scored under another objective
+
+
+def _alternative_choice(ctx: SearchContext, objective, swarm, polished: np.ndarray) -> np.ndarray:
+    """The camera the configured non-nominal objective prefers: the nominal search's polished best and
+    its swarm's best particles are re-scored under it, and the best of them is polished under it
+    (half the nominal polish). The nominal swarm finds the good perches; the other objective chooses
+    among them and adjusts the pose, at a fraction of a second swarm's cost."""
+    pso = ctx.config.pso
+    order = np.argsort(-swarm.personal_fitness, kind="stable")[:ALTERNATIVES]
+    options = np.vstack([polished[None], swarm.personal_best[order]]) if len(order) else polished[None]
+    score = objective(options)
+    j = int(np.argmax(score))
+    x, _, _ = polish(objective, options[j], float(score[j]), ctx.rng, max(1, pso.polish_rounds // 2),
+                     max(1, pso.polish_samples // 2), pso.polish_step)
+    return x
 
 
 def _seeds(ctx: SearchContext) -> np.ndarray | None:

@@ -1,0 +1,155 @@
+"""A provable upper bound on the best coverage k cameras can reach on a candidate set.
+
+Max-k-coverage as an integer program over the candidate set (x_c: candidate c is chosen, y_n:
+target point n is seen):
+
+    maximise  (|seen before| + sum_n y_n) / N
+    s.t.      y_n <= sum_{c sees n} x_c         every point not seen by the fixed cameras
+              sum_c x_c <= k
+              sum_{c in B} x_c <= 1              every "ball" B of positions closer than min_spacing
+                                                  to each other (at most one drone there)
+              x, y in {0, 1}
+
+Every feasible k-subset of the candidates (drones min_spacing apart) is a feasible point of this
+program with objective = its coverage, so the program's optimum, and a fortiori the optimum of its
+linear relaxation (x, y in [0, 1]), bounds the best coverage on the candidate set from above. HiGHS
+(scipy.optimize.linprog) solves the relaxation; the bound reported is its dual objective (valid
+even when the solver stops early).
+
+What it bounds: **coverage** (the fraction of points seen), not the fitness. Fitness is at most
+coverage (a seen point scores at most 1, an unseen one 0), so the same number bounds the best
+fitness too, loosely. Orientations of one position that see a subset of what another orientation
+of the same position sees are dropped first: that leaves the relaxation's optimum unchanged (the
+mass moves to the dominating column) and shrinks the program several times.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from perch_placement.candidates import CandidateSet
+
+
+@dataclass
+class Certificate:
+    """The LP bound on the best coverage and how it was obtained."""
+
+    coverage_bound: float   # upper bound on the best coverage of k candidates (NaN: not obtained)
+    columns: int            # candidate columns left after dropping dominated orientations
+    seconds: float
+    status: str             # "optimal", or why the bound is missing or only the dual bound at a time limit
+
+    def gap(self, coverage: float) -> float:
+        """How far below the bound an answer's coverage is, as a fraction of the bound (>= 0 unless the
+        answer, found off the candidate grid, beats the candidate set's best)."""
+        if not np.isfinite(self.coverage_bound) or self.coverage_bound <= 0:
+            return float("nan")
+        return 1.0 - coverage / self.coverage_bound
+
+
+def undominated(visible: np.ndarray) -> np.ndarray:
+    """(P,A) mask of the orientations at each position not dominated by another one there (a
+    visibility set strictly inside another's, or equal to an earlier one's)."""
+    v = visible.astype(np.float32)
+    counts = v.sum(axis=-1)                                    # (P,A)
+    keep = np.ones(visible.shape[:2], bool)
+    chunk = max(1, 2_000_000 // max(1, visible.shape[1] ** 2))
+    a = visible.shape[1]
+    earlier = np.tril(np.ones((a, a), bool), -1)               # [i, j]: j < i
+    for start in range(0, len(v), chunk):
+        sl = slice(start, start + chunk)
+        inter = np.matmul(v[sl], v[sl].transpose(0, 2, 1))     # (p,A,A) |V_i & V_j|
+        c = counts[sl]
+        inside = inter >= c[:, :, None] - 0.5                  # V_i within V_j
+        strictly = inside & (c[:, None, :] > c[:, :, None] + 0.5)
+        equal = inside & (np.abs(c[:, None, :] - c[:, :, None]) < 0.5) & earlier[None]
+        keep[sl] = ~(strictly | equal).any(axis=2)
+    return keep & visible.any(axis=-1)
+
+
+def spacing_cliques(positions: np.ndarray, min_spacing: float) -> list[np.ndarray]:
+    """Sets of positions pairwise closer than min_spacing (any two within min_spacing/2 of one centre
+    are), centred on a subset of the positions that covers them all at min_spacing/4."""
+    if min_spacing <= 0 or len(positions) == 0:
+        return []
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(positions)
+    radius = 0.5 * min_spacing * (1 - 1e-9)
+    centres, covered = [], np.zeros(len(positions), bool)
+    for i in range(len(positions)):  # greedy cover: centres min_spacing/4 apart
+        if not covered[i]:
+            centres.append(i)
+            covered[tree.query_ball_point(positions[i], 0.25 * min_spacing)] = True
+    cliques = [np.array(sorted(m)) for m in tree.query_ball_point(positions[centres], radius)]
+    return [c for c in cliques if len(c) > 1]
+
+
+def coverage_certificate(cands: CandidateSet, base_seen: np.ndarray, k: int, min_spacing: float,
+                         time_limit: float = 2.0) -> Certificate:
+    """The LP upper bound on the best coverage of k candidates added to a state seeing `base_seen`."""
+    from scipy.optimize import linprog
+    from scipy.sparse import coo_matrix, csr_matrix, vstack
+
+    start = time.perf_counter()
+    n = len(base_seen)
+    base = float(np.count_nonzero(base_seen))
+    if k <= 0 or cands.positions == 0:
+        return Certificate(base / n, 0, time.perf_counter() - start, "optimal")
+    open_points = np.flatnonzero(~np.asarray(base_seen, bool))
+    if len(open_points) == 0:
+        return Certificate(1.0, 0, time.perf_counter() - start, "optimal")
+    visible = cands.visible[:, :, open_points]
+    keep = undominated(visible)
+    pos, ori = np.nonzero(keep)
+    cols = len(pos)
+    if cols == 0:
+        return Certificate(base / n, 0, time.perf_counter() - start, "optimal")
+    m = len(open_points)
+    # Variables: x (cols) then y (m). Rows: y_n - sum x <= 0; sum x <= k; one per position; cliques.
+    col_vis = visible[pos, ori]                                    # (cols, m)
+    c_idx, p_idx = np.nonzero(col_vis)
+    cover = coo_matrix((np.concatenate([-np.ones(len(c_idx)), np.ones(m)]),
+                        (np.concatenate([p_idx, np.arange(m)]), np.concatenate([c_idx, cols + np.arange(m)]))),
+                       shape=(m, cols + m))
+    rows = [csr_matrix(cover), csr_matrix(np.concatenate([np.ones(cols), np.zeros(m)])[None])]
+    rhs = [np.zeros(m), [float(k)]]
+    where = cands.drone_positions()
+    if min_spacing > 0:
+        groups = spacing_cliques(where, min_spacing) or []
+        members = [np.flatnonzero(np.isin(pos, g)) for g in groups]
+        singles = np.setdiff1d(np.arange(cands.positions), np.concatenate(groups) if groups else [])
+        members += [np.flatnonzero(pos == p) for p in singles]  # positions in no clique: one camera each
+        members = [mm for mm in members if len(mm) > 1]
+        if members:
+            r = np.concatenate([np.full(len(mm), i) for i, mm in enumerate(members)])
+            rows.append(csr_matrix((np.ones(len(r)), (r, np.concatenate(members))), shape=(len(members), cols + m)))
+            rhs.append(np.ones(len(members)))
+    a_ub = vstack(rows).tocsr()
+    b_ub = np.concatenate([np.asarray(b, np.float64) for b in rhs])
+    objective = np.concatenate([np.zeros(cols), -np.ones(m) / n])
+    remaining = max(0.01, time_limit - (time.perf_counter() - start))
+    res = linprog(objective, A_ub=a_ub, b_ub=b_ub, bounds=(0.0, 1.0), method="highs",
+                  options={"time_limit": remaining, "presolve": True})
+    seconds = time.perf_counter() - start
+    if res.status == 0:
+        # The primal optimum equals the dual objective at optimality; a dual-feasible point's objective
+        # is what bounds the integer optimum, so take the larger of the two reported values.
+        dual = _dual_bound(res, b_ub, n)
+        bound = max(-float(res.fun), dual if np.isfinite(dual) else -np.inf)
+        return Certificate(min(1.0, base / n + bound), cols, seconds, "optimal")
+    return Certificate(float("nan"), cols, seconds,
+                       f"no bound: the linear program stopped ({res.message.strip()}) after {seconds:.2f} s")
+
+
+def _dual_bound(res, b_ub: np.ndarray, n: int) -> float:
+    """The dual objective of linprog's answer (HiGHS marginals): an upper bound on the LP maximum."""
+    try:
+        lam = -np.asarray(res.ineqlin.marginals)       # >= 0 for the maximisation
+        upper = -np.asarray(res.upper.marginals)       # variable bounds x, y <= 1
+    except AttributeError:
+        return float("nan")
+    return float(lam @ b_ub + upper.sum())

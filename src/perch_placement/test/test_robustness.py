@@ -1,0 +1,184 @@
+"""Landing error statistics, k-view coverage, the loss of one camera and the coverage certificate,
+checked analytically or by brute force on small cases."""
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+from placement_rooms import box_room
+
+from perch_common.target import TargetVolume
+from perch_placement.camera import max_covariance_norm
+from perch_placement.candidates import build_candidates
+from perch_placement.certificate import coverage_certificate, undominated
+from perch_placement.config import PlacementConfig
+from perch_placement.core import optimise, scene_for
+from perch_placement.fitness import Evaluator
+from perch_placement.perches import Perches
+from perch_placement.robustness import Arrangement, LandingSampler, assess, kview_mask
+
+ROOM, REGIONS = box_room()
+CAMERA = PlacementConfig().camera
+# A drone on the wall y = 0 (normal +y), head down; its camera looks along +y, image-down = -z.
+DRONE_ROT = np.column_stack([[0.0, 0, -1], [-1.0, 0, 0], [0.0, 1, 0]])
+CAMERA_ROT = np.column_stack([[1.0, 0, 0], [0.0, 0, -1], [0.0, 1, 0]])
+
+
+def wall_camera(x: float = 3.0, z: float = 1.5) -> Arrangement:
+    """One camera 0.1 m off the wall y = 0 at (x, z), looking straight into the room."""
+    return Arrangement(np.array([[x, 0.1, z]]), CAMERA_ROT[None], np.ones(1), DRONE_ROT[None])
+
+
+def test_landing_offsets_and_yaw_have_the_configured_statistics():
+    sampler = LandingSampler(0.1, 10.0, 20000, seed=3)
+    nominal = wall_camera()
+    landed = sampler.perturb(nominal)
+    shift = landed.camera_position - nominal.camera_position
+    # In the perch plane only, zero mean, sigma per in-plane axis.
+    assert np.abs(shift[:, 1]).max() < 1e-12
+    assert shift[:, [0, 2]].mean(axis=0) == pytest.approx([0, 0], abs=0.004)
+    assert shift[:, [0, 2]].std(axis=0) == pytest.approx([0.1, 0.1], rel=0.03)
+    # Yaw about the normal: the drone's forward axis turns in the wall's plane by N(0, 10 deg).
+    forward = landed.drone_rotation[:, :, 0]
+    assert np.abs(forward[:, 1]).max() < 1e-12
+    yaw = np.degrees(np.arctan2(-forward[:, 0], -forward[:, 2]))
+    assert yaw.std() == pytest.approx(10.0, rel=0.03)
+    # Without re-aiming the optical axis turns with the body (here it is the normal: it stays).
+    assert np.allclose(landed.camera_rotation[:, :, 2], [0, 1, 0])
+    # Common random numbers: a second sampler with the same seed draws the same landings.
+    again = LandingSampler(0.1, 10.0, 20000, seed=3).perturb(nominal)
+    assert np.array_equal(again.camera_position, landed.camera_position)
+
+
+def test_a_reaiming_gimbal_keeps_the_planned_axis_within_its_range():
+    tilted = np.column_stack([[1.0, 0, 0], [0.0, math.cos(0.3), -math.sin(0.3)], [0.0, math.sin(0.3), math.cos(0.3)]])
+    camera_rot = np.column_stack([CAMERA_ROT[:, 0], tilted @ np.array([0, 0, -1.0]), tilted @ np.array([0, 1.0, 0])])
+    arrangement = Arrangement(np.array([[3.0, 0.1, 1.5]]), camera_rot[None], np.ones(1), DRONE_ROT[None])
+    free = LandingSampler(0.0, 20.0, 500, seed=0, gimbal_reaim=True, pan_range_deg=180, tilt_range_deg=180)
+    axis = free.perturb(arrangement).camera_rotation[:, :, 2]
+    assert np.allclose(axis, camera_rot[:, 2], atol=1e-9)
+    held = LandingSampler(0.0, 20.0, 500, seed=0).perturb(arrangement).camera_rotation[:, :, 2]
+    assert np.degrees(np.arccos(np.clip(held @ camera_rot[:, 2], -1, 1))).max() > 5
+    # A gimbal with no range cannot re-aim: the camera looks along the normal.
+    stuck = LandingSampler(0.0, 20.0, 50, seed=0, gimbal_reaim=True, pan_range_deg=0, tilt_range_deg=0)
+    assert np.allclose(stuck.perturb(arrangement).camera_rotation[:, :, 2], [0, 1, 0], atol=1e-9)
+
+
+def test_expected_fitness_of_one_camera_matches_the_closed_form():
+    # One point 2 m in front of the camera: one camera at distance d scores 1 - (d / R_max)^4, and an
+    # in-plane landing offset r (r^2 = sigma^2 chi2_2) makes d^2 -> d^2 + r^2, so
+    # E[s] = 1 - (d^4 + 4 sigma^2 d^2 + 8 sigma^4) / R_max^4 (yaw turns the view about the point).
+    d, sigma = 2.0, 0.15
+    ev = Evaluator(scene_for(ROOM), np.array([[3.0, 0.1 + d, 1.5]]), CAMERA)
+    r_max = CAMERA.max_distance()
+    a = assess(ev, wall_camera(), LandingSampler(sigma, 10.0, 20000, seed=1), 2, 30.0)
+    assert a.fitness == pytest.approx(1 - (d / r_max) ** 4, abs=1e-9)
+    expected = 1 - (d ** 4 + 4 * sigma ** 2 * d ** 2 + 8 * sigma ** 4) / r_max ** 4
+    assert a.expected_fitness == pytest.approx(expected, abs=0.002)
+    assert a.p5_fitness < a.expected_fitness < a.fitness
+    assert a.contribution[0] == pytest.approx(a.fitness) and a.coverage_without[0] == 0.0
+    # No landing error: the statistics are the nominal values.
+    exact = assess(ev, wall_camera(), LandingSampler(0.0, 0.0, 16, seed=1), 2, 30.0)
+    assert exact.expected_fitness == pytest.approx(exact.fitness, abs=1e-12)
+    assert exact.p5_fitness == pytest.approx(exact.fitness, abs=1e-12)
+    assert max_covariance_norm(CAMERA) > 0
+
+
+def test_kview_count_matches_a_hand_built_arrangement():
+    points = np.array([[0.0, 0, 0], [5.0, 0, 0]])
+    # Cameras 1 m from point 0 at 0, 20 and 90 degrees around it.
+    cams = np.array([[1.0, 0, 0], [math.cos(math.radians(20)), math.sin(math.radians(20)), 0], [0.0, 1, 0]])
+    seen = np.array([[1, 1], [1, 1], [1, 0]], bool)
+    # Point 0: three views, pair (0, 2) 90 deg apart. Point 1 (5, 0, 0): views from cameras 0 and 1
+    # differ by a few degrees only.
+    assert kview_mask(cams, seen, points, 2, 30.0).tolist() == [True, False]
+    assert kview_mask(cams, seen, points, 3, 30.0).tolist() == [True, False]
+    assert kview_mask(cams, seen, points, 2, 3.0).tolist() == [True, True]
+    # Without camera 2 the remaining views of point 0 are only 20 deg apart.
+    assert kview_mask(cams[:2], seen[:2], points, 2, 30.0).tolist() == [False, False]
+    assert kview_mask(cams[:2], seen[:2], points, 2, 20.0 - 1e-6).tolist() == [True, False]
+    assert kview_mask(cams, seen, points, 1, 30.0).tolist() == [True, True]
+    assert kview_mask(cams[:1], seen[:1], points, 2, 0.0).tolist() == [False, False]
+
+
+def test_loss_of_each_camera_in_a_hand_built_room():
+    # Two cameras on opposite walls looking at each other's wall, the target between them:
+    # each sees every point, so losing either keeps full coverage but loses the 2-view pairs.
+    points = TargetVolume(center=np.array([3.0, 2.5, 1.5]), size=np.array([0.4, 0.4, 0.4])).sample(20, seed=0)
+    ev = Evaluator(scene_for(ROOM), points, CAMERA)
+    opposite_drone = np.column_stack([[0.0, 0, -1], [1.0, 0, 0], [0.0, -1, 0]])
+    opposite_cam = np.column_stack([[-1.0, 0, 0], [0.0, 0, -1], [0.0, -1, 0]])
+    arrangement = Arrangement(np.array([[3.0, 0.1, 1.5], [3.0, 4.9, 1.5]]),
+                              np.stack([CAMERA_ROT, opposite_cam]), np.ones(2), np.stack([DRONE_ROT, opposite_drone]))
+    a = assess(ev, arrangement, LandingSampler(0.05, 5.0, 32, seed=0), 2, 30.0)
+    assert a.coverage == 1.0 and a.kview_coverage == 1.0
+    assert a.coverage_without.tolist() == [1.0, 1.0]
+    assert a.kview_without.tolist() == [0.0, 0.0]
+    assert a.worst_kview_without == 0.0 and a.mean_coverage_without == 1.0
+    # Each camera's contribution is the fitness lost without it (positive: fused views are better).
+    alone = [assess(ev, Arrangement(*(f[i:i + 1] for f in (arrangement.camera_position, arrangement.camera_rotation,
+                                                             arrangement.zoom, arrangement.drone_rotation))),
+                    LandingSampler(0.0, 0.0, 1, seed=0), 2, 30.0).fitness for i in (1, 0)]
+    assert a.contribution == pytest.approx(a.fitness - np.array(alone), abs=1e-12)
+    assert (a.contribution > 0).all()
+
+
+def _tiny_candidates():
+    target = TargetVolume(center=np.array([3.0, 2.5, 1.0]), size=np.array([3.0, 2.5, 1.2]))
+    ev = Evaluator(scene_for(ROOM), target.sample(30, seed=2), CAMERA)
+    narrow = PlacementConfig().drone
+    narrow.target_deviation_deg = 60.0
+    perches = Perches(REGIONS, target.centroid(), narrow)
+    cands = build_candidates(perches, ev, 1.0, 3)
+    # A narrow field of view makes coverage a real choice (one camera no longer sees everything).
+    cands.visible &= np.random.default_rng(0).random(cands.visible.shape) < 0.35
+    return cands
+
+
+@pytest.mark.parametrize("k, spacing, positions", [(1, 1.0, 99), (2, 1.0, 99), (2, 0.0, 99), (3, 1.6, 14)])
+def test_coverage_certificate_is_never_below_the_brute_force_optimum(k, spacing, positions):
+    cands = _tiny_candidates()
+    cands = cands.subset(np.arange(cands.positions) < positions)
+    where = cands.drone_positions()
+    a, n = cands.orientations, cands.visible.shape[2]
+    visible = cands.visible.reshape(-1, n)
+    base = np.zeros(n, bool)
+    base[:3] = True   # points the fixed cameras already see
+    subsets = np.array(list(itertools.combinations(range(len(visible)), k)))
+    pos = subsets // a
+    ok = np.ones(len(subsets), bool)
+    for i, j in itertools.combinations(range(k), 2):
+        gap = np.linalg.norm(where[pos[:, i]] - where[pos[:, j]], axis=1)
+        ok &= gap >= spacing if spacing > 0 else True
+    assert ok.sum() > 10
+    best = float((base | visible[subsets[ok]].any(axis=1)).mean(axis=1).max())
+    cert = coverage_certificate(cands, base, k, spacing, time_limit=30.0)
+    assert cert.status == "optimal"
+    assert cert.coverage_bound >= best - 1e-9
+    assert cert.coverage_bound <= 1.0
+    assert cert.gap(best) >= -1e-9
+
+
+def test_dominated_orientations_are_dropped_and_equal_ones_kept_once():
+    visible = np.array([[[1, 1, 0], [1, 0, 0], [1, 1, 0], [0, 0, 1]], [[0, 0, 0], [0, 1, 1], [0, 1, 0], [0, 0, 0]]], bool)
+    assert undominated(visible).tolist() == [[True, False, False, True], [False, True, False, False]]
+
+
+def test_every_answer_reports_robustness_and_a_certificate():
+    target = TargetVolume(center=np.array([3.0, 2.5, 0.8]), size=np.array([2.0, 2.0, 1.2]))
+    cfg = PlacementConfig(candidate_spacing=0.5)
+    result = optimise(ROOM, REGIONS, target, 3, cfg, seed=0)
+    a = result.assessment
+    assert len(a.contribution) == 3 and a.samples == cfg.landing.samples
+    assert a.fitness == pytest.approx(result.fitness, abs=1e-9)
+    assert 0 <= a.p5_fitness <= a.expected_fitness <= 1
+    for i, p in enumerate(result.placements):
+        assert p.contribution == pytest.approx(a.contribution[i]) and np.isfinite(p.expected_contribution)
+        assert p.coverage_without == pytest.approx(a.coverage_without[i])
+    assert result.coverage <= result.coverage_bound + 1e-9 or "off its grid" in result.message
+    assert "2-view coverage" in result.message and "losing one camera" in result.message
+    # A re-plan reports the whole set: the kept cameras are assessed with the new one.
+    again = optimise(ROOM, REGIONS, target, 1, cfg, fixed=result.placements[:2], seed=0)
+    assert len(again.assessment.contribution) == 3
+    assert again.placements[0].drone_index == 2
