@@ -49,9 +49,8 @@ def refuse_folder_holding_inputs(out_dir: str | Path, inputs: Iterable[str | Pat
     for source in (Path(p) for p in inputs if p):
         resolved = source.resolve()
         if resolved == folder or folder in resolved.parents:
-            raise PerchError(f"-o {out_dir}: holds the input {source}; outputs go into a folder of their own "
-                             f"(e.g. -o {folder / 'perch_out'} is fine only if the input is not in it: choose "
-                             "another folder)")
+            raise PerchError(f"-o {out_dir}: holds the input {source}; give the outputs a folder of their own "
+                             f"(e.g. -o {folder / 'perch_out'})")
 
 
 def give_user_mode(path: str | Path, folder: bool = False) -> None:
