@@ -307,13 +307,15 @@ def _point_count(path: Path) -> int:
 
 
 def save_mesh(path: str | Path, mesh: Mesh, face_colors: np.ndarray | None = None) -> Path:
-    """Write a mesh; face_colors (F,3) uint8 overrides vertex colours (for labelled output)."""
+    """Write a mesh (atomically); face_colors (F,3) uint8 overrides vertex colours (for labelled output)."""
     import trimesh
 
+    from perch_common.outputs import atomic_path
+
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     out = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False,
                           vertex_colors=None if face_colors is not None else mesh.vertex_colors,
                           face_colors=face_colors)
-    out.export(path)
+    with atomic_path(path) as temporary:   # a reader never sees half a mesh; a failed write keeps the old one
+        out.export(temporary)
     return path
