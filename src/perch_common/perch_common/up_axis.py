@@ -216,9 +216,9 @@ def estimate_up(normals: np.ndarray, areas: np.ndarray, centroids: np.ndarray,
     # close competitor caps it below CONFIDENT (on the corpus such axes were wrong as often as right).
     sign_confidence = float(min(1.0, abs(agreement) / 0.6) * min(1.0, total_weight / 1.5))
     axis_confidence = float(min(1.0, plane_share / 0.25) * max(axis_margin, 0.0))
-    if axis_margin < 1.0 or conflict:
-        axis_confidence = min(axis_confidence, 0.98 * CONFIDENT * max(axis_margin, 0.0))
     confidence = sign_confidence * axis_confidence
+    if axis_margin < 1.0 or conflict:   # the overall confidence: axis_confidence keeps its own meaning
+        confidence = min(confidence, 0.98 * CONFIDENT * max(axis_margin, 0.0))
     if axis_margin < 1.0:
         notes.append(f"weak: another room axis is almost as likely to be up (score {score:.2f} vs {runner_up:.2f})")
     if confidence < CONFIDENT:
