@@ -38,6 +38,7 @@ from perch_operator.messages import (
     target_to_aligned,
 )
 from perch_operator.proposals import Decision, Proposal, ProposalBook, ProposalError, Status
+from perch_operator.report_robustness import ROBUSTNESS_FIELDS
 from perch_operator.stages import MissionCancelled, StageCaller, StageError
 
 # Rough share of a mission's time per stage, for the feedback fraction.
@@ -70,6 +71,7 @@ class Operator:
     auto_accept: bool
     alignment: Alignment        # the book's placements are gravity-aligned; messages go out in the input frame
     scores: tuple[float, float, float] = (0.0, 0.0, 0.0)   # fitness, coverage, mean uncertainty
+    robustness: object = None   # the optimise reply (the last re-plan's) whose ROBUSTNESS_FIELDS the result reports
     replan_seconds: list[float] = field(default_factory=list)
     surfaces: list = field(default_factory=list)   # the filter's surfaces and removals, for viewers
     removals: list = field(default_factory=list)
@@ -148,6 +150,7 @@ class Mission:
                             self.options.auto_accept or goal.auto_accept, self.alignment,
                             (optimised.fitness, optimised.coverage, optimised.mean_uncertainty),
                             surfaces=classed_surfaces(surfaces, filtered.removals), removals=list(filtered.removals))
+        operator.robustness = optimised
         self.on_operator(operator)
         confirmed = self._confirm(operator, optimised.placements)
         self._finish("confirm", confirmed)
@@ -267,6 +270,8 @@ class Mission:
         result.placements = [placement_msg(p, operator.alignment) for p in accepted]
         result.alignment = alignment_to_msg(operator.alignment)
         result.fitness, result.coverage, result.mean_uncertainty = operator.scores
+        for name in ROBUSTNESS_FIELDS if operator.robustness is not None else ():
+            setattr(result, name, float(getattr(operator.robustness, name)))
         result.message = f"{len(accepted)} perch(es) accepted" + "".join(f"; {n}" for n in self.notes)
         return result
 
@@ -293,6 +298,7 @@ def replan_slot(caller: StageCaller, operator: Operator, slot: int) -> Proposal 
         operator.book.leave_empty(slot)
         return None
     operator.scores = (reply.fitness, reply.coverage, reply.mean_uncertainty)
+    operator.robustness = reply
     proposal = operator.book.propose(slot, placement_from_msg(reply.placements[0]))
     proposal.reason = operator.alignment.up_unconfirmed   # '' unless the up axis is a fallback
     return proposal

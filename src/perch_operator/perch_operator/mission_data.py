@@ -19,6 +19,7 @@ from perch_common.mesh import Mesh
 from perch_common.target import TargetVolume
 from perch_common.types import CameraPlacement, FilterRemoval, PerchRegion, Surface
 from perch_operator.proposals import Status
+from perch_operator.report_robustness import ROBUSTNESS_FIELDS
 
 MISSION_METADATA = "perch_mission"
 
@@ -146,7 +147,8 @@ def mission_data_from_result(path: str | Path, result, goal=None) -> MissionData
     data.summary = {**data.summary, "success": bool(result.success), "message": result.message,
                     "stage_names": list(result.stage_names), "stage_seconds": list(result.stage_seconds),
                     "fitness": result.fitness, "coverage": result.coverage,
-                    "mean_uncertainty": result.mean_uncertainty, "cameras": len(result.placements)}
+                    "mean_uncertainty": result.mean_uncertainty, "cameras": len(result.placements),
+                    **{name: float(getattr(result, name)) for name in ROBUSTNESS_FIELDS}}
     return data
 
 

@@ -10,6 +10,7 @@ import numpy as np
 
 from perch_common.conventions import FILTER_COLOURS, FILTER_NAMES
 from perch_operator.mission_data import MissionData, latest_waypoints
+from perch_operator.report_robustness import robustness_section
 
 STYLE = """
 body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1100px; color: #222; }
@@ -184,6 +185,7 @@ def write_report(data: MissionData, out_dir: str | Path, title: str = "Perch mis
               "window on scanned surface; flatness: RMS distance of that surface to the perch plane; observed: the "
               "smaller share of the approach prism and of the fall corridor lying in space the scan observed. "
               "Distances saturate at twice the required values.</p>"]
+    parts += robustness_section(data, _table)
     if data.removals:
         cv2.imwrite(str(files / "removed_by_filter.png"), removal_picture(data))
         parts += ["<h2>Area removed by each filter (largest surfaces, m²)</h2>", _table(

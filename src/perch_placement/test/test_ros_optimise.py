@@ -57,6 +57,14 @@ def test_optimise_places_cameras_and_reoptimises_after_a_rejection(ros_node):
     assert reply.placements[1].fitness == pytest.approx(reply.fitness)
     assert reply.coverage == pytest.approx(reply.placements[1].coverage) and reply.coverage > 0.5
     assert reply.upper_bound >= reply.fitness - 1e-6 and reply.evaluations > 0 and reply.seconds > 0
+    # Robustness of the whole arrangement and of each camera travel with the reply.
+    assert 0 <= reply.p5_fitness <= reply.expected_fitness <= 1 and 0 <= reply.kview_coverage <= reply.coverage
+    assert reply.worst_coverage_without_one <= reply.mean_coverage_without_one <= reply.coverage
+    assert reply.coverage <= reply.coverage_bound + 1e-9 or "off its grid" in reply.message
+    without = [p.coverage_without for p in reply.placements]
+    assert min(without) == pytest.approx(reply.worst_coverage_without_one, abs=1e-12)
+    assert np.mean(without) == pytest.approx(reply.mean_coverage_without_one, abs=1e-12)
+    assert all(math.isfinite(p.expected_contribution) for p in reply.placements)
     first, second = reply.placements
     drone = pose_matrix(first.drone_pose)
     camera = pose_matrix(first.camera_pose)
