@@ -153,8 +153,9 @@ def test_every_stage_answers_tiny_and_scan_sized_meshes(stages, faces):
     assert replies["clean"].success, replies["clean"].message
     if faces == 10:
         assert not replies["optimise"].success and "no perch regions" in replies["optimise"].message
-    else:
-        assert "-> 100000 faces" in replies["clean"].message or "->" in replies["clean"].message
+    else:   # decimated to the node's target_faces (config: 100000) from arrays it may not write
+        assert len(replies["clean"].mesh.triangles) // 3 <= 100_000 < faces
+        assert replies["clean"].message.startswith(f"{len(triangles)} -> ")
 
 
 def test_three_million_faces_are_cropped_and_cleaned(stages):
