@@ -25,6 +25,7 @@ roughly 5-10 min; `--no-rotations` about a fifth of that).
 from __future__ import annotations
 
 import os
+import sys
 import time
 
 import numpy as np
@@ -119,6 +120,10 @@ def _run(args) -> int:
             if runner is not None:
                 row.update(runner.run(mesh, true_up, path, target))
             rows.append(row)
+            print(f"perch bench scans: {name} {orientation}: up {row['up_error_deg']:.1f} deg "
+                  f"{'right' if row['right'] else 'WRONG'}, confidence {row['confidence']:.2f}"
+                  + (f", {row['cameras']} camera(s) in {row['mission_seconds']:.1f} s" if runner else ""),
+                  file=sys.stderr, flush=True)
     finally:
         if runner is not None:
             missions = runner.notes
@@ -200,9 +205,8 @@ class _MissionRunner:
             row["planned_up_error_deg"], row["planned_sign_right"] = up_error(used, true_up)
         row["perches"] = [_perch_row(p) for p in accepted]
         row["checker"] = self.checker(mesh, true_up, row["perches"]) if self.checker else None
-        for perch, verdict in zip(row["perches"], row["checker"] or []):
-            if perch["observed_share"] is None:  # Perch's evidence lacks it: the checker's measure
-                perch["observed_share"] = verdict["observed_share"]
+        if row["checker"] is not None:   # Perch claims every accepted perch safe: an unsafe verdict disagrees
+            row["checker_unsafe"] = sum(not v["safe"] for v in row["checker"])
         return row
 
     def stop(self) -> None:
@@ -223,7 +227,11 @@ def _perch_row(proposal) -> dict:
     normal = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()[:, 2]  # drone z: the surface normal
     return {"proposal_id": proposal.id, "drone": proposal.placement.drone_index,
             "position": [pose.position.x, pose.position.y, pose.position.z], "normal": normal.round(5).tolist(),
-            "evidence": fields, "observed_share": fields.get("observed_share")}
+            "evidence": fields,
+            # Perch's own observed share: the smaller of its approach prism's and fall corridor's (None
+            # when the evidence has no observed-space fields)
+            "observed_share": min(observed) if (observed := [v for k, v in fields.items() if k.endswith("_observed")])
+            else None}
 
 
 def _project_checker(notes: list[str]):
