@@ -195,3 +195,24 @@ def test_an_unwritable_output_folder_is_refused_before_the_mission(tmp_path):
     finally:
         if os.getuid() != 0:
             out.chmod(0o755)
+
+
+def test_the_dispatchers_waypoints_file_is_replaced_atomically_with_the_umask(tmp_path, umask_027):
+    """`perch dispatch --output FILE` rewrites FILE on every waypoint set (write_waypoints_yaml)."""
+    from unittest import mock
+
+    from perch_operator.mission_data import write_waypoints_yaml
+
+    path = tmp_path / "dispatch.yaml"
+    write_waypoints_yaml(path, [])
+    assert path.stat().st_mode & 0o777 == 0o640
+    before = path.read_text()
+    real_write = Path.write_text
+
+    def half_then_fail(self, text, *args, **kwargs):   # the disk filled up halfway through
+        real_write(self, text[: len(text) // 2])
+        raise OSError(28, "No space left on device")
+
+    with mock.patch.object(Path, "write_text", half_then_fail), pytest.raises(OSError):
+        write_waypoints_yaml(path, [])
+    assert path.read_text() == before and sorted(p.name for p in tmp_path.iterdir()) == ["dispatch.yaml"]
