@@ -141,6 +141,107 @@ def test_confirms_bind_to_the_current_mission_and_a_spoofed_waypoint_set_is_refu
         for executor, node in zip(executors, nodes):
             executor.remove_node(node)
             node.destroy_node()
-        for context in contexts:
+        rclpy.try_shutdown()   # the default context (reset for the next rclpy.init)
+        for context in contexts[1:]:
             rclpy.try_shutdown(context=context)
 
+
+
+def test_the_network_key_is_made_private_and_tokens_bind_every_field(tmp_path):
+    import os
+    import stat
+
+    from perch_common.network_auth import AuthError, check, load_key, sign
+
+    path = tmp_path / "perch" / "network.key"
+    key = load_key(path)
+    assert len(key) == 32 and stat.S_IMODE(path.stat().st_mode) == 0o600
+    assert stat.S_IMODE(path.parent.stat().st_mode) == 0o700
+    assert load_key(path) == key   # made once
+    token = sign(key, "confirm", 7, 2, "slipped", now=1000.0)
+    assert check(key, token, "confirm", 7, 2, "slipped", now=1010.0) == ""
+    assert "does not match" in check(key, token, "confirm", 8, 2, "slipped", now=1010.0)
+    assert "does not match" in check(key, token, "stage_cancel", 7, 2, "slipped", now=1010.0)
+    assert "does not match" in check(os.urandom(32), token, "confirm", 7, 2, "slipped", now=1010.0)
+    assert "older than" in check(key, token, "confirm", 7, 2, "slipped", now=1000.0 + 500)
+    assert "no authentication token" in check(key, "", "confirm", 7, 2, "slipped")
+    path.chmod(0o644)
+    with pytest.raises(AuthError, match="chmod 600"):
+        load_key(path)
+
+
+@pytest.mark.ros
+def test_a_networked_graph_refuses_unsigned_and_forged_commands(tmp_path, monkeypatch):
+    """--network: a decision without a token or signed with another key is refused, the signed one is
+    taken; the coordinator's waypoint sets carry its token and a dispatcher refuses a forged set even
+    from the coordinator's own identity checks' point of view (no token)."""
+    import os
+
+    from perch_common.ros import testing
+
+    testing.use_isolated_ros_env()
+    monkeypatch.setenv("PERCH_NETWORK", "1")   # commands signed and checked (transports stay loopback here)
+    monkeypatch.setenv("PERCH_KEY_FILE", str(tmp_path / "network.key"))
+    import perch_common.network_auth as auth
+
+    monkeypatch.setattr(auth, "_process_key", None)
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+
+    from perch_interfaces.msg import PerchWaypointSet
+    from perch_interfaces.srv import Confirm
+    from perch_operator.dispatcher import Dispatcher
+    from perch_operator.node import OperatorNode
+
+    rclpy.init()
+    other = Context()
+    rclpy.init(context=other)
+    executors = [SingleThreadedExecutor(), SingleThreadedExecutor(context=other)]
+    nodes = []
+    try:
+        coordinator = OperatorNode()
+        dispatcher = Dispatcher(name="networked_dispatcher", context=other)
+        caller = rclpy.create_node("remote_operator", context=other)
+        nodes = [coordinator, dispatcher, caller]
+        executors[0].add_node(coordinator)
+        executors[1].add_node(dispatcher)
+        executors[1].add_node(caller)
+
+        def spin(condition, timeout, what):
+            deadline = time.monotonic() + timeout
+            while time.monotonic() < deadline:
+                for executor in executors:
+                    executor.spin_once(timeout_sec=0.02)
+                value = condition()
+                if value:
+                    return value
+            raise AssertionError(f"{what} within {timeout:.0f} s")
+
+        confirm = caller.create_client(Confirm, "perch/confirm")
+        spin(confirm.service_is_ready, 30, "the confirm service did not appear")
+
+        def decide(auth_token: str) -> Confirm.Response:
+            future = confirm.call_async(Confirm.Request(proposal_id=1, decision=0, auth=auth_token))
+            spin(future.done, 30, "no confirm reply")
+            return future.result()
+
+        assert "carries no authentication token" in decide("").message
+        forged = auth.sign(os.urandom(32), "confirm", 1, 0, "")
+        assert "does not match" in decide(forged).message
+        # signed with the graph's key: authenticated, then judged on the mission (none has run)
+        signed = decide(auth.sign(auth.process_key(), "confirm", 1, 0, ""))
+        assert not signed.success and "unknown" in signed.message, signed.message
+
+        # the coordinator's own sets are signed; an unsigned set is refused whoever writes it
+        set_msg = PerchWaypointSet()
+        coordinator._signed(set_msg)
+        assert auth.check(auth.process_key(), set_msg.auth, "waypoints", *auth.waypoint_set_fields(set_msg)) == ""
+        decided, why = dispatcher.attribution(PerchWaypointSet())
+        assert decided and "no authentication token" in why
+    finally:
+        for executor, node in zip([executors[0], executors[1], executors[1]], nodes):
+            executor.remove_node(node)
+            node.destroy_node()
+        rclpy.try_shutdown()
+        rclpy.try_shutdown(context=other)

@@ -275,6 +275,8 @@ def refuse_truncated(path: Path, vertices: int, faces: int) -> None:
             words = line.split()
             if len(words) == 3 and words[0] == b"element" and words[1] in (b"vertex", b"face") and words[2].isdigit():
                 declared[words[1].decode()] = int(words[2])
+        if not declared.get("face"):
+            return   # a point cloud: said as such by the caller
         # Polygons load as several triangles (more faces than declared), never as fewer.
         for name, found in (("vertex", vertices), ("face", faces)):
             if name in declared and found < declared[name]:

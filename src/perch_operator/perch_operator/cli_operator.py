@@ -53,8 +53,12 @@ def _decide(args) -> int:
 
     code = {"accept": Confirm.Request.ACCEPT, "reject": Confirm.Request.REJECT,
             "failed": Confirm.Request.FAILED_IN_FLIGHT}[args.decision]
-    reply = _call_and_report(Confirm, CONFIRM_SERVICE,
-                             Confirm.Request(proposal_id=args.id, decision=code, reason=args.reason), timeout=60)
+    from perch_common.network_auth import sign_if_networked
+
+    request = Confirm.Request(proposal_id=args.id, decision=code, reason=args.reason)
+    if hasattr(request, "auth"):   # a networked graph takes decisions signed with its key only
+        request.auth = sign_if_networked("confirm", request.proposal_id, request.decision, request.reason)
+    reply = _call_and_report(Confirm, CONFIRM_SERVICE, request, timeout=60)
     if reply.replacement.id:
         print(_proposal_line(reply.replacement))
     return 0

@@ -59,7 +59,13 @@ class Dispatcher(Node):
         self._settle()
 
     def attribution(self, msg: PerchWaypointSet) -> tuple[bool, str]:
-        """(decided, why not): (True, '') when the set comes from the coordinator that ran its mission."""
+        """(decided, why not): (True, '') when the set comes from the coordinator that ran its mission
+        (and, on a networked graph, carries its valid token)."""
+        from perch_common.network_auth import refusal_if_networked, waypoint_set_fields
+
+        forged = refusal_if_networked(getattr(msg, "auth", ""), "waypoints", *waypoint_set_fields(msg))
+        if forged:
+            return True, forged
         def named(infos) -> dict[bytes, str]:
             return {bytes(i.endpoint_gid)[:PREFIX]: f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos}
 

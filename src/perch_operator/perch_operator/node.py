@@ -55,6 +55,10 @@ from perch_operator.views import camera_info_msg, image_msg, render_proposal_vie
 # Late joiners (a dispatcher started after the mission, a UI) still get every waypoint/proposal.
 LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+# Simulated views: enough for one mission's proposals; a deeper history kept every mission's images
+# (~170 KB each) in the writer, the operator's RSS growing for 50 missions.
+VIEWS_LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=16, reliability=ReliabilityPolicy.RELIABLE,
+                           durability=DurabilityPolicy.TRANSIENT_LOCAL)
 LATCHED_LAST = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
                           durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
@@ -89,8 +93,8 @@ class OperatorNode(Node):
         self._camera = None
         self._scene_markers: tuple[tuple, list] | None = None   # (what they show, markers): built once a mission
         # Each proposal's simulated view (latched, one per proposal: a late viewer gets them all).
-        self.view_pub = self.create_publisher(Image, "perch/views/image", LATCHED)
-        self.view_info_pub = self.create_publisher(CameraInfo, "perch/views/camera_info", LATCHED)
+        self.view_pub = self.create_publisher(Image, "perch/views/image", VIEWS_LATCHED)
+        self.view_info_pub = self.create_publisher(CameraInfo, "perch/views/camera_info", VIEWS_LATCHED)
         self._view_scene = None
         # Viewers: the scan as one decimated, coloured TRIANGLE_LIST, and each drone's own view topics
         # (perch/views/drone_N/image, camera_info: an image panel per drone), latched.
@@ -101,7 +105,7 @@ class OperatorNode(Node):
         # no decision (nor an auto-accepted mission's result) waits for it.
         self._view_worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="perch-views")
         self.action = ActionServer(self, PlanPerches, MISSION_ACTION, self._execute, callback_group=group,
-                                   goal_callback=self._on_goal, cancel_callback=lambda _: CancelResponse.ACCEPT)
+                                   goal_callback=self._on_goal, cancel_callback=self._on_cancel)
         self.operator: Operator | None = None
         self._mission_state = ""   # the current mission's: running, succeeded, failed or cancelled
         self._busy = threading.Lock()
@@ -147,6 +151,26 @@ class OperatorNode(Node):
             return GoalResponse.REJECT
         return GoalResponse.ACCEPT
 
+    def _on_cancel(self, goal_handle) -> CancelResponse:
+        """Cancel requests are accepted on a host-only graph. A networked graph cannot authenticate the
+        action's standard cancel (it has no room for a token): it refuses it, and a mission ends when its
+        client leaves (Ctrl-C of `perch plan`: client_grace) or fails."""
+        from perch_common.network_auth import networked
+
+        if networked():
+            self.get_logger().error("refused a mission cancel: a networked graph takes no unauthenticated cancel; "
+                                    "stop the mission's client instead (the mission then ends after client_grace)")
+            return CancelResponse.REJECT
+        return CancelResponse.ACCEPT
+
+    def _signed(self, msg: pm.PerchWaypointSet) -> pm.PerchWaypointSet:
+        """The set with the coordinator's token when the graph is networked (the dispatcher checks it)."""
+        from perch_common.network_auth import sign_if_networked, waypoint_set_fields
+
+        if hasattr(msg, "auth"):
+            msg.auth = sign_if_networked("waypoints", *waypoint_set_fields(msg))
+        return msg
+
     def _execute(self, goal_handle) -> PlanPerches.Result:
         with self._busy:
             try:
@@ -163,8 +187,8 @@ class OperatorNode(Node):
         self.operator, self._mission_state = None, "running"   # decisions now bind to this mission only
         self._shown, self._camera, self._view_scene, self._scene_markers = {}, None, None, None
         self._scan_shown = False
-        self.waypoint_set_pub.publish(waypoint_set_msg(self._mission_id, [], self._frame_id(),
-                                                       self.get_clock().now().to_msg()))
+        self.waypoint_set_pub.publish(self._signed(waypoint_set_msg(self._mission_id, [], self._frame_id(),
+                                                                    self.get_clock().now().to_msg())))
         options = MissionOptions(
             auto_accept=config.auto_accept, exclusion_radius=config.exclusion_radius,
             clean_given_mesh=config.clean_given_mesh, optimise_on_full_mesh=config.optimise_on_full_mesh,
@@ -254,7 +278,10 @@ class OperatorNode(Node):
         return bytes(bytearray(self._mission_id.uuid)).hex()
 
     def _confirm(self, request: srv.Confirm.Request, response: srv.Confirm.Response) -> srv.Confirm.Response:
-        refused = self._unbound(request)
+        from perch_common.network_auth import refusal_if_networked
+
+        refused = refusal_if_networked(getattr(request, "auth", ""), "confirm", request.proposal_id,
+                                       request.decision, request.reason) or self._unbound(request)
         if refused:
             response.success, response.message = False, refused
             self.get_logger().warning(f"confirm refused: {refused}")
@@ -309,9 +336,9 @@ class OperatorNode(Node):
             stamp = self.get_clock().now().to_msg()
             self.poses_pub.publish(pose_array_msg(self.operator.book.accepted(), alignment, stamp))
         if any(p.status != Status.PENDING for p in proposals):  # the accepted set may have gained or lost a perch
-            self.waypoint_set_pub.publish(waypoint_set_msg(
+            self.waypoint_set_pub.publish(self._signed(waypoint_set_msg(
                 self._mission_id, [self._waypoint(p, config) for p in self.operator.book.accepted()],
-                alignment.input_frame, self.get_clock().now().to_msg()))
+                alignment.input_frame, self.get_clock().now().to_msg())))
 
     def _publish_markers(self) -> None:
         """The whole current picture (regions, target, every proposal with frustum and label)."""

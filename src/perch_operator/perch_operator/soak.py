@@ -13,6 +13,7 @@ sampled at the start, after the 10th and after the last mission.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import random
 import signal
@@ -56,6 +57,7 @@ class SoakReport:
     free_after_kill_s: list[float] = field(default_factory=list)
     mission_s: list[float] = field(default_factory=list)
     rss_mb: dict[str, dict[str, float]] = field(default_factory=dict)
+    operator_rss_mb: list[float] = field(default_factory=list)   # the coordinator's RSS after each mission
     respawn: str = ""
     problems: list[str] = field(default_factory=list)
 
@@ -68,6 +70,11 @@ class SoakReport:
                 growth[name] = round((v["end"] - base) / base, 4)
         return growth
 
+    def operator_growth(self) -> float | None:
+        """The coordinator's relative RSS change from after the 10th mission to after the last."""
+        curve = self.operator_rss_mb
+        return round((curve[-1] - curve[9]) / curve[9], 4) if len(curve) > 10 and curve[9] else None
+
     def summary(self) -> dict:
         """A JSON-ready summary."""
         import statistics
@@ -79,7 +86,8 @@ class SoakReport:
                 "bad_requests_refused": self.bad_requests,
                 "free_after_client_kill_s": [round(s, 1) for s in self.free_after_kill_s],
                 "mission_wall_s_median": round(statistics.median(self.mission_s), 2) if self.mission_s else None,
-                "respawn": self.respawn, "rss_mb": self.rss_mb,
+                "respawn": self.respawn, "rss_mb": self.rss_mb, "operator_rss_mb": self.operator_rss_mb,
+                "operator_growth_10_to_end": self.operator_growth(),
                 "rss_growth_after_10th": self.rss_growth_after_10th(), "problems": self.problems}
 
 
@@ -156,6 +164,7 @@ class Soak:
             self._mission(i, kind, report)
             if i % 3 == 2:
                 self._bad_request(report)
+            self._operator_rss(report)
             if i + 1 == 10:
                 self._sample_rss(report, "after_10")
             if i + 1 == missions // 2 + 10 and i + 1 < missions:
@@ -337,6 +346,13 @@ class Soak:
         report.respawn = f"{RESPAWNED_NODE} SIGKILLed, respawned by perch launch and serving again in {back:.1f} s"
         self.say(report.respawn)
 
+    def _operator_rss(self, report: SoakReport) -> None:
+        import psutil
+
+        pid = self.graph.pids().get("perch_operator")
+        with contextlib.suppress(psutil.NoSuchProcess, TypeError):
+            report.operator_rss_mb.append(round(psutil.Process(pid).memory_info().rss / 2**20, 1))
+
     def _sample_rss(self, report: SoakReport, when: str, only: list[str] | None = None) -> None:
         import psutil
 
@@ -388,6 +404,7 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the random mix")
     p.add_argument("--work", type=Path, help="folder for the missions' outputs (default: a temporary one)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON (always JSON on stdout)")
+    register_faults(p)
     p.set_defaults(func=_run)
 
 
@@ -424,6 +441,17 @@ def _run(args) -> int:
     work.mkdir(parents=True, exist_ok=True)
     with client_context():
         node = rclpy.create_node("perch_soak")
+        if args.faults:
+            faults = FaultSoak(work, node, args.seed)
+            try:
+                report = faults.run(args.faults)
+            finally:
+                faults.stop()
+            report.problems += leftovers(faults.graph)
+            summary = report.summary()
+            summary["work"] = str(work)
+            emit(summary)
+            return 1 if report.problems else 0
         graph = launched(work, node)
         try:
             report = Soak(graph, node, work, args.seed).run(args.missions)
@@ -433,3 +461,229 @@ def _run(args) -> int:
         summary["work"] = str(work)
         emit(summary)
     return 1 if report.problems else 0
+
+
+# --- faults: stage nodes, the coordinator and the launcher killed mid-mission -----------------------
+
+# Node -> the stage it serves in a mission. A stage node is frozen (SIGSTOP) as soon as the mission
+# reports that its stage is running (the call goes out right after; on the apartment each stage
+# works for far longer than the report takes to arrive), so no reply slips out before it is
+# SIGKILLed a random moment later. Freezing it earlier would outlast the DDS lease on a slow machine:
+# the node would leave the graph before its call, which the respawned node then serves.
+FAULT_TARGETS: dict[str, str] = {
+    "perch_reconstruction": "clean",
+    "perch_segmentation": "segment",
+    "perch_filtering": "filter",
+    "perch_placement": "optimise",
+    "perch_operator": "",      # the coordinator itself: killed while any stage runs
+    "perch launch": "",        # the launcher: its nodes die with it, the graph is started again
+}
+FAULT_STAGES = ("clean", "crop", "segment", "filter", "optimise")
+KILL_JITTER = 0.5     # s, at most, after the stage starts
+CLEAR_END_S = 15.0    # every mission with a kill must end this soon after it, with the reason
+
+
+@dataclass
+class FaultReport:
+    """What the fault soak saw; `problems` lists every violated expectation (empty: it passed)."""
+
+    kills: dict[str, int] = field(default_factory=dict)
+    end_s: list[float] = field(default_factory=list)      # kill -> the mission's clear end
+    reasons: list[str] = field(default_factory=list)
+    next_ok: int = 0
+    missions: int = 0
+    problems: list[str] = field(default_factory=list)
+
+    def summary(self) -> dict:
+        """A JSON-ready summary."""
+        import statistics
+
+        return {"missions": self.missions, "kills": self.kills,
+                "end_s_max": round(max(self.end_s), 2) if self.end_s else None,
+                "end_s_median": round(statistics.median(self.end_s), 2) if self.end_s else None,
+                "end_s": [round(s, 2) for s in self.end_s], "next_mission_ok": self.next_ok,
+                "reasons": self.reasons, "problems": self.problems}
+
+
+def fault_goal(scene: int = 7):
+    """An auto-accepted mission on a generated apartment: each stage takes long enough (~0.5-2 s) for
+    the node frozen when the stage before it starts to be certainly frozen before its own call."""
+    from perch_common.ros.conversions import mesh_to_msg, target_to_msg
+    from perch_common.scene_generator import generate_scene
+    from perch_interfaces.action import PlanPerches
+
+    generated = generate_scene(scene, "apartment")
+    return PlanPerches.Goal(mesh=mesh_to_msg(generated.mesh), target=target_to_msg(generated.target),
+                            num_cameras=CAMERAS, auto_accept=True, seed=1)
+
+
+class FaultSoak:
+    """Missions (run_mission in this process) with one node of a LaunchedGraph killed mid-mission each,
+    then an ordinary mission that must succeed on the graph as `perch launch` brought it back."""
+
+    def __init__(self, work: Path, node, seed: int = 0, log=None, graph: LaunchedGraph | None = None):
+        self.work = Path(work)
+        self.node = node
+        self.rng = random.Random(seed)
+        self.log = log
+        self.graph = graph or launched(self.work, node)
+        self.goal = fault_goal()
+
+    def say(self, text: str) -> None:
+        """One progress line on the log stream."""
+        stream = self.log or sys.stderr
+        stream.write(f"[faults] {text}\n")
+        stream.flush()
+
+    def run(self, kills: int, targets: list[str] | None = None) -> FaultReport:
+        """`kills` missions each with a kill (targets in a seeded random order), each followed by an ordinary one."""
+        report = FaultReport()
+        pool = list(targets or FAULT_TARGETS)
+        order: list[str] = []
+        while len(order) < kills:
+            order += self.rng.sample(pool, len(pool))
+        for target in order[:kills]:
+            report.kills[target] = report.kills.get(target, 0) + 1
+            self._killed_mission(target, report)
+            self._next_mission(report)
+        return report
+
+    def stop(self) -> None:
+        """Stop the graph (Ctrl-C to the launcher)."""
+        self.graph.stop()
+
+    def _killed_mission(self, target: str, report: FaultReport) -> None:
+        import threading
+
+        from perch_operator.client import run_mission
+
+        report.missions += 1
+        pids = self.graph.pids()
+        stage = FAULT_TARGETS[target] or self.rng.choice(FAULT_STAGES)
+        freeze = target in NODE_SERVICES and target != "perch_operator"
+        pid = self.graph.proc.pid if target == "perch launch" else pids[target]
+        delay = self.rng.uniform(0.0, KILL_JITTER)
+        killed_at: list[float] = []
+
+        def kill() -> None:
+            os.kill(pid, signal.SIGKILL)
+            killed_at.append(time.monotonic())
+
+        def on_feedback(feedback) -> None:
+            if feedback.stage == stage and not hasattr(kill, "timer"):
+                if freeze:
+                    os.kill(pid, signal.SIGSTOP)
+                kill.timer = threading.Timer(delay, kill)
+                kill.timer.start()
+
+        try:
+            result = run_mission(self.node, self.goal, timeout=120, on_feedback=on_feedback)
+        except Exception as exc:  # noqa: BLE001 - any client failure is this mission's problem, said so
+            result = None
+            report.problems.append(f"kill {target} at {stage}: the client failed: {type(exc).__name__}: {exc}")
+        ended = time.monotonic()
+        if hasattr(kill, "timer"):
+            kill.timer.join()
+        if not killed_at:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)   # never left frozen
+            report.problems.append(f"kill {target}: the mission ended before the kill (at {stage})")
+            return
+        seconds = ended - killed_at[0]
+        report.end_s.append(seconds)
+        reason = result.message if result is not None else ""
+        report.reasons.append(f"{target} at {stage}: {reason}")
+        named = target.replace("perch launch", "perch_operator")   # the launcher's nodes die with it
+        self.say(f"killed {target} during {stage}: mission ended {seconds:.1f} s later: {reason}")
+        if result is not None and (result.success or named not in reason):
+            report.problems.append(f"kill {target} at {stage}: result {result.success} {reason!r} "
+                                   f"does not name {named}")
+        if seconds > CLEAR_END_S:
+            report.problems.append(f"kill {target} at {stage}: the mission ended {seconds:.1f} s after it")
+        if target == "perch launch":
+            self._relaunch(pids, report)
+
+    def _relaunch(self, pids: dict[str, int], report: FaultReport) -> None:
+        import psutil
+
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline and any(psutil.pid_exists(p) and psutil.Process(p).status()
+                                                   != psutil.STATUS_ZOMBIE for p in pids.values()):
+            time.sleep(0.1)
+        left = [name for name, p in pids.items() if psutil.pid_exists(p)
+                and psutil.Process(p).status() != psutil.STATUS_ZOMBIE]
+        if left:
+            report.problems.append(f"nodes outlived their SIGKILLed launcher by 20 s: {left}")
+        with contextlib.suppress(Exception):
+            self.graph.proc.wait(5)
+        from perch_operator.stages import server_endpoints
+
+        services = [self.node.resolve_service_name(s[0]) for s in NODE_SERVICES.values()]
+        while time.monotonic() < deadline + 10 and any(server_endpoints(self.node, s) for s in services):
+            time.sleep(0.1)   # a new launcher refuses to start beside the old graph's last endpoints
+        self.graph = launched(self.work, self.node)
+
+    def _next_mission(self, report: FaultReport) -> None:
+        from perch_operator.client import run_mission
+
+        missing = self._wait_whole()
+        if missing:
+            report.problems.append(f"the graph did not come back: {missing}")
+            return
+        report.missions += 1
+        try:
+            result = run_mission(self.node, self.goal, timeout=120)
+        except Exception as exc:  # noqa: BLE001 - reported as this mission's problem
+            report.problems.append(f"the mission after a kill failed: {type(exc).__name__}: {exc}")
+            return
+        if result.success:
+            report.next_ok += 1
+        else:
+            report.problems.append(f"the mission after a kill failed: {result.message}")
+
+    def _wait_whole(self, timeout: float = 90.0) -> list[str]:
+        """Wait until every node runs again and each service has exactly live servers (a killed one's
+        endpoints have left the graph after the lease); returns what is still missing."""
+        from perch_operator.client import GoalStatusWatch
+        from perch_operator.stages import server_endpoints
+
+        services = {n: self.node.resolve_service_name(s[0]) for n, s in NODE_SERVICES.items()}
+        deadline = time.monotonic() + timeout
+        missing = list(services)
+        while time.monotonic() < deadline:
+            pids = self.graph.pids()
+            status = GoalStatusWatch.writers_of(self.node)
+            missing = [n for n, s in services.items()
+                       if n not in pids or len(server_endpoints(self.node, s)) != 1]
+            if len(status) != 1:
+                missing.append("the coordinator's action server")
+            if not missing:
+                return []
+            time.sleep(0.1)
+        return missing
+
+
+def register_faults(p) -> None:
+    """`perch bench soak --faults N`'s options."""
+    p.add_argument("--faults", type=int, default=0,
+                   help="instead: N missions each with a stage node, the coordinator or the launcher SIGKILLed "
+                        "mid-mission (seeded), each followed by an ordinary mission")
+
+
+def leftovers(graph: LaunchedGraph) -> list[str]:
+    """After the graph stopped: node processes still running, and Fast DDS files of dead processes."""
+    import psutil
+
+    from perch_common.processes import dead_shm_files
+
+    orphans = [p.pid for p in psutil.process_iter(["cmdline", "environ"])
+               if _perch_node(p) and p.info["environ"] and p.info["environ"].get("ROS_DOMAIN_ID")
+               == os.environ.get("ROS_DOMAIN_ID")]
+    problems = [f"node processes left running: {orphans}"] if orphans else []
+    dead = dead_shm_files(min_age=0.0)
+    return problems + ([f"/dev/shm files of dead processes: {[p.name for p in dead]}"] if dead else [])
+
+
+def _perch_node(process) -> bool:
+    cmd = process.info["cmdline"] or []
+    return "-m" in cmd and cmd[cmd.index("-m") + 1].split(".")[0] in (*NODE_SERVICES, "perch_common")

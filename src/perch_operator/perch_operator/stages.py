@@ -89,9 +89,13 @@ class StageCaller:
 
     def _abandon(self, stage: str, client, future, request_id: str, reason: str) -> None:
         """Stop waiting for a call and tell the stage to stop that call's work (it checks between steps)."""
+        from perch_common.network_auth import sign_if_networked
+
         client.remove_pending_request(future)
-        self.cancel_pub.publish(self._cancel_msg(service=STAGES[stage].service, request_id=request_id,
-                                                 reason=reason))
+        message = self._cancel_msg(service=STAGES[stage].service, request_id=request_id, reason=reason)
+        if hasattr(message, "auth"):   # a networked graph's stages stop calls for signed cancels only
+            message.auth = sign_if_networked("stage_cancel", message.service, request_id, reason)
+        self.cancel_pub.publish(message)
 
     def call(self, stage: str, request, cancelled: Callable[[], bool] = lambda: False):
         """The stage's successful reply; raises StageError (or MissionCancelled).

@@ -109,6 +109,12 @@ class StageWork:
         return len(tokens)
 
     def _on_cancel(self, msg) -> None:
+        from perch_common.network_auth import refusal_if_networked
+
+        refused = refusal_if_networked(getattr(msg, "auth", ""), "stage_cancel", msg.service, msg.request_id, msg.reason)
+        if refused:   # a networked graph stops calls for signed cancels only
+            self.node.get_logger().error(f"{msg.service}: refused a cancel of {msg.request_id!r}: {refused}")
+            return
         stopped = self.cancel(msg.service, msg.request_id, msg.reason)
         if stopped is None:
             return
