@@ -24,12 +24,17 @@ def register(sub) -> None:
     add_problem_arguments(parser, mesh_positional=False)
     parser.add_argument("--cameras", type=int, default=5, help="largest camera count (runs 1..N)")
     parser.add_argument("--seeds", type=int, default=30, help="search seeds per method and count")
-    parser.add_argument("--methods", default="pso,random,grid,naive,celf",
+    parser.add_argument("--methods", default=parser_default_methods(),
                         help="comma-separated: pso, pso-unseeded, random, grid, naive, celf")
     parser.add_argument("--reference", action="store_true", help="also run the exhaustive reference")
     parser.add_argument("--density", type=float, default=1000.0, help="points/m^3 for coverage and uncertainty")
     parser.add_argument("--bound-check", type=int, default=0, metavar="N",
                         help="also check the greedy online bound by exhaustive search on N small rooms")
+    parser.add_argument("--objectives", default="",
+                        help="comma-separated objectives to compare side by side at --cameras with greedy PSO "
+                             "(fitness, expected, kview, worst_case): fitness, expected fitness under landing "
+                             "error, k-view coverage, worst single-camera loss, certificate gap, seconds; "
+                             "with it, --methods defaults to none")
     parser.add_argument("--json", action="store_true", help="print JSON (always on; kept for scripts)")
     parser.add_argument("--table", help="write the markdown table here (default: stderr)")
     parser.set_defaults(func=run)
@@ -53,6 +58,9 @@ def run(args: argparse.Namespace) -> int:
     result_rays = _ray_throughput(scene, problem)
     counts = list(range(1, args.cameras + 1))
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    objectives = [o.strip() for o in args.objectives.split(",") if o.strip()]
+    if objectives and args.methods == parser_default_methods():
+        methods = []
     result = {"benchmark": "placement", "problem": problem.name, "regions": len(problem.regions),
               "regions_route": problem.route, "region_area_m2": float(sum(r.area for r in problem.regions)),
               "target_volume_m3": problem.target.volume(), "target_points": config.target_points,
@@ -69,6 +77,8 @@ def run(args: argparse.Namespace) -> int:
             print(f"{method} k={k}: fitness {per_count[str(k)]['fitness_mean']:.4f} "
                   f"median {per_count[str(k)]['seconds_median']:.3f} s", file=sys.stderr)
         result["methods"][method] = per_count
+    if objectives:
+        result["objectives"] = compare_objectives(problem, config, cache, objectives, args.cameras, args.seeds)
     if args.reference:
         result["reference"] = _reference(problem, config, scene, args.cameras, dense)
     if args.bound_check:
@@ -78,12 +88,83 @@ def run(args: argparse.Namespace) -> int:
     result["checks"] = _checks(result, counts)
     result["peak_rss_mb"] = peak_rss_mb()
     result["load_average"] = list(os.getloadavg())
-    table = markdown_table(result, counts)
+    table = markdown_table(result, counts) if methods or not objectives else ""
+    if objectives:
+        table += objectives_table(result)
     if args.table:
         Path(args.table).write_text(table)
     else:
         print(table, file=sys.stderr)
     return emit(result)
+
+
+def parser_default_methods() -> str:
+    """The --methods default (an explicit --methods with --objectives still runs the methods)."""
+    return "pso,random,grid,naive,celf"
+
+
+def compare_objectives(problem, config, cache, objectives: list, k: int, seeds: int) -> dict:
+    """Greedy PSO with each objective at k cameras over `seeds` seeds; every arrangement is assessed
+    with the same landing samples (the configured model and seed: common random numbers)."""
+    from dataclasses import replace
+
+    from perch_placement.core import optimise
+
+    out = {}
+    for objective in objectives:
+        cfg = replace(config, objective=objective)
+        runs = [optimise(problem.mesh, problem.regions, problem.target, k, cfg, method="pso", seed=s, cache=cache)
+                for s in range(seeds)]
+        a = [r.assessment for r in runs]
+        gap = [1 - r.coverage / r.coverage_bound if np.isfinite(r.coverage_bound) and r.coverage_bound > 0
+               else np.nan for r in runs]
+        out[objective] = {
+            "fitness_mean": float(np.mean([r.fitness for r in runs])),
+            "fitness_std": float(np.std([r.fitness for r in runs])),
+            "expected_fitness_mean": float(np.mean([x.expected_fitness for x in a])),
+            "expected_fitness_std": float(np.std([x.expected_fitness for x in a])),
+            "p5_fitness_mean": float(np.mean([x.p5_fitness for x in a])),
+            "coverage_mean": float(np.mean([r.coverage for r in runs])),
+            "kview_coverage_mean": float(np.mean([x.kview_coverage for x in a])),
+            "worst_loss_coverage_mean": float(np.mean([r.coverage - x.worst_coverage_without for r, x in zip(runs, a)])),
+            "worst_coverage_without_mean": float(np.mean([x.worst_coverage_without for x in a])),
+            "worst_kview_without_mean": float(np.mean([x.worst_kview_without for x in a])),
+            "certificate_gap_mean": float(np.nanmean(gap)) if np.isfinite(gap).any() else float("nan"),
+            "certificate_gap_max": float(np.nanmax(gap)) if np.isfinite(gap).any() else float("nan"),
+            "certificates": int(np.isfinite(gap).sum()),
+            "seconds_median": float(np.median([r.seconds for r in runs])),
+            "cameras_placed_mean": float(np.mean([len(r.placements) for r in runs])),
+            "expected_fitness_per_seed": [x.expected_fitness for x in a]}
+        print(f"objective {objective}: fitness {out[objective]['fitness_mean']:.4f} expected "
+              f"{out[objective]['expected_fitness_mean']:.4f} median {out[objective]['seconds_median']:.3f} s",
+              file=sys.stderr)
+    base = out.get("fitness")
+    if base:
+        for objective, row in out.items():
+            diff = np.array(row["expected_fitness_per_seed"]) - np.array(base["expected_fitness_per_seed"])
+            row["expected_gain_vs_fitness_mean"] = float(diff.mean())
+            row["expected_gain_vs_fitness_wins"] = int((diff > 0).sum())
+            row["seconds_ratio_vs_fitness"] = row["seconds_median"] / max(base["seconds_median"], 1e-9)
+    return {"cameras": k, "seeds": seeds, "landing": vars(config.landing), "kview_k": config.kview_k,
+            "kview_angle_deg": config.kview_angle_deg, "rows": out}
+
+
+def objectives_table(result: dict) -> str:
+    """One row per objective: the robustness figures side by side (means over seeds)."""
+    o = result["objectives"]
+    land = o["landing"]
+    lines = [f"Objectives on {result['problem']}, {o['cameras']} cameras, {o['seeds']} seeds (means; landing error "
+             f"{100 * land['position_sigma']:g} cm / {land['yaw_sigma_deg']:g} deg, {land['samples']} common samples; "
+             f"{o['kview_k']}-view at {o['kview_angle_deg']:g} deg)", "",
+             "| Objective | Fitness | Expected under error | 5th pct | k-view cov. | Worst 1-camera loss (cov.) "
+             "| k-view after worst loss | Certificate gap (cov.) | Seconds (median) |", "|" + "---|" * 9]
+    for name, r in o["rows"].items():
+        lines.append(f"| {name} | {r['fitness_mean']:.4f} ± {r['fitness_std']:.4f} | {r['expected_fitness_mean']:.4f} "
+                     f"| {r['p5_fitness_mean']:.4f} | {100 * r['kview_coverage_mean']:.1f} % "
+                     f"| {100 * r['worst_loss_coverage_mean']:.1f} pt | {100 * r['worst_kview_without_mean']:.1f} % "
+                     f"| {100 * r['certificate_gap_mean']:.1f} % ({r['certificates']}/{o['seeds']}) "
+                     f"| {r['seconds_median']:.2f} |")
+    return "\n".join(lines) + "\n"
 
 
 def _ray_throughput(scene, problem, count: int = 1_000_000) -> float:

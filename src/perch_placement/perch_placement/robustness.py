@@ -65,7 +65,7 @@ class LandingSampler:
     `draws[s, j]` = (du, dv, dyaw) standard normals for sample s and camera slot j; slots beyond the
     ones drawn so far are drawn on demand from the same generator, so a slot's draws never change."""
 
-    def __init__(self, position_sigma: float, yaw_sigma_deg: float, samples: int, seed: int,
+    def __init__(self, position_sigma: float, yaw_sigma_deg: float, samples: int, seed: int | list,
                  gimbal_reaim: bool = False, pan_range_deg: float = 90.0, tilt_range_deg: float = 90.0):
         if samples < 1:
             raise ValueError(f"landing error samples must be >= 1, got {samples}")

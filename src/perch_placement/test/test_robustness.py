@@ -182,3 +182,31 @@ def test_every_answer_reports_robustness_and_a_certificate():
     again = optimise(ROOM, REGIONS, target, 1, cfg, fixed=result.placements[:2], seed=0)
     assert len(again.assessment.contribution) == 3
     assert again.placements[0].drone_index == 2
+
+
+def test_encoding_a_decoded_perch_gives_it_back():
+    from perch_placement.search.greedy_pso import encode_perch
+
+    perches = Perches(REGIONS, np.array([3.0, 2.5, 0.8]), PlacementConfig().drone)
+    x = np.random.default_rng(4).random((20, perches.dims))
+    decoded = perches.decode(x)
+    for i in np.flatnonzero(decoded.inside):
+        again = perches.decode(encode_perch(perches, decoded.take([i]))[None])
+        assert again.region[0] == decoded.region[i]
+        assert np.allclose(again.camera_position[0], decoded.camera_position[i], atol=1e-9)
+        assert np.allclose(again.camera_rotation[0], decoded.camera_rotation[i], atol=1e-9)
+
+
+@pytest.mark.parametrize("objective", ["expected", "kview", "worst_case"])
+def test_other_objectives_refine_a_feasible_arrangement(objective):
+    target = TargetVolume(center=np.array([3.0, 2.5, 0.8]), size=np.array([2.0, 2.0, 1.2]))
+    cfg = PlacementConfig(candidate_spacing=0.5, objective=objective)
+    result = optimise(ROOM, REGIONS, target, 3, cfg, seed=1)
+    assert len(result.placements) == 3
+    where = np.array([p.drone_pose[:3, 3] for p in result.placements])
+    gaps = np.linalg.norm(where[:, None] - where[None], axis=-1)[np.triu_indices(3, 1)]
+    assert gaps.min() >= cfg.drone.min_spacing - 1e-6
+    nominal = optimise(ROOM, REGIONS, target, 3, PlacementConfig(candidate_spacing=0.5), seed=1)
+    assert result.fitness > 0.5 * nominal.fitness
+    assert [p.drone_pose[:3, 3].tolist() for p in result.placements] != \
+        [p.drone_pose[:3, 3].tolist() for p in nominal.placements]

@@ -81,8 +81,10 @@ class SearchContext:
         committed = self.arrangement()
         if cfg.objective == "expected":
             land = cfg.landing
-            sampler = LandingSampler(land.position_sigma, land.yaw_sigma_deg, land.search_samples, land.seed,
-                                     land.gimbal_reaim, cfg.drone.pan_range_deg, cfg.drone.tilt_range_deg)
+            # Its own stream (not the assessment's draws): the reported figures are not the ones it fitted.
+            sampler = LandingSampler(land.position_sigma, land.yaw_sigma_deg, land.search_samples,
+                                     [land.seed, SEARCH_STREAM], land.gimbal_reaim, cfg.drone.pan_range_deg,
+                                     cfg.drone.tilt_range_deg)
             state = RobustState(self.evaluator, sampler, committed)
 
             def extra(cands: Arrangement) -> np.ndarray:
@@ -124,6 +126,8 @@ class SearchOutcome:
     perches: list                   # Perch of one camera each, in placement order
     stop_reason: str = ""           # why fewer cameras than asked were placed ("" if all)
 
+
+SEARCH_STREAM = 1  # the robust search draws its landings from this stream of the landing seed
 
 SPACING_SLACK = 1e-3  # m added to the packing's spacing: decoded positions round by far less
 

@@ -6,13 +6,58 @@ from __future__ import annotations
 import numpy as np
 
 from perch_placement.candidates import CandidateGreedy
-from perch_placement.search.context import SearchContext, SearchOutcome, candidate_encoding, greedy, polish
+from perch_placement.perches import Perch, Perches
+from perch_placement.search.context import (
+    SearchContext,
+    SearchOutcome,
+    _restore,
+    candidate_encoding,
+    greedy,
+    polish,
+)
 from perch_placement.search.swarm import local_best_pso
 
 
 def greedy_pso(ctx: SearchContext, k: int) -> SearchOutcome:
-    """Place k cameras one at a time, each with its own swarm."""
-    return greedy(ctx, k, _best_camera)
+    """Place k cameras one at a time, each with its own swarm; under a non-nominal objective each
+    camera is then refined under it with the others fixed."""
+    base = (ctx.evaluator.info, ctx.evaluator.seen, list(ctx.others))
+    return refine(ctx, greedy(ctx, k, _best_camera), base)
+
+
+REFINE_ROUNDS, REFINE_SAMPLES = 3, 16  # hill climbing per camera under the non-nominal objective
+
+
+def refine(ctx: SearchContext, outcome: SearchOutcome, base: tuple) -> SearchOutcome:
+    """Each chosen camera polished (position and gimbal, same region) under the configured non-nominal
+    objective with every other camera fixed: coordinate ascent on the whole arrangement's objective
+    (greedy chose each camera seeing only the ones before it). Plane encoding only; leaves the
+    evaluator holding the answer."""
+    if ctx.config.objective == "fitness" or not outcome.perches \
+            or ctx.perches.encoding != "plane":
+        return outcome
+    plane, pso = ctx.perches, ctx.config.pso
+    encodings = [encode_perch(plane, p) for p in outcome.perches]
+    for i in range(len(encodings)):
+        _restore(ctx, base, [plane.decode(e) for n, e in enumerate(encodings) if n != i])
+        objective = ctx.alternative_objective()
+        start = float(objective(encodings[i][None])[0])
+        encodings[i], _, _ = polish(objective, encodings[i], start, ctx.rng, REFINE_ROUNDS, REFINE_SAMPLES,
+                                    pso.polish_step)
+    chosen = [plane.decode(e) for e in encodings]
+    _restore(ctx, base, chosen)
+    return SearchOutcome(chosen, outcome.stop_reason)
+
+
+def encode_perch(plane: Perches, perch: Perch) -> np.ndarray:
+    """The plane encoding of one decoded perch (decode(encode_perch(p)) is p to rounding)."""
+    region = int(perch.region[0])
+    x = plane.encode_position(region, perch.drone_position[0])
+    window = plane.gimbal_window(perch.camera_position, perch.drone_rotation)[0]
+    coords = [(a - lo) / (hi - lo) if hi > lo else 0.5
+              for a, lo, hi in ((perch.pan[0], window[0], window[1]), (perch.tilt[0], window[2], window[3]))]
+    zoom = [(perch.zoom[0] - 1.0) / (plane.max_zoom - 1.0)] if plane.max_zoom > 1 else []
+    return np.clip(np.concatenate([x, coords, zoom]), 0.0, 1.0)
 
 
 def _best_camera(ctx: SearchContext) -> tuple[np.ndarray, float]:
@@ -21,29 +66,7 @@ def _best_camera(ctx: SearchContext) -> tuple[np.ndarray, float]:
     swarm = local_best_pso(ctx.objective, ctx.perches.dims, pso, ctx.rng, initial)
     x, f, _ = polish(ctx.objective, swarm.best, swarm.fitness, ctx.rng, pso.polish_rounds, pso.polish_samples,
                      pso.polish_step)
-    alternative = ctx.alternative_objective()
-    if alternative is not None:
-        x = _alternative_choice(ctx, alternative, swarm, x)
-        f = float(ctx.objective(x[None])[0])
     return x, f
-
-
-ALTERNATIVES = 8  # the swarm's best particles re-scored under another objective
-
-
-def _alternative_choice(ctx: SearchContext, objective, swarm, polished: np.ndarray) -> np.ndarray:
-    """The camera the configured non-nominal objective prefers: the nominal search's polished best and
-    its swarm's best particles are re-scored under it, and the best of them is polished under it
-    (half the nominal polish). The nominal swarm finds the good perches; the other objective chooses
-    among them and adjusts the pose, at a fraction of a second swarm's cost."""
-    pso = ctx.config.pso
-    order = np.argsort(-swarm.personal_fitness, kind="stable")[:ALTERNATIVES]
-    options = np.vstack([polished[None], swarm.personal_best[order]]) if len(order) else polished[None]
-    score = objective(options)
-    j = int(np.argmax(score))
-    x, _, _ = polish(objective, options[j], float(score[j]), ctx.rng, max(1, pso.polish_rounds // 2),
-                     max(1, pso.polish_samples // 2), pso.polish_step)
-    return x
 
 
 def _seeds(ctx: SearchContext) -> np.ndarray | None:

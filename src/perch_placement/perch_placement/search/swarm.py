@@ -5,7 +5,7 @@ The objective takes the whole swarm (P,D) and returns (P,) fitness: one call per
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -23,8 +23,6 @@ class SwarmResult:
     evaluations: int
     generations: int
     history: list             # best fitness after each generation
-    personal_best: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))  # (P,D) each particle's best
-    personal_fitness: np.ndarray = field(default_factory=lambda: np.zeros(0))    # (P,) their fitness
 
 
 def local_best_pso(objective: Callable[[np.ndarray], np.ndarray], dims: int, cfg: PsoConfig,
@@ -65,4 +63,4 @@ def local_best_pso(objective: Callable[[np.ndarray], np.ndarray], dims: int, cfg
         if len(history) > cfg.patience and history[-1] - history[-1 - cfg.patience] < cfg.tolerance:
             break
     i = int(np.argmax(p_fit))
-    return SwarmResult(p_best[i].copy(), float(p_fit[i]), generation * n, generation, history, p_best, p_fit)
+    return SwarmResult(p_best[i].copy(), float(p_fit[i]), generation * n, generation, history)
