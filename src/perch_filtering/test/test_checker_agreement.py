@@ -1,0 +1,64 @@
+"""One safety truth on the real-scan corpus: the filter's evidence and the project checker
+(perch_filtering.perch_check, no code shared with the filter) agree on every placed perch.
+
+Each corpus scan (perch_common.scan_orientations.corpus_scans: the older scans and every MANIFEST row,
+with its true up) is cleaned and aligned with its true up as the clean stage does, segmented,
+filtered and given 5 cameras; each placed perch, taken back to the scan's own frame, is judged by the
+checker on the input mesh. Every perch must pass it (approach, fall, support, observed space,
+standoff) and its region's evidence must say so too (evidence at or past every threshold).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytestmark = [pytest.mark.data, pytest.mark.slow]
+
+
+def _corpus():
+    from perch_common.scan_orientations import corpus_scans
+
+    return corpus_scans()
+
+
+SCANS = _corpus()
+
+
+@pytest.mark.skipif(not SCANS, reason="../shared/data not found: no real scans to judge")
+@pytest.mark.parametrize("name,path,up", SCANS, ids=[s[0].rsplit(".", 1)[0] for s in SCANS])
+def test_placed_perches_agree_with_the_checker(name, path, up):
+    segmentation = pytest.importorskip("perch_segmentation.core")
+    cleaning = pytest.importorskip("perch_reconstruction.cleaning")
+    placement = pytest.importorskip("perch_placement.core")
+    from perch_common.frames import Alignment
+    from perch_common.mesh import load_mesh
+    from perch_filtering.core import FilterConfig, filter_surfaces
+    from perch_filtering.perch_check import check_perches, spec_from_config
+    from perch_operator.crop import floor_target
+    from perch_reconstruction.config import ReconstructionConfig
+
+    mesh = load_mesh(path)
+    aligned, report = cleaning.clean_mesh_with_report(mesh, -np.asarray(up), ReconstructionConfig())
+    alignment = Alignment("map", report.rotation)
+    target = floor_target(aligned)
+    config = FilterConfig()
+    surfaces = segmentation.segment_mesh(aligned, segmentation.SegmentationConfig()).surfaces
+    result = filter_surfaces(aligned, surfaces, target, np.array([0.0, 0.0, 1.0]), config)
+    if not result.regions:  # a scan may hold no perch; then the answer must say why
+        assert result.message.startswith("no perch region survived"), result.message
+        return
+    placed = placement.optimise(aligned, result.regions, target, 5).placements
+    assert placed
+    poses = [alignment.pose_to_input(p.drone_pose) for p in placed]
+    verdicts = check_perches(mesh, [p[:3, 3] for p in poses], [p[:3, 2] for p in poses], up, spec_from_config(config))
+    regions = {r.id: r for r in result.regions}
+    for p, v in zip(placed, verdicts):
+        e = regions[p.region_id].evidence
+        assert v.safe, (p.drone_index, v.reasons)
+        # The evidence Perch prints says the same: every measure at or past its threshold.
+        assert e.approach_clearance >= config.approach_distance - 1e-6, e
+        assert e.free_fall >= config.min_recovery_height - 1e-6, e
+        assert e.support_share >= config.min_support - 1e-6 and e.flatness_rms <= config.max_support_rms + 1e-6, e
+        assert min(e.approach_observed, e.fall_observed) >= 1 - config.max_unobserved_share - 1e-6, e
+        assert v.observed_share >= 1 - config.max_unobserved_share, (p.drone_index, v.observed_share)
