@@ -94,7 +94,8 @@ class SoakReport:
 def plan_command(out: Path, scene: int, extra: tuple[str, ...] = ()) -> list[str]:
     """The client a dispatcher would run: `perch plan --no-launch` on a generated room."""
     return [sys.executable, "-m", "perch_common.cli", "plan", "--scene", str(scene), "--kind", "room",
-            "--cameras", str(CAMERAS), "--auto-accept", "--no-launch", "--overwrite", "-o", str(out), *extra]
+            "--cameras", str(CAMERAS), "--auto-accept", "--no-launch", "--overwrite", "-o", str(out),
+            "--up", "+z", *extra]   # the generator's rooms are +z up: the soak is not about estimating it
 
 
 class LaunchedGraph:
@@ -514,7 +515,7 @@ def fault_goal(scene: int = 7):
 
     generated = generate_scene(scene, "apartment")
     return PlanPerches.Goal(mesh=mesh_to_msg(generated.mesh), target=target_to_msg(generated.target),
-                            num_cameras=CAMERAS, auto_accept=True, seed=1)
+                            num_cameras=CAMERAS, auto_accept=True, seed=1, up_axis="+z")
 
 
 class FaultSoak:
