@@ -216,7 +216,7 @@ class ServerWatch:
         names = ", ".join(sorted(set(self.servers.values()))) or "its node"
         if self.current:
             now = ", ".join(sorted(set(self.current.values())))
-            return (f"the node serving the call ({names}) died or restarted during it: the server the request "
-                    f"went to left the graph and a new one ({now}) cannot answer it; run the mission again")
-        return (f"the node serving the call ({names}) died during it (its server left the graph); restart it "
-                "(`perch launch` restarts nodes that die) and run the mission again")
+            return (f"the service disappeared during the call: the node serving it ({names}) died or restarted, "
+                    f"and the new one ({now}) cannot answer a request the old one took; run the mission again")
+        return (f"the service disappeared during the call: the node serving it ({names}) stopped or crashed; "
+                "restart it (`perch launch` restarts nodes that die) and run the mission again")
