@@ -82,9 +82,12 @@ if ! fresh tf2_msgs "$tf2"; then
     say "using the installed tf2_msgs"
   else
     say "building the tf2_msgs interface (the installation has none)"
-    rm -rf build/tf2_msgs && mkdir -p build
+    # src/tf2_msgs carries COLCON_IGNORE, so a ROS workspace's `colcon build` never builds it over the
+    # real tf2_msgs; here it is built from a copy without that marker.
+    rm -rf build/tf2_msgs build/tf2_msgs_src && mkdir -p build && cp -r src/tf2_msgs build/tf2_msgs_src
+    rm -f build/tf2_msgs_src/COLCON_IGNORE
     if ! AMENT_PREFIX_PATH=$VENV CMAKE_PREFIX_PATH=$VENV PATH=$VENV/bin:$PATH \
-        "$VENV/bin/colcon" --log-base build/log build --base-paths src/tf2_msgs \
+        "$VENV/bin/colcon" --log-base build/log build --base-paths build/tf2_msgs_src \
         --build-base build --install-base "$VENV" --merge-install \
         --cmake-args -DBUILD_TESTING=OFF -DPython3_EXECUTABLE="$VENV/bin/python" > build/colcon-tf2_msgs.log 2>&1; then
       tail -30 build/colcon-tf2_msgs.log >&2

@@ -106,16 +106,41 @@ class StageNodeConfig(Generic[T]):
         return base_config(self, stage)
 
 
-def default_config_path() -> Path:
-    """config/perch.yaml of the workspace (PERCH_CONFIG overrides)."""
-    if os.environ.get("PERCH_CONFIG"):
-        return Path(os.environ["PERCH_CONFIG"])
-    here = Path(__file__).resolve()
-    for parent in here.parents:
-        candidate = parent / "config" / "perch.yaml"
+CONFIG_PACKAGE = "perch_operator"   # installs config/ into share/perch_operator/config (its setup.cfg)
+
+
+def installed_config_file(name: str, prefixes: list[str] | None = None) -> Path | None:
+    """share/perch_operator/config/NAME of an installation (`colcon build` install space, a venv):
+    the prefixes of AMENT_PREFIX_PATH, then this Python's prefix; None when none has it."""
+    import sys
+
+    if prefixes is None:
+        prefixes = [p for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p] + [sys.prefix]
+    for prefix in prefixes:
+        candidate = Path(prefix) / "share" / CONFIG_PACKAGE / "config" / name
         if candidate.is_file():
             return candidate
-    raise ConfigError("config/perch.yaml not found; set PERCH_CONFIG to your parameter file")
+    return None
+
+
+def config_file(name: str) -> Path | None:
+    """config/NAME of the source tree this code runs from, else of the installation; None when neither."""
+    for parent in Path(__file__).resolve().parents:
+        candidate = parent / "config" / name
+        if candidate.is_file() and (parent / "src").is_dir():
+            return candidate
+    return installed_config_file(name)
+
+
+def default_config_path() -> Path:
+    """config/perch.yaml of the workspace, or of the installation's share directory (PERCH_CONFIG overrides)."""
+    if os.environ.get("PERCH_CONFIG"):
+        return Path(os.environ["PERCH_CONFIG"])
+    found = config_file("perch.yaml")
+    if found is None:
+        raise ConfigError(f"config/perch.yaml not found in the source tree nor in share/{CONFIG_PACKAGE}/config of "
+                          "the installation (AMENT_PREFIX_PATH); set PERCH_CONFIG to your parameter file")
+    return found
 
 
 _SafeLoader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)   # libyaml (~5x faster) when PyYAML has it

@@ -39,8 +39,12 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 
 def dds_profile(network: bool = False) -> Path:
-    """config/fastdds.xml (loopback + shared memory) or config/fastdds_network.xml (all interfaces)."""
-    return repo_root() / "config" / ("fastdds_network.xml" if network else "fastdds.xml")
+    """config/fastdds.xml (loopback + shared memory) or config/fastdds_network.xml (all interfaces), from
+    the source tree or the installation's share/perch_operator/config."""
+    from perch_common.config import config_file
+
+    name = "fastdds_network.xml" if network else "fastdds.xml"
+    return config_file(name) or repo_root() / "config" / name
 
 
 def network_requested(env: dict | None = None) -> bool:

@@ -100,12 +100,26 @@ class Mission:
         self.stage_seconds: list[float] = []
         self._planned = [s for s in STAGE_WEIGHTS]
         self._done_weight = 0.0
+        self.running_stage = ""   # the stage whose call is in flight ('' between calls)
 
     def _call(self, stage: str, request):
         self.feedback(stage, self._fraction(), f"running {stage}")
-        reply = self.caller.call(stage, request, self.cancelled)
+        self.running_stage = stage
+        try:
+            reply = self.caller.call(stage, request, self.cancelled)
+        finally:
+            self.running_stage = ""
         self._finish(stage, float(reply.seconds))
         return reply
+
+    def stage_progress(self, stage: str, within: float, message: str) -> None:
+        """Feedback from inside the running stage (reconstruction frames): the mission's fraction moves
+        by the stage's share, and `stage_fraction` says how far the stage is. Ignored for any other stage."""
+        if stage != self.running_stage:
+            return
+        within = min(1.0, max(0.0, float(within)))
+        total = sum(STAGE_WEIGHTS[s] for s in self._planned)
+        self.feedback(stage, min(1.0, (self._done_weight + STAGE_WEIGHTS[stage] * within) / total), message, within)
 
     def _fraction(self) -> float:
         total = sum(STAGE_WEIGHTS[s] for s in self._planned)

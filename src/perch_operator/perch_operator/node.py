@@ -107,6 +107,10 @@ class OperatorNode(Node):
         self.action = ActionServer(self, PlanPerches, MISSION_ACTION, self._execute, callback_group=group,
                                    goal_callback=self._on_goal, cancel_callback=self._on_cancel)
         self.operator: Operator | None = None
+        # Progress inside a long stage: the reconstruction's frame counters become mission feedback.
+        self._running_mission: Mission | None = None
+        self.create_subscription(pm.ReconstructionProgress, "perch/reconstruct/progress",
+                                 self._on_reconstruct_progress, 10, callback_group=group)
         self._mission_state = ""   # the current mission's: running, succeeded, failed or cancelled
         self._busy = threading.Lock()
         self._next_proposal_id = 1
@@ -195,8 +199,11 @@ class OperatorNode(Node):
             confirm_timeout=config.confirm_timeout, frame_id=self._frame_id(),
             up=parse_up_axis(config.up_axis), input_up=config.input_up_axis)
 
-        def feedback(stage: str, fraction: float, message: str) -> None:
-            goal_handle.publish_feedback(PlanPerches.Feedback(stage=stage, fraction=fraction, message=message))
+        def feedback(stage: str, fraction: float, message: str, stage_fraction: float = 0.0) -> None:
+            sent = PlanPerches.Feedback(stage=stage, fraction=fraction, message=message)
+            if stage_fraction:   # set only inside a stage that reports its own progress
+                sent.stage_fraction = stage_fraction
+            goal_handle.publish_feedback(sent)
 
         def adopt(operator: Operator) -> None:
             self.operator = operator
@@ -222,6 +229,7 @@ class OperatorNode(Node):
 
         mission = Mission(self.stages, options, self._next_proposal_id, feedback, cancelled,
                           self._publish_proposal, adopt, review, aligned)
+        self._running_mission = mission
         try:
             result = mission.run(goal_handle.request)
             result.waypoints = [self._waypoint(p) for p in self.operator.book.accepted()]
@@ -244,10 +252,18 @@ class OperatorNode(Node):
             self.get_logger().error(f"mission failed: {exc}")
             return self._failed(mission, str(exc))
         finally:
+            self._running_mission = None
             if self._mission_state == "running":
                 self._mission_state = "cancelled" if goal_handle.is_cancel_requested else "failed"
             if self.operator is not None:
                 self._next_proposal_id = self.operator.book.next_id
+
+    def _on_reconstruct_progress(self, msg: pm.ReconstructionProgress) -> None:
+        mission = self._running_mission
+        if mission is not None and msg.mode == msg.MODE_BAG and msg.frames_total:
+            mission.stage_progress("reconstruct", msg.frames_received / msg.frames_total,
+                                   f"frames {msg.frames_received}/{msg.frames_total} read, "
+                                   f"{msg.frames_integrated} integrated")
 
     @staticmethod
     def _failed(mission: Mission, message: str) -> PlanPerches.Result:

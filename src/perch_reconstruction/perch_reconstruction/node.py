@@ -33,7 +33,7 @@ from perch_reconstruction.cleaning import CleanReport, clean_mesh_with_report
 from perch_reconstruction.config import ReconstructionNodeConfig
 from perch_reconstruction.core import reconstruct_bag
 from perch_reconstruction.live import LiveIngest
-from perch_reconstruction.progress import ReconstructionProgress, bag_progress
+from perch_reconstruction.progress import ReconstructionProgress, bag_frame_count, bag_progress
 from perch_reconstruction.tf_buffer import TransformBuffer
 
 # ReconstructionProgress fields copied by name (uint32 counters, float64 seconds)
@@ -46,6 +46,7 @@ def progress_to_msg(progress: ReconstructionProgress, stamp) -> pm.Reconstructio
     """perch_interfaces/msg/ReconstructionProgress of a progress report, stamped `stamp`."""
     msg = pm.ReconstructionProgress(
         mode=progress.mode, bag_path=progress.bag_path, last_error=progress.last_error,
+        frames_total=int(progress.frames_total),
         dropped_reasons=list(progress.dropped), dropped_counts=[int(n) for n in progress.dropped.values()],
         **{name: int(getattr(progress, name)) for name in _COUNTERS},
         **{name: float(getattr(progress, name)) for name in _SECONDS})
@@ -222,10 +223,12 @@ class ReconstructionNode(Node):
             config = dataclasses.replace(config, target_faces=int(request.target_faces))
         topics = BagTopics(c.color_topic, c.depth_topic, c.camera_info_topic, c.pose_topic)
 
-        def progress(stats) -> None:
-            self._offline_status = bag_progress(request.bag_path, stats)
+        total = bag_frame_count(request.bag_path, topics)   # for the fraction within the stage
 
-        self._offline_status = bag_progress(request.bag_path)  # reading the bag: counters at zero, frame unknown
+        def progress(stats) -> None:
+            self._offline_status = bag_progress(request.bag_path, stats, total)
+
+        self._offline_status = bag_progress(request.bag_path, None, total)  # reading: counters at zero, frame unknown
 
         return reconstruct_bag(request.bag_path, config, bool(request.use_poses), topics, progress=progress)
 

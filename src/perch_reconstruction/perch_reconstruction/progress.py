@@ -44,6 +44,7 @@ class ReconstructionProgress:
     seconds_clean: float = 0.0
     dropped: dict[str, int] = field(default_factory=lambda: dict.fromkeys(DROP_REASONS, 0))  # reason -> frames
     last_error: str = ""
+    frames_total: int = 0             # bag: its colour+depth frames (frames_received counts towards it)
 
     @classmethod
     def from_stats(cls, mode: str, stats: ReconstructionStats, *, frame_id: str = "", bag_path: str = "",
@@ -66,10 +67,24 @@ class ReconstructionProgress:
                    last_error=last_error)
 
 
-def bag_progress(bag_path: str, stats: ReconstructionStats | None = None) -> ReconstructionProgress:
+def bag_progress(bag_path: str, stats: ReconstructionStats | None = None, frames_total: int = 0) -> ReconstructionProgress:
     """The report of a bag reconstruction; before its frames are read (`stats` None) zeros and no frame."""
     if stats is None:
-        return ReconstructionProgress(mode=MODE_BAG, bag_path=bag_path)
+        return ReconstructionProgress(mode=MODE_BAG, bag_path=bag_path, frames_total=int(frames_total))
     # reconstruct_bag always cleans: the mesh will be in the gravity-aligned frame of the bag's pose frame
-    return ReconstructionProgress.from_stats(MODE_BAG, stats, frame_id=aligned_frame_name(stats.frame_id),
-                                             bag_path=bag_path)
+    report = ReconstructionProgress.from_stats(MODE_BAG, stats, frame_id=aligned_frame_name(stats.frame_id),
+                                               bag_path=bag_path)
+    report.frames_total = int(frames_total)
+    return report
+
+
+def bag_frame_count(bag_path: str, topics) -> int:
+    """Frames a bag holds for reconstruction (the fewer of its colour and depth images); 0 when unknown."""
+    from perch_common.errors import PerchError
+    from perch_reconstruction.bag_read import bag_info
+
+    try:
+        present = bag_info(bag_path)["topics"]
+    except PerchError:
+        return 0   # the Reconstruct call itself reports what is wrong with the file
+    return min(present.get(topics.color, {}).get("count", 0), present.get(topics.depth, {}).get("count", 0))
