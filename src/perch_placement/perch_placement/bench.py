@@ -133,6 +133,8 @@ def compare_objectives(problem, config, cache, objectives: list, k: int, seeds: 
             "certificate_gap_max": float(np.nanmax(gap)) if np.isfinite(gap).any() else float("nan"),
             "certificates": int(np.isfinite(gap).sum()),
             "seconds_median": float(np.median([r.seconds for r in runs])),
+            "certificate_seconds_median": float(np.median([r.certificate_seconds for r in runs])),
+            "certificate_seconds_max": float(np.max([r.certificate_seconds for r in runs])),
             "cameras_placed_mean": float(np.mean([len(r.placements) for r in runs])),
             "expected_fitness_per_seed": [x.expected_fitness for x in a]}
         print(f"objective {objective}: fitness {out[objective]['fitness_mean']:.4f} expected "

@@ -49,6 +49,7 @@ class PlacementResult:
     assessment: Assessment | None = None  # landing error, k-view coverage, loss of each camera (all cameras)
     coverage_bound: float = float("nan")  # LP upper bound on the best coverage on the candidate set
     certificate_status: str = ""           # how the bound was obtained, or why it is missing
+    certificate_seconds: float = 0.0       # time the certificate took (included in seconds)
 
 
 def scene_for(mesh: Mesh) -> RayScene:
@@ -118,7 +119,8 @@ def optimise(mesh: Mesh, regions: list[PerchRegion], target: TargetVolume, num_c
                            evaluator.ray_tests, evaluator.candidate_evaluations, points,
                            time.process_time() - cpu_start, assessment,
                            certificate.coverage_bound if certificate else float("nan"),
-                           certificate.status if certificate else "not computed")
+                           certificate.status if certificate else "not computed",
+                           certificate.seconds if certificate else 0.0)
 
 
 def landing_sampler(cfg: PlacementConfig, samples: int | None = None) -> LandingSampler:
@@ -150,6 +152,9 @@ def robustness_sentence(a: Assessment, cfg: PlacementConfig, certificate, covera
     text = (f"; under landing error ({100 * land.position_sigma:g} cm, {land.yaw_sigma_deg:g} deg, {a.samples} "
             f"samples) fitness {a.expected_fitness:.4f} expected, {a.p5_fitness:.4f} at the 5th percentile"
             f"; {cfg.kview_k}-view coverage (pair >= {cfg.kview_angle_deg:g} deg) {100 * a.kview_coverage:.1f} %")
+    if a.short_of_views or a.short_of_angle:
+        text += (f" ({a.short_of_views} target point(s) seen by fewer than {cfg.kview_k} cameras, "
+                 f"{a.short_of_angle} seen only from views less than {cfg.kview_angle_deg:g} deg apart)")
     if len(a.contribution) > 1:
         text += (f"; losing one camera leaves coverage {100 * a.worst_coverage_without:.1f} % at worst "
                  f"({100 * a.mean_coverage_without:.1f} % mean), {cfg.kview_k}-view "

@@ -149,6 +149,8 @@ class Assessment:
     coverage_without: np.ndarray      # (K,) coverage with this camera removed
     kview_without: np.ndarray         # (K,) k-view coverage with this camera removed
     samples: int
+    short_of_views: int = 0           # target points seen by fewer than k cameras
+    short_of_angle: int = 0           # points seen by k or more, but from views closer than the angle
 
     @property
     def worst_coverage_without(self) -> float:
@@ -196,7 +198,9 @@ def assess(evaluator: Evaluator, arrangement: Arrangement, sampler: LandingSampl
     seen, info = evaluator.views(arrangement.camera_position, arrangement.camera_rotation, arrangement.zoom)
     fit, cov, fit_wo, cov_wo = leave_one_out(evaluator, info, seen, none_info, none_seen)
     points = evaluator.points
-    kview = kview_mask(arrangement.camera_position, seen, points, k, angle_deg).mean()
+    kview_points = kview_mask(arrangement.camera_position, seen, points, k, angle_deg)
+    kview = kview_points.mean()
+    enough = seen.sum(axis=0) >= k
     drop = ~np.eye(kk, dtype=bool)
     kview_wo = np.array([kview_mask(arrangement.camera_position[keep], seen[keep], points, k, angle_deg).mean()
                          for keep in drop])
@@ -208,7 +212,7 @@ def assess(evaluator: Evaluator, arrangement: Arrangement, sampler: LandingSampl
     s_contrib = s_fit[:, None] - s_fit_wo
     return Assessment(float(fit), float(cov), float(kview), float(s_fit.mean()), float(np.percentile(s_fit, 5)),
                       float(fit) - fit_wo, s_contrib.mean(axis=0), np.percentile(s_contrib, 5, axis=0),
-                      cov_wo, kview_wo, sampler.samples)
+                      cov_wo, kview_wo, sampler.samples, int((~enough).sum()), int((enough & ~kview_points).sum()))
 
 
 class RobustState:

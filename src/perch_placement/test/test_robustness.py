@@ -178,6 +178,8 @@ def test_every_answer_reports_robustness_and_a_certificate():
         assert p.coverage_without == pytest.approx(a.coverage_without[i])
     assert result.coverage <= result.coverage_bound + 1e-9 or "off its grid" in result.message
     assert "2-view coverage" in result.message and "losing one camera" in result.message
+    # Every point short of 2-view coverage is counted once, with its reason.
+    assert a.short_of_views + a.short_of_angle == round((1 - a.kview_coverage) * cfg.target_points)
     # A re-plan reports the whole set: the kept cameras are assessed with the new one.
     again = optimise(ROOM, REGIONS, target, 1, cfg, fixed=result.placements[:2], seed=0)
     assert len(again.assessment.contribution) == 3
