@@ -233,6 +233,14 @@ class ReconstructionNode(Node):
         return reconstruct_bag(request.bag_path, config, bool(request.use_poses), topics, progress=progress)
 
     def _reset(self, request, response):
+        from perch_common.network_auth import networked
+
+        if networked():   # std_srvs/Trigger has no room for a token (perch_common.network_auth)
+            response.success = False
+            response.message = ("refused: a networked graph takes no unauthenticated reset; restart the "
+                                "perch_reconstruction node to clear its reconstruction")
+            self.get_logger().error(f"reset {response.message}")
+            return response
         self.ingest.reset(self.current_config())   # live input takes the parameters as they are now
         response.success, response.message = True, "reconstruction cleared"
         self.get_logger().info("reset: volume, queue and counters cleared")
