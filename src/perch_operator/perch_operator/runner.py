@@ -62,8 +62,10 @@ def client_context(ros_args: list[str] | None = None, domain_id: int | None = No
 
     from perch_common import namespace
     from perch_common.launch import use_perch_dds
+    from perch_common.processes import clean_dead_shm
 
     use_perch_dds()   # every client (operator CLI, record, replay, ...) on Perch's host-only profile unless networked
+    clean_dead_shm()  # what killed Perch processes (a SIGKILLed `perch plan`) left in /dev/shm
     previous = {signum: signal.signal(signum, _interrupt) for signum in (signal.SIGTERM, signal.SIGHUP)}
     # Every node of this client process resolves Perch's relative names in the graph's namespace.
     rclpy.init(args=["perch", "--ros-args", *namespace.ros_arguments(namespace.current()), *(ros_args or [])],
