@@ -54,9 +54,10 @@ def unobserved_share(scene: RayScene, raster: SurfaceRaster, alive: np.ndarray, 
         return out
     step = max(1, int(round(NODE_SPACING / raster.cell)))
     spacing = step * raster.cell
-    # Node offsets (in nodes) covering each volume, and the node grid reaching every live cell's volume.
-    lo_u, hi_u = int(np.floor(u_range[0] / spacing)), int(np.ceil(u_range[1] / spacing))
-    lo_v, hi_v = int(np.floor(v_range[0] / spacing)), int(np.ceil(v_range[1] / spacing))
+    # Node offsets (in nodes) inside each volume (a node beyond it, e.g. behind the next wall of a corner,
+    # would count space outside the room), and the node grid reaching every live cell's volume.
+    lo_u, hi_u = int(np.ceil(u_range[0] / spacing - 1e-9)), int(np.floor(u_range[1] / spacing + 1e-9))
+    lo_v, hi_v = int(np.ceil(v_range[0] / spacing - 1e-9)), int(np.floor(v_range[1] / spacing + 1e-9))
     rows, cols = np.nonzero(alive)
     node_r, node_c = np.round(rows / step).astype(np.int64), np.round(cols / step).astype(np.int64)
     r0, c0 = node_r.min() + lo_v, node_c.min() + lo_u
