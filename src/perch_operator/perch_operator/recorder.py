@@ -42,6 +42,7 @@ MISSION_TOPICS = {MISSION_FEEDBACK_TOPIC: "perch_interfaces/action/PlanPerches_F
                   "perch/surface_review": "perch_interfaces/msg/SurfaceReview",
                   "perch/mission_waypoints": "perch_interfaces/msg/PerchWaypointSet",
                   "perch/markers": "visualization_msgs/msg/MarkerArray",
+                  "perch/scan_marker": "visualization_msgs/msg/Marker",
                   "perch/views/image": "sensor_msgs/msg/Image",
                   "perch/views/camera_info": "sensor_msgs/msg/CameraInfo"}
 
@@ -81,12 +82,17 @@ class MissionRecorder:
         self._hashes: dict[str, str] = {}
         self._qos: dict[str, tuple] = {}   # topic -> (reliability, durability) subscribed with
         self.latched = latched
+        self._late: set[str] = set()   # topics found once the mission ran (refresh(late=True))
         self._first_ns: int | None = None
         self._last_ns = 0
         self._closed = False
 
-    def refresh(self) -> None:
-        """Subscribe to every /perch topic now in the graph and every known service event topic."""
+    def refresh(self, late: bool = False) -> int:
+        """Subscribe to every /perch topic now in the graph and every known service event topic.
+
+        `late` (while the mission ends): topics that appeared since are this mission's own (each
+        drone's perch/views/drone_N/...): read transient local where their publishers latch, so what
+        they published before they were found is recorded too. Returns how many topics were new."""
         topics = {self.node.resolve_topic_name(name): type_name
                   for name, type_name in dict(event_topics(), **MISSION_TOPICS).items()}
         tf_static = self.node.resolve_topic_name(TF_STATIC_TOPIC)
@@ -94,20 +100,25 @@ class MissionRecorder:
             # tf_static: the mission's input frame -> gravity-aligned frame transform (this graph's namespace).
             if (name.startswith(self.prefix + "/") or name == tf_static) and types:
                 topics.setdefault(name, types[0])
+        new = 0
         for name, type_name in topics.items():
             if name not in self._subs:
+                if late:
+                    self._late.add(name)
                 self._subscribe(name, type_name)
+                new += 1
             elif self._qos[name] != self._wanted_qos(name) and not self.counts.get(name):
                 # Subscribed by name before its publishers were known: now they are, take their QoS
                 # (only while nothing was received, so no message is recorded twice).
                 self.node.destroy_subscription(self._subs.pop(name))
                 self._subscribe(name, type_name)
+        return new
 
     def _wanted_qos(self, topic: str) -> tuple:
         """(reliability, durability) `ros2 bag record` would request from the topic's publishers now."""
         infos = self.node.get_publishers_info_by_topic(topic)
         best_effort = any(i.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for i in infos)
-        latched = self.latched and infos and all(
+        latched = (self.latched or topic in self._late) and infos and all(
             i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in infos)
         return (ReliabilityPolicy.BEST_EFFORT if best_effort else ReliabilityPolicy.RELIABLE,
                 DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)

@@ -407,8 +407,9 @@ def _drain(node, recorder: MissionRecorder, quiet: float = 0.3, limit: float = 5
     deadline = time.monotonic() + limit
     last = -1
     while time.monotonic() < deadline:
+        found = recorder.refresh(late=True)   # topics that appeared during the mission (each drone's views)
         total = sum(recorder.counts.values())
-        if total == last:
+        if total == last and not found:
             return
         last = total
         spin_for(node, quiet)
