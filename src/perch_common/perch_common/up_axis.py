@@ -217,17 +217,13 @@ def estimate_up(normals: np.ndarray, areas: np.ndarray, centroids: np.ndarray,
     sign_confidence = float(min(1.0, abs(agreement) / 0.6) * min(1.0, total_weight / 1.5))
     axis_confidence = float(min(1.0, plane_share / 0.25) * max(axis_margin, 0.0))
     confidence = sign_confidence * axis_confidence
-    # A close competitor that is as thin as the winner: the winner's lead comes from one-sided faces
-    # alone, which a single depth view has everywhere (realsense_window_wall was 90 deg off at 0.76).
-    # That caps the overall confidence below CONFIDENT (axis_confidence keeps its own meaning).
-    competitor_as_thin = candidates[order[1]][3] >= thin - 0.02
-    if conflict or (axis_margin < 1.0 and competitor_as_thin):
+    # A close competitor caps the overall confidence below CONFIDENT (axis_confidence keeps its own
+    # meaning): on the corpus such leads came from one-sided faces a single depth view has everywhere
+    # (realsense_window_wall was 90 deg off at 0.76, 'confident' beside 'weak').
+    if conflict or axis_margin < 1.0:
         confidence = min(confidence, 0.98 * CONFIDENT * max(axis_margin, 0.0))
-    if axis_margin < 1.0 and competitor_as_thin:
+    if axis_margin < 1.0:
         notes.append(f"weak: another room axis is almost as likely to be up (score {score:.2f} vs {runner_up:.2f})")
-    elif axis_margin < 1.0:
-        notes.append(f"close: another room axis scores {runner_up:.2f} against {score:.2f}, but the room is thinner "
-                     "along this one")
     if confidence < CONFIDENT:
         notes.append(f"weak evidence (confidence {confidence:.2f} < {CONFIDENT})")
     considered = []
