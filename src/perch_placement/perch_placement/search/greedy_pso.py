@@ -60,12 +60,20 @@ def encode_perch(plane: Perches, perch: Perch) -> np.ndarray:
     return np.clip(np.concatenate([x, coords, zoom]), 0.0, 1.0)
 
 
+# Objectives cheap enough for the swarm itself (one more visibility test per camera); `expected`
+# (one per landing sample) only refines the nominal answer.
+SWARM_OBJECTIVES = ("kview", "worst_case")
+
+
 def _best_camera(ctx: SearchContext) -> tuple[np.ndarray, float]:
     pso = ctx.config.pso
     initial = _seeds(ctx) if pso.seeded > 0 else None
-    swarm = local_best_pso(ctx.objective, ctx.perches.dims, pso, ctx.rng, initial)
-    x, f, _ = polish(ctx.objective, swarm.best, swarm.fitness, ctx.rng, pso.polish_rounds, pso.polish_samples,
+    objective = ctx.alternative_objective() if ctx.config.objective in SWARM_OBJECTIVES else ctx.objective
+    swarm = local_best_pso(objective, ctx.perches.dims, pso, ctx.rng, initial)
+    x, f, _ = polish(objective, swarm.best, swarm.fitness, ctx.rng, pso.polish_rounds, pso.polish_samples,
                      pso.polish_step)
+    if objective is not ctx.objective:
+        f = float(ctx.objective(x[None])[0])  # the greedy loop stops on the nominal fitness
     return x, f
 
 
