@@ -18,8 +18,9 @@ them (null with a note otherwise), and seconds. The calibration table bins the s
 and gives the share of right estimates (<= 3 deg, right sign) in each bin and among those labelled
 confident (the target: 1.0).
 
-Run time: ~0.15 s a case for the estimate; a mission 3-15 s on a quiet 2-core machine (55 cases:
-roughly 5-10 min; `--no-rotations` about a fifth of that).
+Run time (measured on the shared 2-core machine at load average ~10): the estimate alone 15 s for all
+55 cases (`--no-missions`); with missions 540 s (a mission 4-26 s, the checker included; the 14
+cases whose estimate is not confident stop in under a second); `--no-rotations` about a fifth.
 """
 
 from __future__ import annotations
