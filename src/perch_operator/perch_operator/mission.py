@@ -101,6 +101,7 @@ class Mission:
         self._planned = [s for s in STAGE_WEIGHTS]
         self._done_weight = 0.0
         self.running_stage = ""   # the stage whose call is in flight ('' between calls)
+        self._last_progress: tuple[str, str] = ("", "")
 
     def _call(self, stage: str, request):
         self.feedback(stage, self._fraction(), f"running {stage}")
@@ -115,8 +116,9 @@ class Mission:
     def stage_progress(self, stage: str, within: float, message: str) -> None:
         """Feedback from inside the running stage (reconstruction frames): the mission's fraction moves
         by the stage's share, and `stage_fraction` says how far the stage is. Ignored for any other stage."""
-        if stage != self.running_stage:
-            return
+        if stage != self.running_stage or (stage, message) == self._last_progress:
+            return   # the progress topic repeats itself every period; feedback only says what changed
+        self._last_progress = (stage, message)
         within = min(1.0, max(0.0, float(within)))
         total = sum(STAGE_WEIGHTS[s] for s in self._planned)
         self.feedback(stage, min(1.0, (self._done_weight + STAGE_WEIGHTS[stage] * within) / total), message, within)
