@@ -69,3 +69,30 @@ def test_config_is_found_in_the_install_spaces_share_directory(tmp_path, monkeyp
     installed = config["options.data_files"]["share/perch_operator/config"]
     assert {"config/perch.yaml", "config/fastdds.xml", "config/fastdds_network.xml"} <= {
         name.strip() for name in installed.split(",")}
+
+
+def test_the_colcon_install_space_runs_perch_with_its_own_config(tmp_path):
+    """`colcon build` of the Python packages into an install space (perch_interfaces from the
+    environment): the installed `perch` runs from elsewhere and takes the share directory's config."""
+    import os
+
+    colcon = Path(sys.executable).with_name("colcon")
+    if not colcon.is_file():
+        pytest.skip("colcon is not installed in this environment")
+    env = dict(os.environ, AMENT_PREFIX_PATH=sys.prefix, PATH=f"{Path(sys.executable).parent}{os.pathsep}"
+               f"{os.environ.get('PATH', '')}")
+    env.pop("PERCH_CONFIG", None)
+    built = subprocess.run([str(colcon), "--log-base", str(tmp_path / "log"), "build", "--base-paths",
+                            str(ROOT / "src"), "--packages-up-to", "perch_operator", "--packages-skip", "perch_interfaces",
+                            "--build-base", str(tmp_path / "build"), "--install-base", str(tmp_path / "install"),
+                            "--merge-install"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+    assert built.returncode == 0, built.stdout[-3000:] + built.stderr[-3000:]
+    install = tmp_path / "install"
+    site = next(install.glob("lib/python3*/site-packages"))
+    env.update(PYTHONPATH=str(site), AMENT_PREFIX_PATH=f"{install}{os.pathsep}{sys.prefix}")
+    listed = subprocess.run([str(install / "lib" / "perch_common" / "perch"), "launch", "--list"], cwd=tmp_path,
+                            env=env, capture_output=True, text=True, timeout=120)
+    assert listed.returncode == 0, listed.stderr[-2000:]
+    config = install / "share" / "perch_operator" / "config" / "perch.yaml"
+    assert f"--params-file {config}" in listed.stdout and "perch_placement" in listed.stdout, listed.stdout
+    assert (install / "lib" / "perch_operator" / "perch_operator_node").is_file()   # `ros2 run perch_operator ...`
