@@ -280,3 +280,24 @@ def test_mission_feedback_moves_inside_the_reconstruction(graph, mission, tmp_pa
     print("reconstruction progress lines:\n" + "\n".join(
         f"  {f.stage} {100 * f.fraction:.0f} % (stage {100 * f.stage_fraction:.0f} %): {f.message}"
         for _, f in received if f.stage == "reconstruct"))
+
+
+def test_files_written_atomically_get_the_umasks_mode(tmp_path):
+    """waypoints.yaml and bags go through atomic_path (mkstemp makes 0600): the finished file is
+    readable as any file the user writes is."""
+    import os
+
+    from perch_common.outputs import atomic_path, current_umask
+
+    previous = os.umask(0o022)
+    try:
+        assert current_umask() == 0o022
+        with atomic_path(tmp_path / "waypoints.yaml") as partial:
+            partial.write_text("waypoints: []\n")
+        assert (tmp_path / "waypoints.yaml").stat().st_mode & 0o777 == 0o644
+        os.umask(0o077)
+        with atomic_path(tmp_path / "private.yaml") as partial:
+            partial.write_text("x: 1\n")
+        assert (tmp_path / "private.yaml").stat().st_mode & 0o777 == 0o600
+    finally:
+        os.umask(previous)
