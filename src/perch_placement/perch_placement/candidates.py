@@ -30,6 +30,9 @@ class CandidateSet:
     visible: np.ndarray     # (P,A,N) bool, occlusion and range included
     info: np.ndarray        # (P,N,6) scaled information of a camera at each position (zoom 1)
     reach: np.ndarray       # (P,N) bool: some orientation at the position sees the point
+    parent: "CandidateSet | None" = None   # the set this one is a subset of (shares its derived masks)
+    kept: np.ndarray | None = None         # (P,) indices of this set's positions in the parent
+    _undominated: np.ndarray | None = None
 
     @property
     def positions(self) -> int:
@@ -51,8 +54,20 @@ class CandidateSet:
     def subset(self, keep: np.ndarray) -> "CandidateSet":
         """The candidates at the positions where `keep` (P,) is true."""
         index = (np.flatnonzero(keep)[:, None] * self.orientations + np.arange(self.orientations)).reshape(-1)
+        root, kept = (self, np.flatnonzero(keep)) if self.parent is None else (self.parent, self.kept[keep])
         return CandidateSet(self.perch.take(index), self.gimbal, self.visible[keep], self.info[keep],
-                            self.reach[keep])
+                            self.reach[keep], root, kept)
+
+    def undominated(self) -> np.ndarray:
+        """(P,A) orientations whose view is not inside another's at the same position (the certificate's
+        columns; perch_placement.certificate.undominated), computed once on the unconstrained set."""
+        if self.parent is not None:
+            return self.parent.undominated()[self.kept]
+        if self._undominated is None:
+            from perch_placement.certificate import undominated
+
+            self._undominated = undominated(self.visible)
+        return self._undominated
 
 
 def cached_candidates(perches: Perches, evaluator: Evaluator, spacing: float, angles: int,

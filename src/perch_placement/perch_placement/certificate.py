@@ -103,7 +103,9 @@ def coverage_certificate(cands: CandidateSet, base_seen: np.ndarray, k: int, min
     if len(open_points) == 0:
         return Certificate(1.0, 0, time.perf_counter() - start, "optimal")
     visible = cands.visible[:, :, open_points]
-    keep = undominated(visible)
+    # Dominance on every point holds on the open ones too (columns dominated only there are kept:
+    # the bound is the same, the program a little larger); computed once per candidate set.
+    keep = cands.undominated()
     pos, ori = np.nonzero(keep)
     cols = len(pos)
     if cols == 0:
@@ -119,15 +121,21 @@ def coverage_certificate(cands: CandidateSet, base_seen: np.ndarray, k: int, min
     rhs = [np.zeros(m), [float(k)]]
     where = cands.drone_positions()
     if min_spacing > 0:
-        groups = spacing_cliques(where, min_spacing) or []
-        members = [np.flatnonzero(np.isin(pos, g)) for g in groups]
-        singles = np.setdiff1d(np.arange(cands.positions), np.concatenate(groups) if groups else [])
-        members += [np.flatnonzero(pos == p) for p in singles]  # positions in no clique: one camera each
-        members = [mm for mm in members if len(mm) > 1]
-        if members:
-            r = np.concatenate([np.full(len(mm), i) for i, mm in enumerate(members)])
-            rows.append(csr_matrix((np.ones(len(r)), (r, np.concatenate(members))), shape=(len(members), cols + m)))
-            rhs.append(np.ones(len(members)))
+        # Rows "at most one drone" per clique of positions, and per position in no clique: (sets x
+        # positions) @ (positions x columns).
+        groups = spacing_cliques(where, min_spacing)
+        alone = np.setdiff1d(np.arange(cands.positions), np.concatenate(groups) if groups else [])
+        sets = groups + [np.array([p]) for p in alone]
+        members = coo_matrix((np.ones(sum(len(g) for g in sets)),
+                              (np.repeat(np.arange(len(sets)), [len(g) for g in sets]), np.concatenate(sets))),
+                             shape=(len(sets), cands.positions)).tocsr()
+        column_of = coo_matrix((np.ones(cols), (pos, np.arange(cols))), shape=(cands.positions, cols)).tocsr()
+        one_drone = (members @ column_of).tocsr()
+        one_drone = one_drone[np.diff(one_drone.indptr) > 1]   # a row with one column is the bound x <= 1
+        rows.append(csr_matrix((one_drone.data * 0 + 1, one_drone.indices, one_drone.indptr),
+                               shape=(one_drone.shape[0], cols)))
+        rows[-1] = hstack_zero(rows[-1], m)
+        rhs.append(np.ones(one_drone.shape[0]))
     a_ub = vstack(rows).tocsr()
     b_ub = np.concatenate([np.asarray(b, np.float64) for b in rhs])
     objective = np.concatenate([np.zeros(cols), -np.ones(m) / n])
@@ -143,6 +151,13 @@ def coverage_certificate(cands: CandidateSet, base_seen: np.ndarray, k: int, min
         return Certificate(min(1.0, base / n + bound), cols, seconds, "optimal")
     return Certificate(float("nan"), cols, seconds,
                        f"no bound: the linear program stopped ({res.message.strip()}) after {seconds:.2f} s")
+
+
+def hstack_zero(matrix, width: int):
+    """The sparse matrix with `width` zero columns appended (the y variables)."""
+    from scipy.sparse import csr_matrix, hstack
+
+    return hstack([matrix, csr_matrix((matrix.shape[0], width))]).tocsr()
 
 
 def _dual_bound(res, b_ub: np.ndarray, n: int) -> float:
