@@ -296,6 +296,8 @@ def check_overrides(per_node: dict[str, list[str]], nodes: list[str], path: str 
     configuration (file + overrides) the node's own validation refuses is a ConfigError naming
     the override and what exists or is accepted.
     """
+    if not per_node:
+        return {}   # nothing to check: no node's config classes imported (launching stays quick)
     classes = {n: node_config_class(n) for n in nodes}
     unknown = [n for n in per_node if n != "*" and n not in classes]
     if unknown:
