@@ -39,6 +39,18 @@ if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
   fi
 fi
 
+# 2b. Debian's chromium for the console's browser test (Playwright drives it; no downloaded browser
+#     builds). Optional: without it that test skips with the reason.
+if ! command -v chromium >/dev/null; then
+  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
+    say "installing Debian package chromium (the console's browser test)"
+    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium) >/dev/null \
+      || say "apt-get install chromium failed; the console's browser test will skip (install it by hand to run it)"
+  else
+    say "chromium is not installed: the console's browser test will skip (sudo apt-get install -y chromium)"
+  fi
+fi
+
 # 3. The virtual environment.
 if [ ! -x "$VENV/bin/python" ]; then
   say "creating .venv with $PY"

@@ -1,0 +1,1 @@
+"""Perch operator console: the mission in a browser, a client of the running graph."""

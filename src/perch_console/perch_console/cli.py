@@ -1,0 +1,119 @@
+"""`perch console`: the operator console in a browser, a client of the running graph.
+
+    perch launch &                                     # the graph (or any running Perch graph on this domain)
+    perch console --mesh ../shared/data/meshes/apartment.ply
+    # open http://127.0.0.1:8080/ ; --host 0.0.0.0 exposes it (to a tablet) behind a token in the URL
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import http
+import ipaddress
+import sys
+import time
+from pathlib import Path
+
+from perch_common.errors import PerchError
+
+DEFAULT_PORT = 8080
+
+
+def register(sub) -> None:
+    """Add `perch console`."""
+    p = sub.add_parser("console", help="the operator console in a browser (scan, boxes, review, confirmation)")
+    p.add_argument("--mesh", type=Path, help="the scan to show and plan on (missions are started from the console)")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="address to serve on (default loopback only); any other needs the token printed in the URL")
+    p.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"port (default {DEFAULT_PORT}; 0: a free one)")
+    p.add_argument("--token", default="", help="the URL token when exposed (default: a new random one)")
+    p.set_defaults(func=_console)
+
+
+def is_loopback(host: str) -> bool:
+    """Whether `host` only serves this machine."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def require_token(token: str) -> None:
+    """Serve viser only under /<token>/: other HTTP requests and websocket connections get 403.
+
+    viser has no access control of its own; its browser client opens the websocket on the page's
+    path (query dropped), so a path token covers both. Installed on websockets' `serve` for this
+    process, which serves nothing but the console."""
+    import websockets.asyncio.server as ws_server
+    from websockets.datastructures import Headers
+    from websockets.http11 import Response
+
+    original = ws_server.serve
+    if getattr(original, "perch_token", None) is not None:
+        original = original.perch_original
+    prefix = f"/{token}"
+
+    def gated(handler, *args, process_request=None, **kwargs):
+        def check(connection, request):
+            path, sep, query = request.path.partition("?")
+            if path != prefix and not path.startswith(prefix + "/"):
+                return Response(http.HTTPStatus.FORBIDDEN, "Forbidden",
+                                Headers([("Content-Type", "text/plain")]),
+                                b"this Perch console needs the URL with its token (printed by perch console)\n")
+            inner = dataclasses.replace(request, path=(path[len(prefix):] or "/") + sep + query)
+            return process_request(connection, inner) if process_request is not None else None
+
+        return original(handler, *args, process_request=check, **kwargs)
+
+    gated.perch_token, gated.perch_original = token, original
+    ws_server.serve = gated
+
+
+def start_console(mesh_path: Path | None, host: str = "127.0.0.1", port: int = DEFAULT_PORT, token: str = ""):
+    """The console serving and attached to the graph (rclpy must be initialised); returns (console, graph, url)."""
+    from perch_console.graph import ConsoleGraph
+    from perch_console.state import new_token
+    from perch_console.ui import Console, scan_source
+
+    if mesh_path is not None and not Path(mesh_path).is_file():
+        raise PerchError(f"{mesh_path}: no such scan file (give --mesh a .ply/.obj/.glb mesh)")
+    if not is_loopback(host):
+        token = token or new_token()
+        require_token(token)
+    console = Console(host=host, port=port)
+    graph = ConsoleGraph(console.changed)
+    console.attach(graph)
+    if mesh_path is not None:
+        mesh, mesh_msg, convention = scan_source(Path(mesh_path))
+        console.goal_source = (mesh_msg, convention)
+        console.place_boxes(mesh.vertices)
+        console.show_scan(mesh, Path(mesh_path).name)
+    shown_host = "127.0.0.1" if host in ("0.0.0.0", "::") else host
+    url = f"http://{shown_host}:{console.server.get_port()}/" + (f"{token}/" if token else "")
+    for what in ("scan", "markers", "proposals", "review", "removals", "progress"):
+        console.changed(what)   # what the latched topics already delivered
+    return console, graph, url
+
+
+def _console(args) -> int:
+    from perch_operator.runner import client_context
+
+    started = time.monotonic()
+    with client_context():
+        console, graph, url = start_console(args.mesh, args.host, args.port, args.token)
+        print(f"perch console: {url}  (room shown after {console.first_picture_at - started:.2f} s)"
+              if console.first_picture_at else f"perch console: {url}", flush=True)
+        if not is_loopback(args.host):
+            print("perch console: exposed beyond this machine; only the URL above (with its token) opens it",
+                  file=sys.stderr, flush=True)
+        try:
+            while True:
+                time.sleep(3600)
+        except KeyboardInterrupt:
+            pass
+        finally:
+            graph.close()
+            console.server.stop()
+    return 0

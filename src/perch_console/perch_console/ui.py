@@ -1,0 +1,433 @@
+"""The browser console (viser): the room, the mission, and the operator's three points of decision.
+
+Scene (the input's frame): the scan (the file's, decimated with its colours, until the graph's own
+/perch/scan_marker arrives), the graph's /perch/markers (surfaces by class, perch regions, filter
+labels, the target, each proposal's perch and frustum coloured by status), each proposal's drone
+camera as a frustum carrying its simulated view, the target and crop boxes with 3D handles (the
+centre gizmo moves and turns a box, the corner handle resizes it), the surfaces under review.
+Panel: progress (stage, fraction, shortfall), the mission form, the surface review, the proposals
+with their views, evidence and buttons, the accepted perches, what each filter removed, and the log
+of decisions with who made them. Every browser sees the same state; decisions are serialised.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from perch_common.conventions import FILTER_NAMES
+from perch_common.transforms import pose_to_matrix
+from perch_console.scene import draw_markers, triangle_mesh, wxyz_of
+from perch_console.state import (
+    DECISIONS,
+    STATUS_NAMES,
+    DecisionDesk,
+    EditBox,
+    evidence_lines,
+    removal_table,
+    waypoint_rows,
+)
+
+STATUS_RGB = {0: (255, 190, 25), 1: (25, 205, 65), 2: (230, 50, 50), 3: (140, 50, 180)}
+CLASS_NAMES = {0: "unknown", 1: "floor", 2: "wall", 3: "ceiling", 4: "intermediate"}
+PENDING, ACCEPTED = 0, 1
+
+
+class Console:
+    """The viser server and its panel, fed by a ConsoleGraph (`attach`) and a scan file (`show_scan`)."""
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 8080, title: str = "Perch console"):
+        import viser
+
+        self.server = viser.ViserServer(host=host, port=port, label=title, verbose=False)
+        self.desk = DecisionDesk()
+        self.graph = None
+        self.goal_source = None            # (mesh message, up convention) of the scan missions start on
+        self.first_picture_at: float | None = None
+        self._names: dict[int, object] = {}   # client id -> its "your name" field
+        self._ui_lock = threading.RLock()
+        self._marker_handles: list = []
+        self._drone_handles: list = []
+        self._review_handles: list = []
+        self._shown_proposals = None
+        self._scan_handle = None
+        self._scan_from_graph = False
+        self.server.scene.set_up_direction("+z")
+        self.server.on_client_connect(self._on_connect)
+        self._build_panel()
+
+    # --- panel --------------------------------------------------------------------------------
+
+    def _build_panel(self) -> None:
+        gui = self.server.gui
+        gui.configure_theme(control_width="large")
+        self.status = gui.add_markdown("**Perch console**: waiting for the graph")
+        self.progress = gui.add_progress_bar(0.0, animated=False)
+        self.shortfall = gui.add_markdown("", visible=False)
+        with gui.add_folder("Mission"):
+            self.target_center = gui.add_vector3("Target centre", (0.0, 0.0, 1.0), step=0.05)
+            self.target_size = gui.add_vector3("Target size", (2.0, 2.0, 1.5), min=(0.05, 0.05, 0.05), step=0.05)
+            self.crop_on = gui.add_checkbox("Crop to a keep box", False)
+            self.crop_center = gui.add_vector3("Keep-box centre", (0.0, 0.0, 1.0), step=0.05, visible=False)
+            self.crop_size = gui.add_vector3("Keep-box size", (6.0, 6.0, 3.0), min=(0.05, 0.05, 0.05), step=0.05,
+                                             visible=False)
+            self.cameras = gui.add_number("Cameras", 4, min=1, max=30, step=1)
+            self.review_count = gui.add_number("Review largest surfaces", 0, min=0, max=30, step=1,
+                                               hint="0: no surface review; N: approve or reject the N largest")
+            self.start = gui.add_button("Start mission", color="green")
+            self.start_note = gui.add_markdown("")
+        self.review_folder = gui.add_folder("Surface review")
+        with self.review_folder:
+            self.review_note = gui.add_markdown("_no review open_")
+        self.proposals_folder = gui.add_folder("Proposals")
+        with self.proposals_folder:
+            self.reason = gui.add_text("Reason", "", hint="why a proposal or surface is rejected (sent with it)")
+            self.proposals_note = gui.add_markdown("_no proposals yet_")
+        self._proposal_handles: list = []
+        with gui.add_folder("Accepted perches (waypoints)"):
+            self.waypoints_md = gui.add_markdown("_none_")
+        with gui.add_folder("Filter removals (m²)", expand_by_default=False):
+            self.removals_md = gui.add_markdown("_no filter run yet_")
+        with gui.add_folder("Decisions"):
+            self.log_md = gui.add_markdown("_none yet_")
+        self.start.on_click(self._on_start)
+        self.crop_on.on_update(lambda _: self._crop_visible())
+        self.target = self._box_editor("target", self.target_center, self.target_size, (40, 210, 210))
+        self.crop = self._box_editor("crop", self.crop_center, self.crop_size, (240, 150, 30))
+        self._crop_visible()
+
+    def _on_connect(self, client) -> None:
+        with client.gui.add_folder("You", order=-1):
+            self._names[client.client_id] = client.gui.add_text("Your name", f"operator {client.client_id}")
+
+    def who(self, event) -> str:
+        """The name the deciding browser gave itself."""
+        field = self._names.get(event.client_id)
+        return (field.value.strip() if field is not None else "") or f"operator {event.client_id}"
+
+    # --- boxes with 3D handles ----------------------------------------------------------------
+
+    def _box_editor(self, name: str, center_field, size_field, rgb) -> dict:
+        scene = self.server.scene
+        editor = {"name": name, "center": center_field, "size": size_field, "rgb": rgb, "busy": False,
+                  "wxyz": np.array([1.0, 0.0, 0.0, 0.0])}
+        editor["move"] = scene.add_transform_controls(f"/{name}/move", scale=0.6, depth_test=False)
+        editor["corner"] = scene.add_transform_controls(f"/{name}/corner", scale=0.35, disable_rotations=True,
+                                                        depth_test=False)
+        editor["box"] = None
+
+        def from_fields(_=None) -> None:
+            self._apply_box(editor, self.box_of(editor))
+
+        def from_move(handle) -> None:
+            if editor["busy"]:
+                return
+            editor["wxyz"] = np.asarray(handle.wxyz, np.float64)
+            self._apply_box(editor, EditBox(handle.position, editor["size"].value, editor["wxyz"]))
+
+        def from_corner(handle) -> None:
+            if editor["busy"]:
+                return
+            self._apply_box(editor, self.box_of(editor).resized_to(handle.position))
+
+        center_field.on_update(from_fields)
+        size_field.on_update(from_fields)
+        editor["move"].on_update(from_move)
+        editor["corner"].on_update(from_corner)
+        from_fields()
+        return editor
+
+    def box_of(self, editor: dict) -> EditBox:
+        """The box an editor shows now."""
+        return EditBox(editor["center"].value, editor["size"].value, editor["wxyz"])
+
+    def _apply_box(self, editor: dict, box: EditBox) -> None:
+        """Show `box` everywhere at once: fields, gizmos and the translucent box."""
+        editor["busy"] = True
+        try:
+            editor["center"].value = tuple(float(v) for v in box.center)
+            editor["size"].value = tuple(float(v) for v in box.size)
+            editor["wxyz"] = box.wxyz
+            editor["move"].position, editor["move"].wxyz = tuple(box.center), tuple(box.wxyz)
+            editor["corner"].position = tuple(box.corner())
+            visible = editor["name"] == "target" or self.crop_on.value
+            editor["box"] = self.server.scene.add_box(
+                f"/{editor['name']}/box", color=editor["rgb"], dimensions=tuple(box.size), opacity=0.22,
+                position=tuple(box.center), wxyz=tuple(box.wxyz), visible=visible, cast_shadow=False,
+                receive_shadow=False)
+        finally:
+            editor["busy"] = False
+
+    def _crop_visible(self) -> None:
+        on = bool(self.crop_on.value)
+        for handle in (self.crop_center, self.crop_size, self.crop["move"], self.crop["corner"]):
+            handle.visible = on
+        if self.crop["box"] is not None:
+            self.crop["box"].visible = on
+
+    def place_boxes(self, vertices: np.ndarray) -> None:
+        """Start the target and keep boxes on the room: the target in its middle, the keep box around it."""
+        self._apply_box(self.target, EditBox.around(vertices, 0.35))
+        self._apply_box(self.crop, EditBox.around(vertices, 1.02))
+        low, high = np.min(vertices, axis=0), np.max(vertices, axis=0)
+        center, extent = (low + high) / 2, high - low
+        # from above one corner, looking down into the room (+z up, as the stages' frame)
+        camera = self.server.initial_camera
+        camera.position = tuple(center + np.array([-0.55 * extent[0], -0.75 * extent[1], 0.5 * extent[2]
+                                                   + 0.9 * max(extent[0], extent[1])]))
+        camera.look_at = tuple(center)
+
+    # --- the room -----------------------------------------------------------------------------
+
+    def show_scan(self, mesh, source: str) -> None:
+        """The scan file (a perch_common Mesh, input frame), decimated with its colours, until the graph's own."""
+        import trimesh
+
+        from perch_operator.markers import display_mesh
+
+        shown = display_mesh(mesh)
+        colours = shown.vertex_colors if shown.vertex_colors is not None else np.full((shown.num_vertices, 3), 184)
+        with self._ui_lock:
+            if self._scan_from_graph:
+                return
+            self._scan_handle = self.server.scene.add_mesh_trimesh(
+                "/scan", trimesh.Trimesh(shown.vertices, shown.faces, vertex_colors=colours, process=False))
+            self.first_picture_at = self.first_picture_at or time.monotonic()
+        self.status.content = f"**Perch console**: {source}, {mesh.num_faces} faces (shown: {shown.num_faces})"
+
+    def _show_graph_scan(self, marker) -> None:
+        with self._ui_lock:
+            self._scan_from_graph = True
+            self._scan_handle = self.server.scene.add_mesh_trimesh("/scan", triangle_mesh(marker))
+            self.first_picture_at = self.first_picture_at or time.monotonic()
+
+    # --- the graph ----------------------------------------------------------------------------
+
+    def attach(self, graph) -> None:
+        """Listen to a ConsoleGraph (its on_change must call `changed`)."""
+        self.graph = graph
+
+    def changed(self, what: str) -> None:
+        """Show what the graph changed (called from the graph's threads)."""
+        if self.graph is None:
+            return
+        with self._ui_lock:
+            if what == "scan" and self.graph.scan is not None:
+                self._show_graph_scan(self.graph.scan)
+            elif what == "markers" and self.graph.markers is not None:
+                for handle in self._marker_handles:
+                    handle.remove()
+                # the console draws its own drones and labels, and lists the removals in a table
+                shown = [m for m in self.graph.markers.markers if m.ns not in ("proposal_labels", "area_removed")]
+                self._marker_handles = draw_markers(self.server.scene, "/mission", shown)
+            elif what in ("proposals", "views", "waypoints"):
+                self._show_proposals()
+            elif what == "review":
+                self._show_review()
+            elif what == "removals":
+                with self.graph.lock:
+                    self.removals_md.content = removal_table(self.graph.picture.removals, FILTER_NAMES)
+            self._show_progress()
+
+    def _show_progress(self) -> None:
+        with self.graph.lock:
+            p = self.graph.picture
+            stage, fraction, message, shortfall, result = p.stage, p.fraction, p.message, p.shortfall, p.result
+        self.progress.value = float(np.clip(fraction * 100, 0, 100))
+        text = f"**Stage:** {stage} ({100 * fraction:.0f} %)"
+        if message:
+            text += f" — {message}"
+        if result:
+            text += f"\n\n**Result:** {result}"
+        self.status.content = text
+        self.shortfall.content = f"**Fewer cameras fit:** {shortfall}" if shortfall else ""
+        self.shortfall.visible = bool(shortfall)
+
+    # --- (1) start a mission ------------------------------------------------------------------
+
+    def goal(self):
+        """The PlanPerches goal the form describes (the scan file's mesh, target box, keep box)."""
+        from perch_common.ros.conversions import pose_msg, vector_msg
+        from perch_interfaces import msg as pm
+        from perch_interfaces.action import PlanPerches
+
+        if self.goal_source is None:
+            raise ValueError("no scan to plan on: start the console with --mesh FILE")
+        mesh_msg, convention = self.goal_source
+
+        def oriented(box: EditBox) -> pm.OrientedBox:
+            pose = np.eye(4)
+            pose[:3, :3], pose[:3, 3] = box.rotation, box.center
+            return pm.OrientedBox(pose=pose_msg(pose), size=vector_msg(box.size))
+
+        goal = PlanPerches.Goal(mesh=mesh_msg, num_cameras=int(self.cameras.value), seed=-1, up_axis="auto",
+                                up_convention=convention, review_surfaces=int(self.review_count.value))
+        goal.target = pm.TargetVolume(kind=pm.TargetVolume.KIND_BOX, box=oriented(self.box_of(self.target)))
+        if self.crop_on.value:
+            goal.keep_boxes = [oriented(self.box_of(self.crop))]
+        return goal
+
+    def _on_start(self, event) -> None:
+        who = self.who(event)
+        self.start.disabled = True
+        try:
+            goal = self.goal()
+            self._shown_proposals = None
+            decision = self.desk.decide(who, "started", "a mission", self.box_of(self.target).describe(),
+                                        lambda: _ok(self.graph.start_mission(goal)))
+        except ValueError as exc:
+            self.start_note.content = f"**Cannot start:** {exc}"
+            self.start.disabled = False
+            return
+        self.start_note.content = ("mission started by " + who) if decision.success else f"**{decision.message}**"
+        self.start.disabled = False
+        with self._ui_lock:
+            self._show_log()
+
+    # --- (2) surface review -------------------------------------------------------------------
+
+    def _show_review(self) -> None:
+        from perch_operator.markers import surface_outline
+
+        for handle in self._review_handles:
+            handle.remove()
+        self._review_handles = []
+        with self.graph.lock:
+            review, to_input = self.graph.picture.review, self.graph.picture.to_input.copy()
+        if review is None:
+            self.review_note.content = "_no review open_"
+            return
+        self.review_note.content = (f"**Review {review.review_id}**: the {len(review.surfaces)} largest surfaces, "
+                                    "outlined in the room. Approve or reject each, then submit.")
+        choices = {}
+        gui = self.server.gui
+        with self.review_folder:
+            for surface in review.surfaces:
+                label = f"S{surface.id} {CLASS_NAMES.get(surface.surface_class, '?')} {surface.area:.1f} m²"
+                choices[surface.id] = gui.add_dropdown(label, ("approve", "reject"), initial_value="approve")
+                self._review_handles.append(choices[surface.id])
+                outline = surface_outline(surface, to_input, "", None, (1.0, 1.0, 0.2), "review", 0.08)
+                if outline is not None:
+                    self._review_handles += draw_markers(self.server.scene, f"/review/{surface.id}", [outline])
+                    xyz = np.array([(p.x, p.y, p.z) for p in outline.points])
+                    self._review_handles.append(self.server.scene.add_label(
+                        f"/review/{surface.id}/label", f"S{surface.id}", position=tuple(xyz.mean(axis=0))))
+            submit = gui.add_button("Submit review", color="blue")
+            self._review_handles.append(submit)
+
+        def on_submit(event) -> None:
+            rejected = [sid for sid, field in choices.items() if field.value == "reject"]
+            reason = self.reason.value.strip()
+            subject = f"surface review {review.review_id}" + (f", rejecting {rejected}" if rejected else "")
+            self.desk.decide(self.who(event), "decided", subject, reason,
+                             lambda: self.graph.call_review(review.review_id, rejected, self._signed(reason, event)))
+            with self._ui_lock:
+                self._show_log()
+
+        submit.on_click(on_submit)
+
+    # --- (3) proposals ------------------------------------------------------------------------
+
+    def _show_proposals(self) -> None:
+        with self.graph.lock:
+            proposals = dict(self.graph.picture.proposals)
+            views = dict(self.graph.picture.views)
+            fovs = dict(self.graph.picture.view_fov)
+        signature = (tuple((i, p.status) for i, p in sorted(proposals.items())), tuple(sorted(views)))
+        if signature == self._shown_proposals:
+            return
+        self._shown_proposals = signature
+        for handle in self._proposal_handles + self._drone_handles:
+            handle.remove()
+        self._proposal_handles, self._drone_handles = [], []
+        gui, scene = self.server.gui, self.server.scene
+        self.proposals_note.content = "_no proposals yet_" if not proposals else (
+            f"{sum(p.status == PENDING for p in proposals.values())} open, "
+            f"{sum(p.status == ACCEPTED for p in proposals.values())} accepted; open first")
+        ordered = sorted(proposals.values(), key=lambda p: (p.status != PENDING, p.id))
+        with self.proposals_folder:
+            for p in ordered:
+                slot = int(p.placement.drone_index)
+                decided = self.desk.by_proposal.get(p.id)
+                status = STATUS_NAMES[p.status] if p.status < len(STATUS_NAMES) else "?"
+                lines = [f"**#{p.id}** drone {slot}: **{status}**"
+                         + (f" by {decided.who}" if decided and p.status != PENDING else "")
+                         + (f" ({p.reason})" if p.reason else ""),
+                         f"gain {p.placement.marginal_gain:.3f}, coverage {100 * p.placement.coverage:.0f} %, "
+                         f"zoom {p.placement.zoom:.1f}",
+                         evidence_lines(p.evidence)]
+                folder = gui.add_folder(f"Proposal {p.id}", expand_by_default=p.status == PENDING)
+                self._proposal_handles.append(folder)
+                with folder:
+                    gui.add_markdown("  \n".join(lines))
+                    if slot in views and p.status != 2:
+                        gui.add_image(views[slot], label=f"drone {slot} view", format="jpeg", jpeg_quality=80)
+                    if p.status == PENDING:
+                        for label, key, colour in (("Accept", "accept", "green"), ("Reject", "reject", "red"),
+                                                   ("Failed in flight", "failed", "violet")):
+                            button = gui.add_button(f"{label} #{p.id}", color=colour)
+                            button.on_click(lambda event, pid=p.id, k=key: self._decide(event, pid, k))
+                self._drone_handles += self._drone(scene, p, views.get(slot), fovs.get(slot))
+        with self.graph.lock:
+            rows = waypoint_rows(self.graph.picture.proposals)
+        self.waypoints_md.content = "_none_" if not rows else "\n".join(
+            ["| proposal | drone | x | y | z |", "|---|---|---|---|---|"]
+            + [f"| {pid} | {drone} | {x:.3f} | {y:.3f} | {z:.3f} |" for pid, drone, x, y, z in rows])
+
+    def _drone(self, scene, p, view, fov) -> list:
+        """The drone (a small box on its perch) and its camera frustum carrying the simulated view."""
+        rgb = STATUS_RGB.get(p.status, (128, 128, 128))
+        drone = p.placement.drone_pose
+        handles = [scene.add_box(f"/drones/{p.id}/body", color=rgb, dimensions=(0.25, 0.25, 0.06),
+                                 position=(drone.position.x, drone.position.y, drone.position.z),
+                                 wxyz=wxyz_of(drone), cast_shadow=False, receive_shadow=False)]
+        if p.status == 2:
+            return handles   # rejected: its perch only, no view
+        camera = pose_to_matrix(p.placement.camera_pose)
+        vertical_fov, aspect = fov or (np.radians(58.0), 16 / 9)
+        handles.append(scene.add_camera_frustum(
+            f"/drones/{p.id}/camera", fov=float(vertical_fov), aspect=float(aspect), scale=0.35, color=rgb,
+            image=view, format="jpeg", jpeg_quality=70, position=tuple(camera[:3, 3]),
+            wxyz=wxyz_of(p.placement.camera_pose), thickness=0.01))
+        handles.append(scene.add_label(f"/drones/{p.id}/label", f"#{p.id}",
+                                       position=(drone.position.x, drone.position.y, drone.position.z + 0.2)))
+        return handles
+
+    def _decide(self, event, proposal_id: int, key: str) -> None:
+        reason = self.reason.value.strip()
+        if key == "reject" and not reason:
+            reason = "rejected in the console"
+        what = {"accept": "accepted", "reject": "rejected", "failed": "marked failed in flight"}[key]
+        who = self.who(event)
+        self.desk.decide(who, what, f"proposal {proposal_id}", reason,
+                         lambda: self.graph.call_confirm(proposal_id, DECISIONS[key], self._signed(reason, event)),
+                         proposal_id)
+        with self._ui_lock:   # viser's folders take one builder at a time (the graph's threads build too)
+            self._shown_proposals = None   # the decider's name goes into the proposal's line
+            self._show_proposals()
+            self._show_log()
+
+    def _signed(self, reason: str, event) -> str:
+        """The reason as sent to the graph, naming the operator (the report then shows who decided)."""
+        return f"{reason} [{self.who(event)}]" if reason else f"[{self.who(event)}]"
+
+    def _show_log(self) -> None:
+        recent = self.desk.recent()
+        self.log_md.content = "_none yet_" if not recent else "  \n".join(d.line() for d in recent)
+
+
+def _ok(error: str) -> tuple[bool, str]:
+    return (not error, error or "accepted by the coordinator")
+
+
+def scan_source(path: Path):
+    """(Mesh, TriangleMesh message, up convention) of a scan file, as `perch plan --mesh` sends it."""
+    from perch_common.mesh import load_mesh
+    from perch_common.ros.conversions import mesh_to_msg
+    from perch_common.up_axis import file_convention
+
+    mesh = load_mesh(path)
+    return mesh, mesh_to_msg(mesh), file_convention(str(path))
