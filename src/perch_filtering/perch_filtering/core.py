@@ -249,8 +249,9 @@ def _reachability(work: list[_Work], grid: FlightGrid, mesh: Mesh,
 def _observed(w: _Work, kept: np.ndarray, scene: RayScene, up: np.ndarray, config: FilterConfig) -> None:
     """The observed-space rule (perch_filtering.observed): at most max_unobserved_share of a perch's
     approach prism and of its fall corridor (column below ceilings) may lie in space the scan does not
-    enclose. Runs on the cells every other filter kept (the rays are the costly part); the area it
-    removes counts to obstacle_clearance (approach) and recovery_height (fall), whose volumes these are."""
+    enclose (in the fall's, also where nothing was scanned below). Runs on the cells every other filter
+    kept (the rays are the costly part); the area it removes counts to obstacle_clearance (approach)
+    and recovery_height (fall), whose volumes these are."""
     s = config
     start = s.surface_depth + s.cell  # in front of what counts as the surface itself
     half_u = 0.5 * s.window_width + s.approach_margin
@@ -260,10 +261,10 @@ def _observed(w: _Work, kept: np.ndarray, scene: RayScene, up: np.ndarray, confi
     if w.surface.surface_class == SurfaceClass.WALL:  # the corridor below the window, 2 radii deep
         fall = unobserved_share(scene, w.raster, kept, (-half_u, half_u),
                                 (-(0.5 * s.window_height + s.min_recovery_height), 0.5 * s.window_height),
-                                (start, max(2 * s.drone_radius, start + s.cell)), s.enclosed_escape_share)
+                                (start, max(2 * s.drone_radius, start + s.cell)), s.enclosed_escape_share, -up)
     elif float(w.surface.frame.normal @ up) < 0:  # the column below a ceiling (or a downward surface)
         fall = unobserved_share(scene, w.raster, kept, (-half_u, half_u), (-half_v, half_v),
-                                (start, max(s.min_recovery_height, start + s.cell)), s.enclosed_escape_share)
+                                (start, max(s.min_recovery_height, start + s.cell)), s.enclosed_escape_share, -up)
     else:  # landing: no fall
         fall = np.zeros(w.raster.shape, np.float32)
     limit = s.max_unobserved_share + 1e-6

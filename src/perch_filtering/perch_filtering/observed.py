@@ -6,8 +6,10 @@ most `enclosed_escape_share` of the rays cast from it in ESCAPE_DIRECTIONS fixed
 the model without a hit. Inside a scanned room almost every ray ends on a wall, floor or ceiling (a
 doorway or window opening lets a minority out; a room without ceiling lets out less than half); in
 front of an isolated wall fragment at the scan's edge, with nothing scanned below or in front of it,
-most rays escape. Space behind a scan's edge, or under a fragment whose floor was never scanned, is
-therefore unknown, and a drone may neither approach nor fall through it.
+most rays escape. Space behind a scan's edge is therefore unknown, and a drone may neither approach
+nor fall through it. A fall volume also needs a floor: a point of it with nothing scanned below it (most
+rays of a 20 deg cone around gravity escape; a wall over a part of the room whose floor was never
+scanned) is unobserved too; a hole in the floor lets only a few rays through.
 
 Per surface the rule is evaluated on a coarse grid in the surface's plane frame (NODE_SPACING apart,
 DEPTH_LAYERS layers across each volume's depth), only where live cells' volumes reach; each cell's
@@ -35,6 +37,21 @@ def sphere_directions(count: int) -> np.ndarray:
     return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
 
 
+DOWN_CONE_DEG = 20.0  # half angle of the cone of rays that looks for a floor below a fall volume's point
+
+
+def down_cone(down: np.ndarray, half_angle_deg: float = DOWN_CONE_DEG, ring: int = 8) -> np.ndarray:
+    """(ring + 1, 3) unit directions: `down` and a ring of `ring` around it at the half angle."""
+    down = np.asarray(down, np.float64) / np.linalg.norm(down)
+    side = np.cross(down, [1.0, 0, 0] if abs(down[0]) < 0.9 else [0, 1.0, 0])
+    side /= np.linalg.norm(side)
+    other = np.cross(down, side)
+    t = np.radians(half_angle_deg)
+    phi = np.arange(ring) * 2 * np.pi / ring
+    around = np.cos(t) * down + np.sin(t) * (np.cos(phi)[:, None] * side + np.sin(phi)[:, None] * other)
+    return np.vstack([down, around])
+
+
 def escape_shares(scene: RayScene, points: np.ndarray, directions: np.ndarray) -> np.ndarray:
     """Per point, the share of rays in `directions` that leave the model without a hit."""
     if not len(points):
@@ -46,9 +63,11 @@ def escape_shares(scene: RayScene, points: np.ndarray, directions: np.ndarray) -
 
 def unobserved_share(scene: RayScene, raster: SurfaceRaster, alive: np.ndarray, u_range: tuple[float, float],
                      v_range: tuple[float, float], depth_range: tuple[float, float],
-                     enclosed_escape_share: float) -> np.ndarray:
+                     enclosed_escape_share: float, down: np.ndarray | None = None) -> np.ndarray:
     """Per cell of `alive`, the share of its volume (plane offsets u_range x v_range around the cell,
-    depth_range along the normal) the scan does not enclose; 0 elsewhere."""
+    depth_range along the normal) the scan does not enclose; 0 elsewhere. With `down` (a fall volume:
+    the direction of gravity), a point with nothing scanned below it (down_cone) is unobserved too: a
+    drone falling there would fall into space nobody saw."""
     out = np.zeros(raster.shape, np.float32)
     if not alive.any():
         return out
@@ -74,6 +93,8 @@ def unobserved_share(scene: RayScene, raster: SurfaceRaster, alive: np.ndarray, 
     depths = depth_range[0] + (np.arange(DEPTH_LAYERS) + 0.5) / DEPTH_LAYERS * (depth_range[1] - depth_range[0])
     points = np.concatenate([raster.frame.to_world(uv, np.full(len(uv), d)) for d in depths])
     escaped = escape_shares(scene, points, sphere_directions(ESCAPE_DIRECTIONS)) > enclosed_escape_share
+    if down is not None:  # nothing scanned below: most of a narrow downward cone escapes (a hole lets a few out)
+        escaped |= escape_shares(scene, points, down_cone(down)) > 0.5
     unknown = np.zeros(shape, np.float64)
     np.add.at(unknown, (nr, nc), escaped.reshape(DEPTH_LAYERS, -1).mean(axis=0))
     # Box mean over each live node's volume (integral image; the grid covers every live volume).

@@ -25,7 +25,8 @@ i.e. at most enclosed_escape_share (0.5) of the rays cast from it in ESCAPE_DIRE
 the model without a hit. A room's interior is enclosed (a doorway or window opening lets a minority
 of rays out); space beyond the scan's edge, under a wall fragment with nothing scanned below or in
 front of it, lets most rays out. A volume's unobserved share is the share of its sample points
-(a grid inside it) that are not enclosed.
+(a grid inside it) that are not enclosed; in the fall corridor (column) also those with nothing
+scanned below them (most rays of a 20 deg cone around gravity escape: no floor seen under the fall).
 
 `check_perches` is the entry point (the benchmark and the tests call it).
 """
@@ -172,6 +173,11 @@ class ScanChecker:
         self.target_points = target.sample(self.spec.visibility_points, seed=self.spec.seed) if target else None
         self.start = self.spec.surface_depth + 0.01
         self.directions = sphere_directions(ESCAPE_DIRECTIONS)
+        # Down and 12 directions 20 deg around it (a floor below a fall volume's point).
+        tilt, turns = np.radians(20.0), np.arange(12) * np.pi / 6
+        side = np.linalg.svd(self.up[None])[2][1:]  # two unit vectors across up
+        ring = -np.cos(tilt) * self.up + np.sin(tilt) * (np.cos(turns)[:, None] * side[0] + np.sin(turns)[:, None] * side[1])
+        self.floor_cone = np.vstack([-self.up, ring])
 
     def frame(self, normal: np.ndarray) -> np.ndarray:
         """Rows u, v, n: v along up projected on the plane (walls), else any in-plane pair."""
@@ -230,18 +236,23 @@ class ScanChecker:
             return False
         return self.box_free(*box)
 
-    def unobserved_share(self, centre: np.ndarray, axes: np.ndarray, half: np.ndarray, steps: int = 4) -> float:
-        """Share of a steps^3 grid inside the box that the scan does not enclose (see the module doc)."""
+    def unobserved_share(self, centre: np.ndarray, axes: np.ndarray, half: np.ndarray, steps: int = 4,
+                         fall: bool = False) -> float:
+        """Share of a steps^3 grid inside the box that the scan does not enclose (see the module doc);
+        in a fall volume also the points with nothing scanned straight below them."""
         ticks = (np.arange(steps) + 0.5) / steps * 2 - 1
         a, b, c = np.meshgrid(ticks, ticks, ticks, indexing="ij")
         local = np.column_stack([a.ravel(), b.ravel(), c.ravel()]) * half
         points = centre + local @ axes
-        return float((self.escape_shares(points) > self.spec.enclosed_escape_share).mean())
+        unknown = self.escape_shares(points) > self.spec.enclosed_escape_share
+        if fall:  # nothing scanned below: most rays of a 20 deg cone around gravity escape
+            unknown |= self.escape_shares(points, self.floor_cone) > 0.5
+        return float(unknown.mean())
 
-    def escape_shares(self, points: np.ndarray) -> np.ndarray:
-        """Per point, the share of its ESCAPE_DIRECTIONS rays that leave the model without a hit."""
+    def escape_shares(self, points: np.ndarray, directions: np.ndarray | None = None) -> np.ndarray:
+        """Per point, the share of its rays (ESCAPE_DIRECTIONS, or `directions`) that leave the model."""
         points = np.asarray(points, np.float64).reshape(-1, 3)
-        d = self.directions
+        d = self.directions if directions is None else directions
         origins = np.repeat(points, len(d), axis=0)
         hits = self.rays.cast(origins, np.tile(d, (len(points), 1)))
         return (~hits.hit).reshape(len(points), len(d)).mean(axis=1)
@@ -290,7 +301,7 @@ class ScanChecker:
             out.reasons.append(f"not flat ({100 * out.flatness_rms:.1f} cm RMS)")
         out.approach_observed = 1.0 - self.unobserved_share(*self.approach_box(point, normal))
         box = self.fall_box(point, normal)
-        out.fall_observed = 1.0 - self.unobserved_share(*box) if box is not None else 1.0
+        out.fall_observed = 1.0 - self.unobserved_share(*box, fall=True) if box is not None else 1.0
         out.observed_share = min(out.approach_observed, out.fall_observed)
         limit = 1.0 - s.max_unobserved_share
         for name, share in (("approach prism", out.approach_observed),

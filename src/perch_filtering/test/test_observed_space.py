@@ -77,3 +77,44 @@ def test_the_same_wall_inside_a_scanned_room_is_observed():
         assert r.evidence.approach_observed >= 0.8 and r.evidence.fall_observed >= 0.8, r.evidence
     verdict = check_perches(fragment_scene(closed=True).mesh(), [[5.99, 1.5, 2.3]], [[-1.0, 0, 0]], UP)[0]
     assert verdict.observed_share == 1.0 and not any("unobserved" in r for r in verdict.reasons), verdict.reasons
+
+
+def half_floor_room() -> Builder:
+    """A 6 x 5 x 3 m room with ceiling and walls all round whose floor was scanned only for x < 3 m."""
+    b = Builder()
+    b.quad("floor", [[0, 0, 0], [3, 0, 0], [3, 5, 0], [0, 5, 0]], [0, 0, 1])
+    b.quad("ceiling", [[0, 0, 3], [6, 0, 3], [6, 5, 3], [0, 5, 3]], [0, 0, -1])
+    b.quad("wall_south", [[0, 0, 0], [6, 0, 0], [6, 0, 3], [0, 0, 3]], [0, 1, 0])
+    b.quad("wall_north", [[0, 5, 0], [6, 5, 0], [6, 5, 3], [0, 5, 3]], [0, -1, 0])
+    b.quad("wall_west", [[0, 0, 0], [0, 5, 0], [0, 5, 3], [0, 0, 3]], [1, 0, 0])
+    b.quad("wall_east", [[6, 0, 0], [6, 5, 0], [6, 5, 3], [6, 0, 3]], [-1, 0, 0])
+    return b
+
+
+def _kept_x(result, surface_id: int) -> np.ndarray:
+    """x of the region outline points on one surface (the south wall runs along x)."""
+    pts = [r.frame.to_world(r.polygons[0][0]) for r in result.regions if r.source_surface == surface_id]
+    return np.concatenate(pts)[:, 0] if pts else np.zeros(0)
+
+
+def test_a_fall_with_no_floor_scanned_below_is_refused():
+    """Enclosed by walls and ceiling, but with no floor scanned below: the south wall keeps perches
+    over the scanned floor only (its fall corridor is 0.35 m either side of a perch), and the checker
+    names the fall corridor for a perch over the unscanned half."""
+    b = half_floor_room()
+    names = b.names()
+    surfaces = b.surfaces(names)
+    south = surfaces[names.index("wall_south")].id
+    target = TargetVolume(center=[1.5, 2.5, 1.0], size=[1.5, 2.0, 1.0])
+    result = filter_surfaces(b.mesh(), surfaces, target, UP, FilterConfig())
+    x = _kept_x(result, south)
+    assert len(x) and x.min() < 2.5, result.message
+    assert x.max() <= 3.0 + 0.35 + 0.15, x.max()  # corridor half-width plus one node of the 15 cm grid
+    loose = filter_surfaces(b.mesh(), surfaces, target, UP, FilterConfig(max_unobserved_share=1.0))
+    assert _kept_x(loose, south).max() > 4.5  # without the rule the wall over the unscanned floor is kept
+    verdict = check_perches(b.mesh(), [[5.0, 0.0, 1.8]], [[0, 1.0, 0]], UP)[0]
+    assert not verdict.safe and any(r.startswith("fall corridor") and r.endswith("% unobserved")
+                                    for r in verdict.reasons), verdict.reasons
+    assert verdict.approach_observed == 1.0  # the approach is enclosed; only the fall has no floor under it
+    over_floor = check_perches(b.mesh(), [[1.5, 0.0, 1.8]], [[0, 1.0, 0]], UP)[0]
+    assert over_floor.observed_share == 1.0, over_floor.reasons
