@@ -135,7 +135,9 @@ def evidence_text(e) -> str:
     if e.support_share < 0:
         return "evidence not measured"
     return (f"approach {e.approach_clearance:.2f} m, fall {e.free_fall:.2f} m, "
-            f"support {100 * e.support_share:.0f} %, flat {100 * e.flatness_rms:.1f} cm")
+            f"support {100 * e.support_share:.0f} %, flat {100 * e.flatness_rms:.1f} cm"
+            + (f", observed {100 * min(e.approach_observed, e.fall_observed):.0f} %"
+               if min(e.approach_observed, e.fall_observed) >= 0 else ""))
 
 
 def _list(args) -> int:
