@@ -108,7 +108,7 @@ def optimise(mesh: Mesh, regions: list[PerchRegion], target: TargetVolume, num_c
         from perch_placement.certificate import coverage_certificate
 
         certificate = coverage_certificate(ctx.candidates(), fixed_state[1], num_cameras, cfg.drone.min_spacing,
-                                           cfg.certificate_seconds)
+                                           cfg.certificate_seconds, evaluator.seen)
     seconds = time.perf_counter() - start
     text = _message(method, num_cameras, placements, score, bound,
                     shortfall_sentence(regions, num_cameras, len(placements), cfg.drone.min_spacing,

@@ -11,7 +11,7 @@ from placement_rooms import box_room
 from perch_common.target import TargetVolume
 from perch_placement.camera import max_covariance_norm
 from perch_placement.candidates import build_candidates
-from perch_placement.certificate import coverage_certificate, undominated
+from perch_placement.certificate import cheap_bound, coverage_certificate, undominated
 from perch_placement.config import PlacementConfig
 from perch_placement.core import optimise, scene_for
 from perch_placement.fitness import Evaluator
@@ -158,6 +158,11 @@ def test_coverage_certificate_is_never_below_the_brute_force_optimum(k, spacing,
     assert cert.coverage_bound >= best - 1e-9
     assert cert.coverage_bound <= 1.0
     assert cert.gap(best) >= -1e-9
+    # The program-free bounds hold at any answer, and the certificate given one never goes below them.
+    for answer in (base, base | visible[0], base | visible[:5].any(axis=0)):
+        assert cheap_bound(cands, base, answer, k, spacing) >= best - 1e-9
+        given = coverage_certificate(cands, base, k, spacing, time_limit=30.0, answer_seen=answer)
+        assert given.coverage_bound >= best - 1e-9 and given.coverage_bound <= cert.coverage_bound + 1e-9
 
 
 def test_dominated_orientations_are_dropped_and_equal_ones_kept_once():
