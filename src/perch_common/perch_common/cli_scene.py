@@ -22,8 +22,11 @@ def register(sub) -> None:
     g.add_argument("--holes", type=int, default=0, help="number of holes cut into walls")
     g.add_argument("--no-ceiling", action="store_true")
     g.add_argument("--no-furniture", action="store_true")
-    g.add_argument("--resolution", type=float, default=None, help="grid size (m; default 0.1, building 0.042)")
+    g.add_argument("--resolution", type=float, default=None,
+                   help="grid size (m; default 0.1, building and multi_storey 0.042)")
     g.add_argument("--clutter", type=int, default=0, help="small boxes scattered on the floors")
+    g.add_argument("--floors", type=int, default=None,
+                   help="storeys of a multi_storey building, 2-4 (default: drawn from the seed)")
     g.add_argument("-o", "--output", required=True, help="mesh file (.ply, .obj, .glb, .stl)")
     g.set_defaults(func=_generate)
     p.set_defaults(func=lambda args: p.print_help() or 2)
@@ -51,7 +54,7 @@ def write_scene(scene, output: Path) -> dict:
 def _generate(args) -> int:
     scene = generate_scene(args.seed, args.kind, noise=args.noise, holes=args.holes,
                            ceiling=not args.no_ceiling, furniture=not args.no_furniture,
-                           resolution=args.resolution, clutter=args.clutter)
+                           resolution=args.resolution, clutter=args.clutter, floors=args.floors)
     s = write_scene(scene, Path(args.output))
     print(f"{s['mesh']}: {s['kind']} seed {s['seed']}, {s['faces']} faces, {s['planes']} planes, "
           f"{s['furniture']} furniture items; labels in {s['labels']}")

@@ -20,8 +20,10 @@ from perch_common.scene_layout import Layout, make_layout
 from perch_common.target import TargetVolume
 from perch_common.types import PlaneFrame, Surface, SurfaceClass
 
-KINDS = ("room", "l_shaped", "two_rooms", "apartment", "building")
-DEFAULT_RESOLUTION = {"building": 0.042}   # m; others 0.1. A building floor is 2-3 M faces at 0.042 m
+KINDS = ("room", "l_shaped", "two_rooms", "apartment", "building", "multi_storey")
+# m; others 0.1. A building floor is 2-3 M faces at 0.042 m, a multi_storey building 5-8 M.
+DEFAULT_RESOLUTION = {"building": 0.042, "multi_storey": 0.042}
+FLOORS = (2, 4)   # storeys of a multi_storey building
 
 
 class SemanticClass(IntEnum):
@@ -133,22 +135,30 @@ class GeneratedScene:
 
 def generate_scene(seed: int, kind: str = "room", *, noise: float = 0.0, holes: int = 0,
                    ceiling: bool = True, furniture: bool = True, openings: bool = True,
-                   resolution: float | None = None, clutter: int = 0) -> GeneratedScene:
-    """A seeded scene of the given kind ("room", "l_shaped", "two_rooms", "apartment", "building").
+                   resolution: float | None = None, clutter: int = 0,
+                   floors: int | None = None) -> GeneratedScene:
+    """A seeded scene of the given kind ("room", "l_shaped", "two_rooms", "apartment", "building",
+    "multi_storey").
 
     A building is one floor of 8-12 rooms off two crossing corridors (400-800 m^2), with a doorway
     from every room, furniture in every room, and a target of three volumes: the corridor junction
-    and two rooms. `clutter` adds that many small boxes on the floors (class furniture).
+    and two rooms. A multi_storey building is 2-4 such floors (`floors`, default drawn from the
+    seed) on 0.25 m slabs, a stair flight between each pair of storeys under a hole in the slab,
+    two shafts through every slab at the corridors' far ends, furniture on every storey, and a
+    target of six volumes spread over the storeys. `clutter` adds that many small boxes on the
+    floors (class furniture).
     """
     if kind not in KINDS:
         raise ValueError(f"unknown scene kind '{kind}' (use one of {', '.join(KINDS)})")
+    if floors is not None and (kind != "multi_storey" or not FLOORS[0] <= floors <= FLOORS[1]):
+        raise ValueError(f"floors {floors}: only a multi_storey scene has floors, {FLOORS[0]}-{FLOORS[1]} of them")
     resolution = DEFAULT_RESOLUTION.get(kind, 0.1) if resolution is None else resolution
     if not 0.02 <= resolution <= 0.5:
         raise ValueError(f"resolution {resolution} m out of range 0.02-0.5")
     if clutter < 0:
         raise ValueError(f"clutter {clutter}: give a count of 0 or more")
     rng = np.random.default_rng(seed)
-    layout = make_layout(kind, rng, resolution, furniture, clutter)
+    layout = make_layout(kind, rng, resolution, furniture, clutter, floors)
     faces_abc = _boundary_faces(layout.solid)
     lattice, faces, normal_axis, normal_sign, solid_label = faces_abc
     face_class = _classify(normal_axis, normal_sign, solid_label)
@@ -177,10 +187,10 @@ def generate_scene(seed: int, kind: str = "room", *, noise: float = 0.0, holes: 
     boxes = [FurnitureBox(f.kind, world[:3, :3] @ (f.center * resolution) + world[:3, 3],
                           f.size * resolution, world[:3, :3]) for f in layout.furniture]
     if layout.targets:   # each named volume in full, 0.1-1.3 m above the floor
-        target = TargetVolume.union([_box_target(box, world, resolution, layout.floor_z, 1.0)
+        target = TargetVolume.union([_box_target(box, world, resolution, box[2], 1.0)
                                      for box in layout.targets])
     else:                # the middle half of the main room
-        target = _box_target(layout.rooms[0], world, resolution, layout.floor_z, 0.5)
+        target = _box_target(layout.rooms[0], world, resolution, layout.rooms[0][2], 0.5)
     scene = GeneratedScene(mesh, face_plane, face_class, [], grid, boxes, target, world, kind, seed)
     scene.planes = _plane_table(mesh, face_plane, face_class)
     return scene
@@ -284,7 +294,7 @@ def _add_openings(rng, layout: Layout, lattice, faces, axis, cls, key) -> None:
         a = axis[members[0]]
         along = (a + 1) % 3 if (a + 1) % 3 != 2 else (a + 2) % 3
         coord = centre[members, along]
-        height = centre[members, 2] - layout.floor_z
+        height = centre[members, 2] - layout.floor_below(centre[members, 2])   # above its own storey's floor
         lo, hi = coord.min(), coord.max()
         is_door = placed % 2 == 0
         width = (0.9 if is_door else rng.uniform(1.0, 1.6)) / res

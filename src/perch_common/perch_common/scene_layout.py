@@ -29,15 +29,25 @@ class Layout:
     floor_z: int
     furniture: list[FurnitureItem] = field(default_factory=list)
     targets: list[tuple[int, ...]] = field(default_factory=list)   # free boxes to observe (default: main room)
+    storeys: list[int] = field(default_factory=list)   # floor level of each storey, lowest first (empty: floor_z)
+
+    def floor_below(self, z: np.ndarray) -> np.ndarray:
+        """The floor level (voxels) of the storey each height `z` (voxels) lies in."""
+        levels = np.asarray(self.storeys or [self.floor_z])
+        return levels[np.clip(np.searchsorted(levels, z, side="right") - 1, 0, len(levels) - 1)]
 
 
-def make_layout(kind: str, rng: np.random.Generator, res: float, with_furniture: bool, clutter: int = 0) -> Layout:
-    """The voxel layout of a scene kind: rooms carved from solid, doorways, furniture, clutter."""
+def make_layout(kind: str, rng: np.random.Generator, res: float, with_furniture: bool, clutter: int = 0,
+                floors: int | None = None) -> Layout:
+    """The voxel layout of a scene kind: rooms carved from solid, doorways, furniture, clutter
+    (`floors`: storeys of a multi_storey building, default drawn from 2-4)."""
     m = lambda metres: int(round(metres / res))  # noqa: E731 - metres to voxels
     height = m(rng.uniform(2.4, 3.2))
     wall = max(1, m(0.2))
     targets: list[tuple[int, int, int, int]] = []
     furnished = 2
+    if kind == "multi_storey":
+        return _multi_storey(rng, m, res, height, wall, with_furniture, clutter, floors)
     if kind == "building":
         boxes, doorways, targets, furnished = _building_plan(rng, m, wall)
     elif kind == "room":
@@ -82,13 +92,14 @@ def make_layout(kind: str, rng: np.random.Generator, res: float, with_furniture:
     return layout
 
 
-def _building_plan(rng, m, wall: int):
+def _building_plan(rng, m, wall: int, rooms_per_quadrant: tuple[int, int] = (2, 3)):
     """A floor of 8-12 rooms off two crossing corridors (voxels): room and corridor boxes (rooms
     first, corridors last), a doorway from every room into the corridor it faces, the targets
     (corridor junction and two rooms) and how many boxes get furniture (the rooms)."""
     corridor = m(rng.uniform(1.8, 2.4))
     depth = {side: m(rng.uniform(6.0, 8.0)) for side in ("south", "north")}
-    per_quadrant = {q: int(rng.integers(2, 4)) for q in ("sw", "se", "nw", "ne")}
+    low, high = rooms_per_quadrant
+    per_quadrant = {q: int(rng.integers(low, high + 1)) for q in ("sw", "se", "nw", "ne")}
     widths = {q: [m(rng.uniform(4.5, 6.5)) for _ in range(n)] for q, n in per_quadrant.items()}
     span = {q: sum(w) + wall * (len(w) - 1) for q, w in widths.items()}
     west = max(span["sw"], span["nw"])
@@ -117,12 +128,93 @@ def _building_plan(rng, m, wall: int):
     return rooms + corridors, doorways, targets, len(rooms)
 
 
+# Storeys of a multi_storey building -> rooms per quadrant of each floor plan: ~5-8 M faces at
+# 0.042 m whatever the count (a building floor of 8-12 rooms is 2-3 M faces).
+STOREY_ROOMS = {2: (3, 3), 3: (2, 3), 4: (2, 2)}
+TARGET_VOLUMES = 6   # of a multi_storey building, spread over its storeys
+
+
+def _multi_storey(rng, m, res: float, height: int, wall: int, with_furniture: bool, clutter: int,
+                  floors: int | None = None) -> Layout:
+    """2-4 storeys of the building floor plan on slabs, joined by a stair flight between each pair
+    of storeys (in the north-south corridor, alternately at its south and north end) and two
+    shafts through every slab (both ends of the east-west corridor).
+
+    Each storey has its own furniture; the target is six volumes spread over the storeys (each
+    storey's corridor junction first, then rooms)."""
+    floors = int(rng.integers(2, 5)) if floors is None else floors
+    boxes, doorways, _, furnished = _building_plan(rng, m, wall, STOREY_ROOMS[floors])
+    slab = max(1, m(0.25))
+    pitch = height + slab
+    x_max = max(b[2] for b in boxes)
+    y_max = max(b[3] for b in boxes)
+    shape = (x_max + 2 * MARGIN, y_max + 2 * MARGIN, floors * pitch - slab + 2 * MARGIN)
+    solid = np.full(shape, STRUCTURE, np.int64)
+    storeys = [MARGIN + k * pitch for k in range(floors)]
+    rooms = []
+    for z0 in storeys:
+        for x0, y0, x1, y1 in boxes:
+            room = (x0 + MARGIN, y0 + MARGIN, z0, x1 + MARGIN, y1 + MARGIN, z0 + height)
+            solid[room[0]:room[3], room[1]:room[4], room[2]:room[5]] = 0
+            rooms.append(room)
+        for x0, y0, x1, y1 in doorways:
+            solid[x0 + MARGIN:x1 + MARGIN, y0 + MARGIN:y1 + MARGIN, z0:z0 + m(2.1)] = 0
+    ew, ns = boxes[furnished], boxes[furnished + 1]   # the east-west and north-south corridors
+    for k in range(floors - 1):
+        _stairs(solid, ns, k % 2 == 0, storeys[k], pitch, height, m)
+    shaft = m(2.0)
+    for x0, y0, x1, y1 in ((ew[0], ew[1], ew[0] + shaft, ew[3]), (ew[2] - shaft, ew[1], ew[2], ew[3])):
+        solid[x0 + MARGIN:x1 + MARGIN, y0 + MARGIN:y1 + MARGIN, storeys[0]:storeys[-1] + height] = 0
+    layout = Layout(res, solid, rooms, storeys[0], storeys=storeys)
+    per_storey = len(boxes)
+    junction = (ns[0], ew[1], ns[2], ew[3])
+    picks: list[tuple[int, ...]] = []
+    for i in range(TARGET_VOLUMES):
+        k = i % floors
+        box = junction if i < floors else boxes[int(rng.choice(
+            [r for r in range(furnished) if boxes[r] not in [p[1] for p in picks if p[0] == k]]))]
+        picks.append((k, box))
+    layout.targets = [(x0 + MARGIN, y0 + MARGIN, storeys[k], x1 + MARGIN, y1 + MARGIN, storeys[k] + height)
+                      for k, (x0, y0, x1, y1) in picks]
+    blocked = _doorway_mask(shape, doorways, m(0.8))
+    if with_furniture:
+        for k in range(floors):
+            for room in rooms[k * per_storey:k * per_storey + furnished]:
+                _furnish(rng, layout, room, blocked, m)
+    if clutter:
+        _scatter_clutter(rng, layout, blocked, clutter, m)
+    return layout
+
+
+def _stairs(solid, corridor, from_south: bool, z0: int, pitch: int, height: int, m) -> None:
+    """A straight flight in the north-south corridor (which no doorway opens onto) from the
+    storey at z0 up to the next (one pitch), against its west wall, starting at its south or
+    north end, under a hole in the slab above."""
+    steps = int(np.ceil(pitch / m(0.18)))
+    run = max(1, m(0.27))
+    width = min(m(1.1), corridor[2] - corridor[0] - m(0.6))
+    x0 = corridor[0] + MARGIN
+    length = steps * run
+    y_start = corridor[1] + MARGIN if from_south else corridor[3] + MARGIN - length
+    # The hole first (the top step fills it again), one voxel wider than the flight: a step whose
+    # top meets the slab's underside would otherwise touch the slab along an edge only (a
+    # non-manifold mesh edge).
+    solid[x0:x0 + width + 1, y_start:y_start + length, z0 + height:z0 + pitch] = 0
+    for j in range(steps):
+        top = z0 + int(round((j + 1) * pitch / steps))
+        y = y_start + j * run if from_south else y_start + length - (j + 1) * run
+        solid[x0:x0 + width, y:y + run, z0:top] = STRUCTURE
+
+
 def _scatter_clutter(rng, layout: Layout, blocked: np.ndarray, count: int, m) -> None:
     """`count` small boxes (0.2-0.5 m) on the floors, clear of doorways and other items (furniture class)."""
-    footprint = blocked | np.any(layout.solid[:, :, layout.floor_z:layout.floor_z + 1] > 0, axis=2)
+    footprints: dict[int, np.ndarray] = {}   # per storey: its floor's occupied cells
     for _ in range(count):
         room = layout.rooms[int(rng.integers(len(layout.rooms)))]
         x0, y0, z0, x1, y1, _ = room
+        if z0 not in footprints:
+            footprints[z0] = blocked | np.any(layout.solid[:, :, z0:z0 + 1] > 0, axis=2)
+        footprint = footprints[z0]
         size = [max(1, m(rng.uniform(0.2, 0.5))) for _ in range(3)]
         for _ in range(20):
             bx = int(rng.integers(x0 + 1, max(x0 + 2, x1 - size[0] - 1)))

@@ -6,13 +6,14 @@ import trimesh
 
 from perch_common.scene_generator import KINDS, SemanticClass, generate_scene
 
-FLOOR_M2 = {"building": (400, 800)}   # floor plus furniture footprint; others 20-62 m^2
+FLOOR_M2 = {"building": (400, 800)}   # floor plus furniture footprint (per storey); others 20-62 m^2
+COARSE = {"building": 0.1, "multi_storey": 0.1}
 
 
 @pytest.fixture(scope="module", params=KINDS)
 def scene(request):
-    # The building at 0.1 m (not its default 0.042 m): the same layout at a tenth of the faces.
-    return generate_scene(7, request.param, resolution=0.1 if request.param == "building" else None)
+    # The buildings at 0.1 m (not their default 0.042 m): the same layout at a fifth of the faces.
+    return generate_scene(7, request.param, resolution=COARSE.get(request.param))
 
 
 def test_watertight_with_normals_into_free_space(scene):
@@ -40,11 +41,14 @@ def test_every_face_labelled_and_planes_consistent(scene):
 
 def test_realistic_scale(scene):
     areas = scene.mesh.face_areas()
-    floor = areas[scene.face_class == SemanticClass.FLOOR].sum()
-    furniture_footprint = sum(b.size[0] * b.size[1] for b in scene.furniture)
-    low, high = FLOOR_M2.get(scene.kind, (20, 62))
+    centroids = scene.mesh.face_centroids()
+    # The lowest storey (a multi_storey building: below its first slab).
+    lowest = centroids[:, 2] < 3.2 + 0.5 if scene.kind == "multi_storey" else np.ones(len(areas), bool)
+    floor = areas[(scene.face_class == SemanticClass.FLOOR) & lowest].sum()
+    furniture_footprint = sum(b.size[0] * b.size[1] for b in scene.furniture if b.center[2] < 3.2)
+    low, high = FLOOR_M2.get(scene.kind.replace("multi_storey", "building"), (20, 62))
     assert low <= floor + furniture_footprint <= high
-    ceiling_z = scene.mesh.face_centroids()[scene.face_class == SemanticClass.CEILING][:, 2]
+    ceiling_z = centroids[(scene.face_class == SemanticClass.CEILING) & lowest][:, 2]
     assert 2.4 - 1e-6 <= np.median(ceiling_z) <= 3.2 + 1e-6
     assert scene.mesh.vertices[:, 2].min() == pytest.approx(0.0)
 
@@ -135,3 +139,54 @@ def test_building_clutter_adds_small_furniture():
     added = [f for f in cluttered.furniture if f.kind == "clutter"]
     assert 20 <= len(added) <= 30 and len(cluttered.furniture) == len(bare.furniture) + len(added)
     assert all(np.all(f.size <= 0.5 + 1e-9) for f in added)
+
+
+def test_multi_storey_building_stairs_shafts_and_targets_on_several_storeys():
+    """2-4 storeys of the building plan, each reachable from the one below by its stair flight,
+    two shafts through every slab, six target volumes over the storeys, every storey furnished."""
+    from scipy import ndimage
+
+    from perch_common.scene_generator import DEFAULT_RESOLUTION
+
+    assert DEFAULT_RESOLUTION["multi_storey"] == DEFAULT_RESOLUTION["building"]
+    for floors in (2, 3, 4):
+        scene = generate_scene(5, "multi_storey", resolution=0.15, floors=floors)
+        grid = scene.free_space
+        res = grid.voxel_size
+        tm = trimesh.Trimesh(scene.mesh.vertices, scene.mesh.faces, process=False)
+        assert tm.is_watertight and tm.is_winding_consistent
+        # Storey floors: large up-facing areas at `floors` distinct heights, one pitch apart.
+        centroids, areas = scene.mesh.face_centroids(), scene.mesh.face_areas()
+        up = scene.face_class == SemanticClass.FLOOR
+        levels, inverse = np.unique(np.round(centroids[up, 2], 3), return_inverse=True)
+        level_area = np.bincount(inverse, weights=areas[up])
+        storeys = levels[level_area > 100]
+        assert len(storeys) == floors, (storeys, level_area.max())
+        pitch = np.diff(storeys)
+        assert np.allclose(pitch, pitch[0]) and 2.4 + 0.2 <= pitch[0] <= 3.2 + 0.3
+        # Stair treads: small up-facing areas between the storeys' floors.
+        treads = levels[(level_area < 5) & (levels > storeys[0]) & (levels < storeys[-1])]
+        assert len(treads) >= 10 * (floors - 1)
+        # Everything free is one connected space (rooms through doorways, storeys through the
+        # stairs and shafts), and a shaft is free from the lowest floor to the top ceiling.
+        _, pieces = ndimage.label(~grid.occupied)
+        assert pieces == 1
+        column_free = (~grid.occupied[:, :, 2:-2]).all(axis=2)   # inside the 2 solid voxels of margin
+        assert column_free.sum() >= 2 * (2.0 / res) * (1.8 / res) * 0.9   # two shafts of 2 m x >= 1.8 m
+        # Walls higher than a storey: the shafts' walls.
+        tall = [p for p in scene.planes if p.semantic_class == SemanticClass.WALL and p.area > 0]
+        wall_faces = scene.face_class == SemanticClass.WALL
+        heights = [np.ptp(centroids[(scene.face_plane == p.id) & wall_faces, 2]) for p in tall]
+        assert max(heights) > pitch[0] * (floors - 1)
+        volumes = scene.target.volumes()
+        assert len(volumes) == 6
+        volume_storeys = {int(np.argmin(abs(storeys - (v.center[2] - 0.7)))) for v in volumes}
+        assert volume_storeys == set(range(floors))
+        points = scene.target.sample(600, seed=2)
+        assert scene.target.contains(points).all() and scene.free_space.is_free(points).mean() > 0.85
+        furniture_storeys = {int(np.argmin(abs(storeys - (f.center[2] - f.size[2] / 2)))) for f in scene.furniture}
+        assert furniture_storeys == set(range(floors))
+    with pytest.raises(ValueError, match="floors 5"):
+        generate_scene(5, "multi_storey", floors=5)
+    with pytest.raises(ValueError, match="only a multi_storey scene has floors"):
+        generate_scene(5, "building", floors=2)
