@@ -123,11 +123,13 @@ def choose_domain(out=sys.stderr) -> int:
     return current_domain()
 
 
-def existing_perch_graph(node, wait: float = 3.0) -> tuple[list[str], list[str]]:
+def existing_perch_graph(node, wait: float = 6.0, settle: float = 1.0) -> tuple[list[str], list[str]]:
     """(services of a Perch mission graph found on this domain and namespace, why it cannot be used).
 
-    Looked for only when some process on this host takes part in the domain; discovery lists a
-    running graph's services within `wait` seconds. A graph is usable when every mission node's
+    Looked for only when some process on this host takes part in the domain. The look ends when
+    every mission service is found, or when the graph's node list has not changed for `settle`
+    seconds and holds no Perch mission node in this namespace (other tools only), or after `wait`
+    seconds (Perch nodes whose services did not all appear). A graph is usable when every mission node's
     service is there with this installation's types: service type names, and the RIHS01 hashes of
     the coordinator's feedback and the stages' introspection events (interfaces changed since it
     started, or another Perch version, would garble every message)."""
@@ -142,11 +144,19 @@ def existing_perch_graph(node, wait: float = 3.0) -> tuple[list[str], list[str]]
     kinds = {node.resolve_service_name(s.service): f"perch_interfaces/srv/{s.srv_type.__name__}"
              for s in STAGES.values()}
     wanted = [node.resolve_service_name(NODE_SERVICES[n][0]) for n in mission_nodes()]
+    ours = set(mission_nodes())
+    namespace = node.get_namespace()
     deadline = time.monotonic() + wait
+    seen, changed = None, time.monotonic()
     while True:
         offered = dict(node.get_service_names_and_types())
         found = [name for name in wanted if name in offered]
-        if len(found) == len(wanted) or time.monotonic() > deadline:
+        names = set(node.get_node_names_and_namespaces())
+        if names != seen:
+            seen, changed = names, time.monotonic()
+        perch_here = any(name in ours and ns == namespace for name, ns in names)
+        quiet = not found and not perch_here and time.monotonic() - changed >= settle
+        if len(found) == len(wanted) or quiet or time.monotonic() > deadline:
             break
         time.sleep(0.1)
     if not found:

@@ -227,6 +227,7 @@ class ReconstructionNode(Node):
 
         def progress(stats) -> None:
             self._offline_status = bag_progress(request.bag_path, stats, total)
+            self._publish_status()   # each checkpoint at once, not only on the timer: a fast bag shows its progress too
 
         self._offline_status = bag_progress(request.bag_path, None, total)  # reading: counters at zero, frame unknown
 
