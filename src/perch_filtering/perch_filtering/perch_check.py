@@ -13,8 +13,8 @@ and tests triangles against boxes directly), so that the two can check each othe
   support   of a 21 x 21 grid over the window, at least min_support - SUPPORT_SLACK find their first
             mesh hit within plane_tolerance of the window's perch plane (at the median of the hits
             within plane_tolerance + max_support_rms of the plane), RMS distance <= max_support_rms;
-  observed  the approach prism and the fall corridor (column) lie in space the scan observed
-            (`observed_shares`): at most max_unobserved_share of each may be unobserved;
+  observed  the approach prism and the fall corridor (column) lie in space the scan observed: at most
+            max_unobserved_share + OBSERVED_SLACK of each may be unobserved (module doc below);
   sight     (with a target) at least min_visible_share of the target's sample points seen;
   reach     the standoff point in front of the seated perch is at least a drone radius from the mesh.
 START (7 cm): geometry nearer the plane than surface_depth (6 cm) is the scanned surface itself
@@ -45,6 +45,9 @@ __all__ = ["CheckSpec", "PerchVerdict", "ScanChecker", "check_perches", "spec_fr
 
 SUPPORT_SLACK = 0.03  # two grids of 21 and 25 steps over one ragged window disagree by up to ~3 points
 SUPPORT_POINTS = 21   # per side of the perch window
+# The filter samples a volume on a 15 cm grid of 3 layers with 32 directions, this checker on a 4 x 4 x 4
+# grid with 64: over one volume the two shares differ by up to ~4 points (measured on the corpus).
+OBSERVED_SLACK = 0.05
 ESCAPE_DIRECTIONS = 64  # rays per sample point of a volume (Fibonacci sphere, fixed)
 
 
@@ -303,7 +306,7 @@ class ScanChecker:
         box = self.fall_box(point, normal)
         out.fall_observed = 1.0 - self.unobserved_share(*box, fall=True) if box is not None else 1.0
         out.observed_share = min(out.approach_observed, out.fall_observed)
-        limit = 1.0 - s.max_unobserved_share
+        limit = 1.0 - s.max_unobserved_share - OBSERVED_SLACK
         for name, share in (("approach prism", out.approach_observed),
                             ("fall corridor" if kind == "wall" else "fall column", out.fall_observed)):
             if share < limit - 1e-9:
