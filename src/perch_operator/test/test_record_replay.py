@@ -1,6 +1,7 @@
 """Recording introspection events to MCAP and `replay --check` against the live crop service."""
 
 import io
+import time
 
 import numpy as np
 import pytest
@@ -8,6 +9,11 @@ import pytest
 from perch_common.ros import testing
 
 pytestmark = pytest.mark.ros
+
+# A node process just started takes 6 s to be discovered on a machine at load 15 (measured), more
+# under CI's load: discovery and calls get generous deadlines, and the test waits for what it needs.
+DISCOVERY = 120.0
+EVENTS = "/perch/crop/_service_event"
 
 
 def test_crop_calls_are_recorded_and_replay_check_catches_a_parameter_change(ros_node, operator, meshes, tmp_path):
@@ -29,11 +35,14 @@ def test_crop_calls_are_recorded_and_replay_check_catches_a_parameter_change(ros
     keep.keep_boxes = [pm.OrientedBox(pose=pose_msg(pose), size=vector_msg([2.0, 3.2, 3.0]))]
     with operator():
         recorder = MissionRecorder(ros_node, path)
-        assert recorder.wait_matched(["/perch/crop/_service_event"], lambda t: spin_for(ros_node, t), 10) == []
-        first = testing.call_service(ros_node, Crop, "/perch/crop", Crop.Request(mesh=room), timeout=20)
-        second = testing.call_service(ros_node, Crop, "/perch/crop", keep, timeout=20)
+        assert recorder.wait_matched([EVENTS], lambda t: spin_for(ros_node, t), DISCOVERY) == []
+        first = testing.call_service(ros_node, Crop, "/perch/crop", Crop.Request(mesh=room), timeout=DISCOVERY)
+        second = testing.call_service(ros_node, Crop, "/perch/crop", keep, timeout=DISCOVERY)
         assert first.success and second.success
-        spin_for(ros_node, 1.0)
+        # The reply-sent event is published after the reply: wait for all four events, not a fixed time.
+        deadline = time.monotonic() + DISCOVERY
+        while recorder.counts.get(EVENTS, 0) < 4 and time.monotonic() < deadline:
+            spin_for(ros_node, 0.1)
         recorder.close()
 
         calls = stage_calls(path)
@@ -41,20 +50,26 @@ def test_crop_calls_are_recorded_and_replay_check_catches_a_parameter_change(ros
         assert len(calls[1].request.keep_boxes) == 1 and len(calls[0].request.keep_boxes) == 0
         np.testing.assert_array_equal(from_array(calls[1].response.kept_faces, np.uint32),
                                       from_array(second.kept_faces, np.uint32))
-        assert channel_counts(path)["/perch/crop/_service_event"] == 4  # received + sent, twice
+        assert channel_counts(path)[EVENTS] == 4  # received + sent, twice
         with open(path, "rb") as handle:  # the standard reader sees ros2 schemas
             summary = make_reader(handle).get_summary()
         schemas = {s.name: s.encoding for s in summary.schemas.values()}
         assert schemas["perch_interfaces/srv/Crop_Event"] == "ros2msg"
 
         out = io.StringIO()
-        clean = replay(ros_node, path, check=True, out=out)
+        clean = replay(ros_node, path, check=True, out=out, wait=DISCOVERY)
         assert all(o.ok for o in clean), out.getvalue()
         assert summary_line(clean, True).startswith("replay check passed: 2 stage call(s)")
 
+    # The stopped operator must be gone from this node's view first: a client still matched to it
+    # would send the first replayed request to it and never get a reply from the new one.
+    deadline = time.monotonic() + DISCOVERY
+    while ros_node.count_publishers(EVENTS) and time.monotonic() < deadline:
+        spin_for(ros_node, 0.1)
+    assert ros_node.count_publishers(EVENTS) == 0
     with operator(**{"crop.target_height": 2.0}):
         out = io.StringIO()
-        changed = replay(ros_node, path, check=True, out=out)
+        changed = replay(ros_node, path, check=True, out=out, wait=DISCOVERY)
         text = out.getvalue()
         assert not changed[0].ok and changed[1].ok is False
         assert "target.height: recorded 1.2, replayed 2" in text
