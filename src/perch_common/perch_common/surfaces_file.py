@@ -72,13 +72,15 @@ def write_surfaces(path: str | Path, surfaces: list[Surface], source: str = "", 
     """{"source", "frame_id", "surfaces": [surface_record...]} as JSON (.json suffix) or YAML."""
     import yaml
 
+    from perch_common.outputs import atomic_path
+
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     document = {"source": source, "frame_id": frame_id, "surfaces": [surface_record(s) for s in surfaces]}
-    if path.suffix.lower() == ".json":
-        path.write_text(json.dumps(document))
-    else:
-        dumper = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
-        with path.open("w") as handle:
-            yaml.dump(document, handle, Dumper=dumper, default_flow_style=None, sort_keys=False)
+    with atomic_path(path) as temporary:   # a failed write leaves the previous file whole
+        if path.suffix.lower() == ".json":
+            temporary.write_text(json.dumps(document))
+        else:
+            dumper = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
+            with temporary.open("w") as handle:
+                yaml.dump(document, handle, Dumper=dumper, default_flow_style=None, sort_keys=False)
     return path

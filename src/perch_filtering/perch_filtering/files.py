@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from perch_common.mesh import Mesh, save_mesh
+from perch_common.outputs import atomic_path
 from perch_common.surfaces_file import write_surfaces
 from perch_common.types import FilterRemoval, PerchRegion, PlaneFrame, SurfaceClass
 
@@ -49,7 +50,8 @@ def write_result(out_dir: str | Path, result) -> dict[str, Path]:
                "regions": [region_dict(r) for r in result.regions],
                "removals": [removal_dict(r) for r in result.removals]}
     paths = {"regions": out / "regions.json", "surfaces": out / "surfaces.json"}
-    paths["regions"].write_text(json.dumps(summary, indent=1))
+    with atomic_path(paths["regions"]) as temporary:   # a failed write leaves the previous file whole
+        temporary.write_text(json.dumps(summary, indent=1))
     write_surfaces(paths["surfaces"], result.surfaces)
     if result.regions:
         paths["mesh"] = save_mesh(out / "regions.ply", *merged_regions(result.regions))

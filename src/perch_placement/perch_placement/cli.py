@@ -51,6 +51,8 @@ def write_placements(path: Path, problem, result, config) -> None:
     """Write the placements and scores as YAML."""
     import yaml
 
+    from perch_common.outputs import atomic_path
+
     def plain(p):
         if problem.alignment is not None:  # back in the mesh file's own frame
             p = problem.alignment.placement_to_input(p)
@@ -66,13 +68,15 @@ def write_placements(path: Path, problem, result, config) -> None:
            "mean_uncertainty_m2": float(result.mean_uncertainty), "upper_bound": float(result.upper_bound),
            "evaluations": int(result.evaluations), "seconds": round(result.seconds, 3),
            "message": result.message, "placements": [plain(p) for p in result.placements]}
-    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    with atomic_path(path) as temporary:   # a failed write leaves the previous file whole
+        temporary.write_text(yaml.safe_dump(doc, sort_keys=False))
 
 
 def write_views(out: Path, problem, placements, config, scale: float) -> list[Path]:
     """Write each placed camera's simulated colour and depth views (PNG); returns the colour paths."""
     import cv2
 
+    from perch_common.outputs import atomic_path
     from perch_placement.core import scene_for
     from perch_placement.render import render_view
 
@@ -81,7 +85,10 @@ def write_views(out: Path, problem, placements, config, scale: float) -> list[Pa
     for p in placements:
         rgb, depth = render_view(problem.mesh, p, config.camera, problem.target, scale=scale, scene=scene)
         colour_path = out / f"view_{p.drone_index}.png"
-        cv2.imwrite(str(colour_path), rgb[:, :, ::-1])
-        cv2.imwrite(str(out / f"depth_{p.drone_index}.png"), np.clip(depth * 1000, 0, 65535).astype(np.uint16))
+        for path, image in ((colour_path, rgb[:, :, ::-1]),
+                            (out / f"depth_{p.drone_index}.png", np.clip(depth * 1000, 0, 65535).astype(np.uint16))):
+            with atomic_path(path) as temporary:   # cv2 says False instead of raising: make it an error
+                if not cv2.imwrite(str(temporary), image):
+                    raise OSError(f"{path}: could not write the image")
         written.append(colour_path)
     return written
