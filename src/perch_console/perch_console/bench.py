@@ -7,7 +7,8 @@ Starts a graph (one process) on this ROS domain, then `perch console --mesh M` a
 and opens the printed URL in Debian's chromium (Playwright) at once. JSON fields:
   console_ready_s   `perch console` started to its URL printed (viser serving, the room in its scene);
   first_picture_s   `perch console` started to the first browser frame showing the room (screenshots
-                    polled until a quarter of the 3D view is no longer the empty background);
+                    polled until 6 % of the 3D view is no longer the empty background: the apartment
+                    seen from above fills ~12 %, an empty view ~1 % with viser's notices);
   idle_cpu_pct      the console process's CPU (% of one core) over --idle seconds with a browser open
                     and no mission;
   mission_cpu_pct   the same while a mission runs (auto-accept; started by this benchmark's own action
@@ -50,8 +51,8 @@ def _perch_command() -> list[str]:
 
 
 def room_drawn(png: bytes, panel_fraction: float = 0.3) -> bool:
-    """Whether a screenshot's 3D view (left of the panel) shows geometry: a quarter of its pixels
-    differ from the background colour (the most common colour of its border)."""
+    """Whether a screenshot's 3D view (left of the panel) shows geometry: 6 % of its pixels differ
+    from the background colour (the most common colour of its top and bottom rows)."""
     import cv2
 
     image = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
@@ -59,7 +60,7 @@ def room_drawn(png: bytes, panel_fraction: float = 0.3) -> bool:
     border = np.concatenate([view[0], view[-1]])
     colours, counts = np.unique(border, axis=0, return_counts=True)
     background = colours[np.argmax(counts)]
-    return float(np.mean(np.abs(view - background).sum(axis=2) > 24)) > 0.25
+    return float(np.mean(np.abs(view - background).sum(axis=2) > 24)) > 0.06
 
 
 def _cpu_seconds(pid: int) -> float:

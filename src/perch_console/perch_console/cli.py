@@ -14,6 +14,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 from perch_common.errors import PerchError
 
 DEFAULT_PORT = 8080
@@ -27,6 +29,9 @@ def register(sub) -> None:
                    help="address to serve on (default loopback only); any other needs the token printed in the URL")
     p.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"port (default {DEFAULT_PORT}; 0: a free one)")
     p.add_argument("--token", default="", help="the URL token when exposed (default: a new random one)")
+    p.add_argument("--recording", type=Path, help="show a mission's run.mcap (its scan, markers, proposals and views)")
+    p.add_argument("--screenshot", type=Path, metavar="PNG",
+                   help="open the console in headless chromium, save what it shows once the room is drawn, and exit")
     p.set_defaults(func=_console)
 
 
@@ -71,7 +76,8 @@ def require_token(token: str) -> None:
     ws_server.serve = gated
 
 
-def start_console(mesh_path: Path | None, host: str = "127.0.0.1", port: int = DEFAULT_PORT, token: str = ""):
+def start_console(mesh_path: Path | None, host: str = "127.0.0.1", port: int = DEFAULT_PORT, token: str = "",
+                  recording: Path | None = None):
     """The console serving and attached to the graph (rclpy must be initialised); returns (console, graph, url)."""
     from perch_console.graph import ConsoleGraph
     from perch_console.state import new_token
@@ -90,6 +96,13 @@ def start_console(mesh_path: Path | None, host: str = "127.0.0.1", port: int = D
         console.goal_source = (mesh_msg, convention)
         console.place_boxes(mesh.vertices)
         console.show_scan(mesh, Path(mesh_path).name)
+    if recording is not None:
+        if not Path(recording).is_file():
+            raise PerchError(f"{recording}: no such recording (give --recording a run.mcap)")
+        graph.show_recording(recording)
+        if graph.scan is not None and mesh_path is None:
+            points = np.array([(p.x, p.y, p.z) for p in graph.scan.points[::3]])
+            console.place_boxes(points, graph.picture.to_input[:3, 2])   # the stages' up in the input frame
     shown_host = "127.0.0.1" if host in ("0.0.0.0", "::") else host
     url = f"http://{shown_host}:{console.server.get_port()}/" + (f"{token}/" if token else "")
     for what in ("scan", "markers", "proposals", "review", "removals", "progress"):
@@ -102,7 +115,15 @@ def _console(args) -> int:
 
     started = time.monotonic()
     with client_context():
-        console, graph, url = start_console(args.mesh, args.host, args.port, args.token)
+        console, graph, url = start_console(args.mesh, args.host, args.port, args.token, args.recording)
+        if args.screenshot is not None:
+            try:
+                seconds = screenshot(url, args.screenshot)
+                print(f"perch console: {args.screenshot} ({seconds:.1f} s in chromium)")
+                return 0
+            finally:
+                graph.close()
+                console.server.stop()
         print(f"perch console: {url}  (room shown after {console.first_picture_at - started:.2f} s)"
               if console.first_picture_at else f"perch console: {url}", flush=True)
         if not is_loopback(args.host):
@@ -117,3 +138,38 @@ def _console(args) -> int:
             graph.close()
             console.server.stop()
     return 0
+
+
+def screenshot(url: str, path: Path, size: tuple[int, int] = (1600, 1000), timeout: float = 300.0) -> float:
+    """Open `url` in Debian's headless chromium (Playwright), wait until the room is drawn, save a PNG;
+    returns the seconds it took."""
+    from playwright.sync_api import sync_playwright
+
+    from perch_console.bench import room_drawn
+
+    started = time.monotonic()
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path="/usr/bin/chromium", args=["--no-sandbox"])
+        page = browser.new_page(viewport={"width": size[0], "height": size[1]})
+        page.goto(url)
+        page.get_by_role("button", name="Start mission").wait_for(timeout=timeout * 1000)
+        dismiss_notices(page)
+        while not room_drawn(page.screenshot()):
+            if time.monotonic() - started > timeout:
+                raise PerchError(f"the room was not drawn within {timeout:.0f} s")
+        dismiss_notices(page)   # shown again once WebGL started
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        page.screenshot(path=str(path))
+        browser.close()
+    return time.monotonic() - started
+
+
+def dismiss_notices(page) -> None:
+    """Close viser's notices (e.g. 'software WebGL rendering') so that screenshots show the room."""
+    from playwright.sync_api import TimeoutError as PlaywrightTimeout
+
+    for close in page.locator(".mantine-Notification-closeButton").all():
+        try:
+            close.click(timeout=2000)
+        except PlaywrightTimeout:   # it closed itself meanwhile
+            pass

@@ -9,6 +9,7 @@ and review decisions. Everything it hears goes into a `MissionPicture`; `on_chan
 from __future__ import annotations
 
 import threading
+from pathlib import Path
 from typing import Callable
 
 import numpy as np
@@ -165,6 +166,25 @@ class ConsoleGraph:
                 if sentence or not self.picture.shortfall:
                     self.picture.shortfall = sentence
             self._changed("progress")
+
+    def show_recording(self, path) -> int:
+        """Feed a mission's run.mcap into the picture, as if the graph were publishing it now (the
+        scan, markers, proposals, views, review, waypoints, frames, removals); returns the messages read."""
+        from perch_operator.runfile import iter_messages
+
+        handlers = {"/perch/scan_marker": self._on_scan, "/perch/markers": self._on_markers,
+                    "/perch/proposals": self._on_proposal, "/perch/views/image": self._on_view,
+                    "/perch/views/camera_info": self._on_view_info, "/perch/mission_waypoints": self._on_waypoints,
+                    "/tf_static": self._on_tf, "/perch/filter/_service_event": self._on_filter_event,
+                    "/perch/optimise/_service_event": self._on_optimise_event}
+        count = 0
+        for topic, msg, _ in iter_messages(path, list(handlers)):
+            handlers[topic](msg)
+            count += 1
+        with self.lock:
+            self.picture.stage, self.picture.fraction = f"recording {Path(path).name}", 1.0
+        self._changed("progress")
+        return count
 
     # --- what the console asks ----------------------------------------------------------------
 

@@ -168,17 +168,21 @@ class Console:
         if self.crop["box"] is not None:
             self.crop["box"].visible = on
 
-    def place_boxes(self, vertices: np.ndarray) -> None:
-        """Start the target and keep boxes on the room: the target in its middle, the keep box around it."""
+    def place_boxes(self, vertices: np.ndarray, up: np.ndarray | None = None) -> None:
+        """Start the target and keep boxes on the room (the target in its middle, the keep box around it)
+        and the view above one corner of it, looking down along `up` (default +z)."""
         self._apply_box(self.target, EditBox.around(vertices, 0.35))
         self._apply_box(self.crop, EditBox.around(vertices, 1.02))
+        up = np.array([0.0, 0.0, 1.0]) if up is None else np.asarray(up, np.float64) / np.linalg.norm(up)
         low, high = np.min(vertices, axis=0), np.max(vertices, axis=0)
-        center, extent = (low + high) / 2, high - low
-        # from above one corner, looking down into the room (+z up, as the stages' frame)
+        center, span = (low + high) / 2, float(np.linalg.norm(high - low))
+        side = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
+        side /= np.linalg.norm(side)
+        self.server.scene.set_up_direction(tuple(float(v) for v in up))
         camera = self.server.initial_camera
-        camera.position = tuple(center + np.array([-0.55 * extent[0], -0.75 * extent[1], 0.5 * extent[2]
-                                                   + 0.9 * max(extent[0], extent[1])]))
+        camera.position = tuple(center + 0.75 * span * up + 0.45 * span * side)
         camera.look_at = tuple(center)
+        camera.up = tuple(float(v) for v in up)
 
     # --- the room -----------------------------------------------------------------------------
 

@@ -98,6 +98,9 @@ def set_vector(page, label: str, values) -> None:
 
 
 def shot(page, name: str) -> None:
+    from perch_console.cli import dismiss_notices
+
+    dismiss_notices(page)   # viser's software-WebGL notice, shown again whenever the renderer restarts
     DOC.mkdir(exist_ok=True)
     page.screenshot(path=str(DOC / name))
 
@@ -109,6 +112,7 @@ def open_buttons(page) -> list[int]:
 
 
 def test_first_time_operator_flow_in_chromium(graph, console):
+
     from perch_interfaces import msg as pm
     from perch_operator.node import LATCHED_LAST
     from perch_operator.runner import spin_for
@@ -125,8 +129,6 @@ def test_first_time_operator_flow_in_chromium(graph, console):
         # 1. the room is there, with the target box on it
         page.get_by_role("button", name="Start mission").wait_for()
         page.get_by_text("Stage: idle").wait_for()
-        for close in page.locator(".mantine-Notification-closeButton").all():   # viser's software-WebGL notice
-            close.click()
         shot(page, "console_1_open.png")
         # 2. set the target box (the fields and the 3D handles move together) and ask for a surface review
         low, high = scene.mesh.vertices.min(axis=0), scene.mesh.vertices.max(axis=0)
