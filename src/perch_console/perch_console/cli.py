@@ -28,7 +28,7 @@ def register(sub) -> None:
     p.add_argument("--host", default="127.0.0.1",
                    help="address to serve on (default loopback only); any other needs the token printed in the URL")
     p.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"port (default {DEFAULT_PORT}; 0: a free one)")
-    p.add_argument("--token", default="", help="the URL token when exposed (default: a new random one)")
+    p.add_argument("--token", default="", help="the URL token (default: none on loopback, a new random one when exposed)")
     p.add_argument("--recording", type=Path, help="show a mission's run.mcap (its scan, markers, proposals and views)")
     p.add_argument("--screenshot", type=Path, metavar="PNG",
                    help="open the console in headless chromium, save what it shows once the room is drawn, and exit")
@@ -87,6 +87,7 @@ def start_console(mesh_path: Path | None, host: str = "127.0.0.1", port: int = D
         raise PerchError(f"{mesh_path}: no such scan file (give --mesh a .ply/.obj/.glb mesh)")
     if not is_loopback(host):
         token = token or new_token()
+    if token:   # always beyond loopback; on loopback when one is given
         require_token(token)
     console = Console(host=host, port=port)
     graph = ConsoleGraph(console.changed)

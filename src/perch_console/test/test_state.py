@@ -118,3 +118,29 @@ def test_markers_merge_by_namespace_with_their_colours():
     mesh = triangle_mesh(tri)
     assert mesh.faces.tolist() == [[0, 1, 2]] and np.allclose(mesh.vertices[:, 2], 1.0)   # pose applied
     assert mesh.visual.vertex_colors[0, :3].tolist() == [0, 255, 0]
+
+
+def test_a_served_console_answers_only_under_its_token():
+    """The gate in front of a real viser server (loopback): the page and its websocket need the token."""
+    import urllib.error
+    import urllib.request
+
+    import websockets.asyncio.server as ws_server
+    from perch_console.cli import require_token
+    from perch_console.ui import Console
+
+    original = ws_server.serve
+    try:
+        require_token("t0ken")
+        console = Console(host="127.0.0.1", port=0)
+    finally:
+        ws_server.serve = original   # the server already bound with the gate; later servers are ungated
+    try:
+        base = f"http://127.0.0.1:{console.server.get_port()}"
+        with pytest.raises(urllib.error.HTTPError) as refused:
+            urllib.request.urlopen(base + "/", timeout=30)
+        assert refused.value.code == 403 and b"token" in refused.value.read()
+        with urllib.request.urlopen(base + "/t0ken/", timeout=30) as page:
+            assert page.status == 200 and b"<html" in page.read()[:200].lower()
+    finally:
+        console.server.stop()
