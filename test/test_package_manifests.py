@@ -10,7 +10,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PYTHON_PACKAGES = ("perch_common", "perch_reconstruction", "perch_segmentation", "perch_filtering",
-                   "perch_placement", "perch_operator")
+                   "perch_placement", "perch_operator", "perch_console")
 # Third-party module -> its rosdep key, each found in ros/rosdistro's rosdep/python.yaml (the -pip
 # keys install from PyPI); None: no key exists, the module comes from requirements.in only.
 ROSDEP_KEYS = {"numpy": "python3-numpy", "scipy": "python3-scipy", "shapely": "python3-shapely",
@@ -19,9 +19,9 @@ ROSDEP_KEYS = {"numpy": "python3-numpy", "scipy": "python3-scipy", "shapely": "p
                "mapbox_earcut": "python3-mapbox-earcut-pip", "rosbags": "python3-rosbags-pip",
                "mcap": "mcap-ros2-support", "mcap_ros2": "mcap-ros2-support", "fast_simplification": None, "rerun": None,
                "embreex": None,
-               "threadpoolctl": None}
+               "threadpoolctl": None, "viser": None, "playwright": None}
 PYPI_NAMES = {"fast_simplification": "fast-simplification", "rerun": "rerun-sdk", "threadpoolctl": "threadpoolctl",
-              "embreex": "embreex"}
+              "embreex": "embreex", "viser": "viser", "playwright": "playwright"}
 # ROS packages imported under their own name (resolved by rosdep from the Jazzy distribution).
 ROS_PACKAGES = {"rclpy", "rcl_interfaces", "std_msgs", "std_srvs", "geometry_msgs", "sensor_msgs", "nav_msgs",
                 "visualization_msgs", "tf2_msgs", "service_msgs", "action_msgs", "unique_identifier_msgs",
