@@ -30,6 +30,11 @@ from perch_common.ros.static_transforms import TF_STATIC_TOPIC
 from perch_operator.stages import STAGES
 
 EVENT_SUFFIX = "/_service_event"
+# Where a service event's CDR (4-byte encapsulation header, then service_msgs/ServiceEventInfo: uint8
+# event_type, Time stamp, char[16] client_gid, int64 sequence_number 8-aligned) holds what identifies
+# its call, read without deserialising the request and reply it carries.
+_EVENT_TYPE_AT, _GID_AT, _SEQUENCE_AT = 4, 16, 36
+_REQUEST_EVENTS = (0, 1)   # REQUEST_SENT, REQUEST_RECEIVED; 2, 3 are RESPONSE_SENT, RESPONSE_RECEIVED
 GRAPH_METADATA = "perch_graph"  # metadata record: the namespace the recorded names live in
 # Every stage service plus the operator's own confirm service (relative names).
 SERVICES = {s.service: s.srv_type for s in STAGES.values()}
@@ -86,6 +91,7 @@ class MissionRecorder:
         self._first_ns: int | None = None
         self._last_ns = 0
         self._closed = False
+        self._calls: dict[str, dict[bytes, set[str]]] = {}   # event topic -> call -> halves recorded
 
     def refresh(self, late: bool = False) -> int:
         """Subscribe to every /perch topic now in the graph and every known service event topic.
@@ -161,6 +167,31 @@ class MissionRecorder:
         self._writer.add_message(channel_id=self._channels[topic], log_time=now, publish_time=now,
                                  data=bytes(data), sequence=self.counts.get(topic, 0))
         self.counts[topic] = self.counts.get(topic, 0) + 1
+        if topic.endswith(EVENT_SUFFIX) and len(data) >= _SEQUENCE_AT + 8:
+            call = bytes(data[_GID_AT:_GID_AT + 16]) + bytes(data[_SEQUENCE_AT:_SEQUENCE_AT + 8])
+            half = "request" if data[_EVENT_TYPE_AT] in _REQUEST_EVENTS else "reply"
+            self._calls.setdefault(topic, {}).setdefault(call, set()).add(half)
+
+    def recorded_calls(self, topic: str) -> tuple[int, list[str]]:
+        """On a service event topic: (calls recorded with both request and reply, the half each
+        incomplete call lacks)."""
+        calls = self._calls.get(topic, {}).values()
+        lacking = [("reply" if halves == {"request"} else "request") for halves in calls if len(halves) < 2]
+        return sum(len(halves) == 2 for halves in calls), lacking
+
+    def missing_calls(self, expected: dict[str, int], whole: bool = True) -> list[str]:
+        """What the recording lacks of `expected` (event topic -> calls the mission made), one phrase
+        per topic: complete calls short of the count and, with `whole` (a mission that succeeded,
+        so every call it made was answered), calls recorded with one half only."""
+        missing = []
+        for topic, count in expected.items():
+            complete, lacking = self.recorded_calls(topic)
+            service = topic[:-len(EVENT_SUFFIX)]
+            if complete < count:
+                missing.append(f"{service}: {count - complete} of {count} call(s) not recorded whole")
+            elif whole and lacking:
+                missing.append(f"{service}: {len(lacking)} call(s) without their {' and '.join(sorted(set(lacking)))}")
+        return missing
 
     def matched(self) -> dict[str, int]:
         """Publishers matched per subscribed topic."""

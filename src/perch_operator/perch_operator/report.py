@@ -39,6 +39,8 @@ def summary_rows(data: MissionData) -> list[tuple[str, str]]:
         rows.append(("target volume", f"{data.target.volume():.2f} m³"))
     if s.get("message"):
         rows.append(("answer", str(s["message"])))  # with the shortfall sentence when cameras are missing
+    if s.get("recording_missing"):   # the recording lacks stage calls the mission made (perch_operator.runner)
+        rows.append(("recording incomplete", "; ".join(map(str, s["recording_missing"]))))
     return rows
 
 

@@ -343,12 +343,19 @@ def run_recorded_mission(node, goal: PlanPerches.Goal, out_dir: Path, progress: 
                           "recording, report and rerun file\n")
             _load_output_writers()
         _drain(node, recorder)
+        watched = {topic: stage for stage, topic in zip(STAGES, (s + EVENT_SUFFIX for s in services))
+                   if topic in expected and topic not in silent}
+        missing = await_stage_events(node, recorder, result, watched)
+        if missing:
+            out.write(f"perch: warning: the recording {outputs.mcap.name} misses stage calls the mission made "
+                      f"({'; '.join(missing)}): `perch replay` and the report lack them (the mission's result "
+                      "and waypoints are complete)\n")
         outputs.mission_seconds = time.monotonic() - started
         recorder.add_metadata("perch_mission", {
             "success": result.success, "message": result.message, "stage_names": list(result.stage_names),
             "stage_seconds": list(result.stage_seconds), "fitness": result.fitness, "coverage": result.coverage,
             "mean_uncertainty": result.mean_uncertainty, "cameras": len(result.placements),
-            "mission_seconds": outputs.mission_seconds, **(describe or {})})
+            "mission_seconds": outputs.mission_seconds, "recording_missing": missing, **(describe or {})})
     except GoalRejected:
         recorder.close()
         shutil.rmtree(staged, ignore_errors=True)
@@ -410,6 +417,26 @@ def _load_output_writers() -> None:
 
     if "rerun" not in sys.modules and importlib.util.find_spec("rerun") is not None:
         threading.Thread(target=load, name="perch-load-rerun", daemon=True).start()
+
+
+# How long a finished mission's recording waits for stage events still on their way (only spent
+# when some are missing: a complete recording closes at once).
+STAGE_EVENTS_WAIT = 15.0
+
+
+def await_stage_events(node, recorder: MissionRecorder, result, watched: dict[str, str],
+                       limit: float = STAGE_EVENTS_WAIT) -> list[str]:
+    """Spin until the recording holds the request and reply of every stage call the result says
+    ran (`watched`: event topic -> stage, the services publishing events), or `limit` passes;
+    returns what is still missing, one phrase per stage service (empty: complete)."""
+    ran = list(result.stage_names)
+    expected = {topic: ran.count(stage) for topic, stage in watched.items() if stage in ran}
+    deadline = time.monotonic() + limit
+    while True:
+        missing = recorder.missing_calls(expected, whole=bool(result.success))
+        if not missing or time.monotonic() > deadline:
+            return missing
+        spin_for(node, 0.1)
 
 
 def _drain(node, recorder: MissionRecorder, quiet: float = 0.3, limit: float = 5.0) -> None:
