@@ -300,7 +300,7 @@ class Console:
             handle.remove()
         self._review_handles = []
         with self.graph.lock:
-            review, to_input = self.graph.picture.review, self.graph.picture.to_input.copy()
+            review = self.graph.picture.review   # its surfaces come in the input's frame (the mission turns them)
         if review is None:
             self.review_note.content = "_no review open_"
             return
@@ -310,10 +310,11 @@ class Console:
         gui = self.server.gui
         with self.review_folder:
             for surface in review.surfaces:
-                label = f"S{surface.id} {CLASS_NAMES.get(surface.surface_class, '?')} {surface.area:.1f} m²"
+                kind = CLASS_NAMES.get(surface.surface_class, "?")   # unknown before the filter orients it
+                label = f"S{surface.id} {'' if kind == 'unknown' else kind + ' '}{surface.area:.1f} m²"
                 choices[surface.id] = gui.add_dropdown(label, ("approve", "reject"), initial_value="approve")
                 self._review_handles.append(choices[surface.id])
-                outline = surface_outline(surface, to_input, "", None, (1.0, 1.0, 0.2), "review", 0.08)
+                outline = surface_outline(surface, np.eye(4), "", None, (1.0, 1.0, 0.2), "review", 0.05)
                 if outline is not None:
                     self._review_handles += draw_markers(self.server.scene, f"/review/{surface.id}", [outline])
                     xyz = np.array([(p.x, p.y, p.z) for p in outline.points])
