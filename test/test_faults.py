@@ -153,3 +153,29 @@ def test_shared_memory_of_a_killed_node_is_cleared_at_the_next_start(client_node
         assert not [p for p in segments if Path(p).exists()], segments
     finally:
         graph.stop()
+
+
+def test_a_node_that_only_calls_perch_services_is_not_taken_for_a_running_graph(client_node, tmp_path):
+    """A dispatcher, console or user node holding clients of /perch/... names those services too
+    (its request writers), but serves nothing: launching beside it must start the graph."""
+    from perch_common.config import default_config_path
+    from perch_common.conventions import NODE_SERVICES
+    from perch_common.launch import GraphProcesses, running_graph
+    from perch_interfaces import srv
+    from perch_operator.runner import existing_perch_graph, offered_services
+
+    clients = [client_node.create_client(srv.Segment, "/perch/segment"),
+               client_node.create_client(srv.Filter, "/perch/filter"),
+               client_node.create_client(srv.Crop, "/perch/crop")]
+    try:
+        wait_for(lambda: {"/perch/segment", "/perch/filter", "/perch/crop"}
+                 <= {n for n, _ in client_node.get_service_names_and_types()}, 60, "the clients' names were not listed")
+        assert not {"/perch/segment", "/perch/filter", "/perch/crop"} & offered_services(client_node)
+        graph = GraphProcesses(default_config_path(), list(NODE_SERVICES),
+                               log_dir=tmp_path)
+        assert running_graph(graph, wait=2.0) == []
+        found, problems = existing_perch_graph(client_node, wait=3.0)
+        assert found == [] and problems == []
+    finally:
+        for client in clients:
+            client_node.destroy_client(client)

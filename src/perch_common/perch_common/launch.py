@@ -29,6 +29,7 @@ from perch_common import namespace as ros_namespace
 from perch_common.config import ConfigError, check_overrides, default_config_path, node_names
 from perch_common.data import repo_root
 from perch_common.processes import child_environment, clean_dead_shm, stop_process
+from perch_common.ros.servers import server_endpoints
 from perch_common.threads import thread_environment
 
 NETWORK_ENV = "PERCH_NETWORK"          # 1/true/yes: let the graph use every network interface
@@ -333,8 +334,7 @@ class GraphProcesses:
         deadline = time.monotonic() + timeout
         missing = list(names)
         while missing and time.monotonic() < deadline:
-            offered = {n for n, _ in node.get_service_names_and_types()}
-            missing = [n for n in missing if n not in offered]
+            missing = [n for n in missing if not server_endpoints(node, n)]   # servers only, not clients
             if missing:
                 dead = [n for n, ok in self.alive().items() if not ok]
                 if dead:
@@ -405,8 +405,7 @@ def running_graph(graph: GraphProcesses, wait: float = 2.0) -> list[str]:
         node = rclpy.create_node("perch_launch_probe", context=context, start_parameter_services=False)
         deadline = time.monotonic() + wait
         while True:
-            offered = {name for name, _ in node.get_service_names_and_types()}
-            found = [name for name in names if name in offered]
+            found = [name for name in names if server_endpoints(node, name)]   # servers only, not clients
             if found or time.monotonic() > deadline:
                 node.destroy_node()
                 return found

@@ -28,6 +28,7 @@ from perch_common.outputs import (
     staging_folder,
     written_by_perch,
 )
+from perch_common.ros.servers import server_endpoints
 from perch_interfaces.action import PlanPerches
 from perch_operator.recorder import EVENT_SUFFIX, MISSION_TOPICS, MissionRecorder
 from perch_operator.stages import STAGES
@@ -85,8 +86,8 @@ def _interrupt(signum, frame):
 
 
 def offered_services(node) -> set[str]:
-    """Fully qualified names of the services now in the graph."""
-    return {name for name, _ in node.get_service_names_and_types()}
+    """Fully qualified names of the services some server now offers (a name only clients use is not offered)."""
+    return {name for name, _ in node.get_service_names_and_types() if server_endpoints(node, name)}
 
 
 def graph_ros_args(config: Path | None, overrides, log_dir: Path | None) -> list[str]:
@@ -150,7 +151,7 @@ def existing_perch_graph(node, wait: float = 6.0, settle: float = 1.0) -> tuple[
     seen, changed = None, time.monotonic()
     while True:
         offered = dict(node.get_service_names_and_types())
-        found = [name for name in wanted if name in offered]
+        found = [name for name in wanted if name in offered and server_endpoints(node, name)]
         names = set(node.get_node_names_and_namespaces())
         if names != seen:
             seen, changed = names, time.monotonic()
@@ -161,7 +162,7 @@ def existing_perch_graph(node, wait: float = 6.0, settle: float = 1.0) -> tuple[
         time.sleep(0.1)
     if not found:
         return [], []
-    problems = [f"{name} is missing" for name in wanted if name not in offered]
+    problems = [f"{name} is missing" for name in wanted if name not in found]
     problems += [f"{name} has type {', '.join(offered[name])}, this Perch expects {kinds[name]}"
                  for name in found if name in kinds and kinds[name] not in offered[name]]
     hashed = {node.resolve_topic_name(MISSION_FEEDBACK_TOPIC): "perch_interfaces/action/PlanPerches_FeedbackMessage"}

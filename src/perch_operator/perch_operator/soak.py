@@ -618,7 +618,7 @@ class FaultSoak:
             report.problems.append(f"nodes outlived their SIGKILLed launcher by 20 s: {left}")
         with contextlib.suppress(Exception):
             self.graph.proc.wait(5)
-        from perch_operator.stages import server_endpoints
+        from perch_common.ros.servers import server_endpoints
 
         services = [self.node.resolve_service_name(s[0]) for s in NODE_SERVICES.values()]
         while time.monotonic() < deadline + 10 and any(server_endpoints(self.node, s) for s in services):
@@ -646,8 +646,8 @@ class FaultSoak:
     def _wait_whole(self, timeout: float = 90.0) -> list[str]:
         """Wait until every node runs again and each service has exactly live servers (a killed one's
         endpoints have left the graph after the lease); returns what is still missing."""
+        from perch_common.ros.servers import server_endpoints
         from perch_operator.client import GoalStatusWatch
-        from perch_operator.stages import server_endpoints
 
         services = {n: self.node.resolve_service_name(s[0]) for n, s in NODE_SERVICES.items()}
         deadline = time.monotonic() + timeout

@@ -29,6 +29,7 @@ from perch_common.conventions import NODE_SERVICES, STAGE_SERVICES
 from perch_common.errors import PerchError
 from perch_common.mesh_cache import PROCESS_CACHE, MeshBook, is_mesh_not_cached
 from perch_common.ros.conversions import id_only_msg, is_id_only, msg_content_id
+from perch_common.ros.servers import server_endpoints
 from perch_interfaces import srv
 
 
@@ -168,15 +169,6 @@ class StageCaller:
         if response is None:
             raise StageError(stage, "the call ended without a reply", self.services[stage])
         return response
-
-
-def server_endpoints(node, service: str) -> dict[bytes, str]:
-    """The servers of a (fully qualified) service now in the graph: request-reader GID -> node name.
-
-    A service travels on the DDS topics rq<service>Request / rr<service>Reply; each server has one
-    reader of the request topic, with a GID that a restarted node never reuses."""
-    infos = node.get_subscriptions_info_by_topic(f"rq{service}Request", no_mangle=True)
-    return {bytes(info.endpoint_gid): f"{info.node_namespace.rstrip('/')}/{info.node_name}" for info in infos}
 
 
 class ServerWatch:
