@@ -34,6 +34,9 @@ class CoordinatorGone(PerchError):
     """The coordinator running the mission died or restarted; the mission is lost with it."""
 
 
+CANCEL_WAIT = 5.0   # s for the coordinator to answer a cancel
+
+
 def _spin_until(node, future, deadline: float, what: str, gone: Callable[[], str] | None = None) -> None:
     while not future.done():
         if time.monotonic() > deadline:
@@ -42,6 +45,21 @@ def _spin_until(node, future, deadline: float, what: str, gone: Callable[[], str
         if reason:
             raise CoordinatorGone(reason)
         rclpy.spin_until_future_complete(node, future, timeout_sec=0.1)
+
+
+def _cancel_or_say_why_not(node, handle) -> None:
+    """Ask the coordinator to cancel the goal; when it refuses (a networked graph takes no unsigned
+    cancel) or does not answer, say so, and let the caller's own error (Ctrl-C, time limit) stand."""
+    cancel = handle.cancel_goal_async()
+    try:
+        _spin_until(node, cancel, time.monotonic() + CANCEL_WAIT, "cancelling the mission")
+    except TimeoutError:
+        node.get_logger().warning(f"the coordinator did not answer the cancel within {CANCEL_WAIT:.0f} s; "
+                                  "the mission ends when it notices its client has left (parameter client_grace)")
+        return
+    if not cancel.result().goals_canceling:
+        node.get_logger().warning("the coordinator refused the cancel (a networked graph takes no unsigned cancel); "
+                                  "the mission ends when it notices its client has left (parameter client_grace)")
 
 
 def run_mission(node, goal: PlanPerches.Goal, timeout: float = 600.0, server_wait: float = 30.0,
@@ -70,8 +88,7 @@ def run_mission(node, goal: PlanPerches.Goal, timeout: float = 600.0, server_wai
             node.get_logger().error(str(exc))
             return PlanPerches.Result(success=False, message=str(exc))
         except (TimeoutError, KeyboardInterrupt):
-            cancel = handle.cancel_goal_async()
-            _spin_until(node, cancel, time.monotonic() + 5, "cancelling the mission")
+            _cancel_or_say_why_not(node, handle)
             raise
         return result.result().result
     finally:
