@@ -129,6 +129,8 @@ def test_first_time_operator_flow_in_chromium(graph, console):
         # 1. the room is there, with the target box on it
         page.get_by_role("button", name="Start mission").wait_for()
         page.get_by_text("Stage: idle").wait_for()
+        text_field(page, "Your name").fill("alice")   # who decides, as the log and the reasons say
+        text_field(page, "Your name").press("Tab")
         shot(page, "console_1_open.png")
         # 2. set the target box (the fields and the 3D handles move together) and ask for a surface review
         low, high = scene.mesh.vertices.min(axis=0), scene.mesh.vertices.max(axis=0)
@@ -150,7 +152,7 @@ def test_first_time_operator_flow_in_chromium(graph, console):
         assert abs(box.center[0] - center[0]) < 0.01 and abs(box.size[1] - size[1]) < 0.01
         shot(page, "console_2_target.png")
         page.get_by_role("button", name="Start mission").click()
-        page.get_by_text("mission started by operator").wait_for()
+        page.get_by_text("mission started by alice").wait_for()
         # 3. the surface review: reject the first (largest) surface, approve the rest
         page.get_by_role("button", name="Submit review").wait_for()
         first = page.locator("xpath=//label[starts-with(normalize-space(), 'S')][contains(., 'm²')]").first
@@ -171,7 +173,14 @@ def test_first_time_operator_flow_in_chromium(graph, console):
         rejected = proposals[0]
         text_field(page, "Reason").fill("blocks the door")
         page.get_by_role("button", name=f"Reject #{rejected}").click()
-        page.get_by_text(f"rejected proposal {rejected} (blocks the door): ok").wait_for()
+        page.get_by_text(f"alice rejected proposal {rejected} (blocks the door): ok").wait_for()
+        # a second browser watching sees the same mission and who decided, without deciding itself
+        watcher = browser.new_page(viewport={"width": 1280, "height": 800})
+        watcher.set_default_timeout(WAIT_MS)
+        watcher.goto(url)
+        watcher.get_by_text(f"alice rejected proposal {rejected} (blocks the door): ok").wait_for()
+        assert watcher.get_by_role("button", name=f"Reject #{rejected}").count() == 0   # decided for all
+        watcher.close()
         accepted: list[int] = []
         text_field(page, "Reason").fill("")
         deadline = time.monotonic() + WAIT_MS / 1000
@@ -204,4 +213,5 @@ def test_first_time_operator_flow_in_chromium(graph, console):
         assert int(row[1]) == drone
         assert [float(v) for v in row[2:5]] == pytest.approx([x, y, z], abs=1.5e-3)
     log = [d.line() for d in console_obj.desk.log]
-    assert any("operator" in line and f"rejected proposal {rejected}" in line for line in log)
+    assert any(line.split()[1:4] == ["alice", "rejected", "proposal"] and f"proposal {rejected} " in line
+               for line in log)
