@@ -29,13 +29,14 @@ def frame_folder(tmp_path_factory):
 
 
 def fails(capsys, *argv) -> str:
-    """Run `perch ARGV`, expect exit 1 and return the one error line."""
+    """Run `perch ARGV`, expect exit 1 and return the one error line (progress lines may come before it)."""
     with pytest.raises(SystemExit) as info:
         main([str(a) for a in argv])
     assert info.value.code == 1
     err = capsys.readouterr().err
-    assert err.startswith("perch: error: ") and "Traceback" not in err, err
-    return err
+    errors = [line for line in err.splitlines() if line.startswith("perch: error: ")]
+    assert len(errors) == 1 and err.rstrip().endswith(errors[0]) and "Traceback" not in err, err
+    return errors[0]
 
 
 def test_segment_onto_its_own_input_is_refused(room_ply, capsys):

@@ -4,7 +4,7 @@ the calibration table."""
 import numpy as np
 import pytest
 
-from perch_common.bench_scans import calibration, up_error
+from perch_common.scan_corpus import calibration, up_error
 from perch_common.scan_orientations import corpus_scans
 
 

@@ -146,7 +146,7 @@ def test_camera_down_hint_and_recorded_gravity():
 
 @pytest.fixture(scope="module")
 def corpus():
-    from perch_common.bench_scans import cases
+    from perch_common.scan_corpus import cases
 
     found = list(cases())
     if not found:
@@ -158,7 +158,7 @@ def test_every_corpus_scan_in_every_rotation_is_right_or_says_it_cannot_know(cor
     """`--up auto` as a user runs it (the file's header counts in its own frame): every confident
     estimate within 3 deg with the right sign; the rest not confident, and an auto-accepted mission
     stops on them naming the axes considered and --up."""
-    from perch_common.bench_scans import estimate_case
+    from perch_common.scan_corpus import estimate_case
 
     confident = 0
     for name, orientation, mesh, true_up, path, _ in corpus:
