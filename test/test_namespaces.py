@@ -49,7 +49,8 @@ def test_two_namespaced_graphs_run_missions_side_by_side(tmp_path, graph_parts):
             wanted = [f"{ns}/perch/{name}" for name in ("crop", "clean_mesh", "segment", "filter", "optimise")]
             assert not graphs[0].wait_for_services(node, wanted, timeout=180), f"logs in {tmp_path}"
         offered = {name for name, _ in clients["/site_a"].get_service_names_and_types()}
-        assert not [n for n in offered if n.startswith("/perch/")], "a node ignored the namespace"
+        ignored = [n for n in offered if n.startswith("/perch/")]
+        assert not ignored, f"a node ignored the namespace: {ignored}"
         for ns, cameras in NAMESPACES.items():
             goal = PlanPerches.Goal(mesh=mesh_to_msg(scene.mesh), target=target_to_msg(scene.target),
                                     num_cameras=cameras, auto_accept=True, seed=-1)

@@ -278,7 +278,8 @@ class OperatorNode(Node):
 
     def _unbound(self, request: srv.Confirm.Request) -> str:
         """Why a decision does not bind to the current mission ('' when it does): decisions are taken
-        while the mission runs; once it succeeded only an accepted perch failing in flight is reported."""
+        while the mission runs; once it succeeded only an accepted perch failing in flight is reported (and
+        the replacement its re-plan proposes is decided)."""
         if self.operator is None or not self._mission_state:
             return (f"no mission has proposed anything (proposal {request.proposal_id} is unknown)"
                     if not self._mission_state or self._mission_state == "running" else
@@ -289,10 +290,19 @@ class OperatorNode(Node):
         if self._mission_state != "succeeded":
             return (f"mission {self._mission_text()} {self._mission_state}: its proposals were never dispatched, "
                     "decisions on them are refused; run a new mission")
-        if request.decision != srv.Confirm.Request.FAILED_IN_FLIGHT:
+        if request.decision != srv.Confirm.Request.FAILED_IN_FLIGHT and not self._open_replacement(request.proposal_id):
             return (f"mission {self._mission_text()} has ended (succeeded): only an accepted perch failing in flight "
-                    "can still be reported; run a new mission to decide again")
+                    "can still be reported, and its replacement decided; run a new mission to decide again")
         return ""
+
+    def _open_replacement(self, proposal_id: int) -> bool:
+        """An undecided proposal of the succeeded mission: the replacement a failed-in-flight re-plan made."""
+        from perch_operator.proposals import ProposalError, Status
+
+        try:
+            return self.operator.book.get(proposal_id).status == Status.PENDING
+        except ProposalError:
+            return False
 
     def _mission_text(self) -> str:
         return bytes(bytearray(self._mission_id.uuid)).hex()
