@@ -147,6 +147,15 @@ class RayScene:
         return closest, face, np.linalg.norm(closest - pts, axis=1)
 
 
+def sphere_directions(count: int) -> np.ndarray:
+    """(count, 3) unit directions spread evenly over the sphere (Fibonacci lattice, deterministic)."""
+    k = np.arange(count) + 0.5
+    z = 1.0 - 2.0 * k / count
+    r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
+    phi = k * np.pi * (3.0 - np.sqrt(5.0))
+    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
+
+
 def ray_scene(mesh: Mesh) -> RayScene:
     """The mesh's ray-cast scene, built once and kept with the mesh (`Mesh.derived`): in a one-process
     graph the filter, placement and the operator's views query one BVH (60 ms on 100k faces, 1.5 s

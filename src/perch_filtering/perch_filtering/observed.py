@@ -20,21 +20,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from perch_common.raycast import RayScene
+from perch_common.raycast import RayScene, sphere_directions
 from perch_filtering.raster import SurfaceRaster
 
 ESCAPE_DIRECTIONS = 32  # rays per grid node (Fibonacci sphere, fixed)
 NODE_SPACING = 0.15     # m between grid nodes along the plane
 DEPTH_LAYERS = 3        # node layers across a volume's depth
-
-
-def sphere_directions(count: int) -> np.ndarray:
-    """(count, 3) unit directions spread evenly over the sphere (Fibonacci lattice, deterministic)."""
-    k = np.arange(count) + 0.5
-    z = 1.0 - 2.0 * k / count
-    r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
-    phi = k * np.pi * (3.0 - np.sqrt(5.0))
-    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
 
 
 DOWN_CONE_DEG = 20.0  # half angle of the cone of rays that looks for a floor below a fall volume's point

@@ -38,7 +38,7 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 
 from perch_common.mesh import Mesh
-from perch_common.raycast import RayScene
+from perch_common.raycast import RayScene, sphere_directions
 from perch_common.target import TargetVolume
 
 __all__ = ["CheckSpec", "PerchVerdict", "ScanChecker", "check_perches", "spec_from_config"]
@@ -150,15 +150,6 @@ def triangles_overlap_box(tris: np.ndarray, half: np.ndarray) -> np.ndarray:
         radius = np.abs(axis) @ half
         overlap &= ~((proj.min(axis=1) > radius + 1e-12) | (proj.max(axis=1) < -radius - 1e-12))
     return overlap
-
-
-def sphere_directions(count: int) -> np.ndarray:
-    """(count, 3) unit directions spread evenly over the sphere (Fibonacci lattice, deterministic)."""
-    k = np.arange(count) + 0.5
-    z = 1.0 - 2.0 * k / count
-    r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
-    phi = k * np.pi * (3.0 - np.sqrt(5.0))
-    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
 
 
 class ScanChecker:

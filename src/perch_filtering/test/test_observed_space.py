@@ -6,9 +6,10 @@ from __future__ import annotations
 import numpy as np
 from filtering_scenes import Builder
 
+from perch_common.raycast import sphere_directions
 from perch_common.target import TargetVolume
 from perch_filtering.core import FilterConfig, filter_surfaces
-from perch_filtering.observed import escape_shares, sphere_directions
+from perch_filtering.observed import escape_shares
 from perch_filtering.perch_check import check_perches
 
 UP = np.array([0.0, 0.0, 1.0])
