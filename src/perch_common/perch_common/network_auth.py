@@ -11,8 +11,9 @@ made with a key shared by the hosts of the graph: a file of 32 random bytes, cre
 on first use (PERCH_KEY_FILE, default ~/.config/perch/network.key) and copied by the user to the other
 hosts. A key file that others can read is refused. A token is valid for TOKEN_WINDOW seconds, binds
 every field of its command (a changed field invalidates it) and its kind; a replay within the window
-repeats the identical command only. What it does not give: secrecy (the traffic is readable) and
-protection against a host that holds the key.
+repeats the identical command only, and a receiver that must not act twice (the mission cancel) keeps
+the tokens it took for the window in a ReplayGuard and refuses them again. What it does not give:
+secrecy (the traffic is readable) and protection against a host that holds the key.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import hmac
 import os
 import secrets
 import stat
+import threading
 import time
 from pathlib import Path
 
@@ -87,6 +89,26 @@ def check(key: bytes, token: str, kind: str, *fields, now: float | None = None) 
     if not hmac.compare_digest(wanted, mac):
         return "its authentication token does not match (another key, or a changed command)"
     return ""
+
+
+class ReplayGuard:
+    """The tokens a receiver has acted on, each remembered for TOKEN_WINDOW (after that `check` refuses
+    it as too old anyway): `refusal(token)` is '' the first time and names the replay afterwards."""
+
+    def __init__(self, window: float = TOKEN_WINDOW):
+        self.window = window
+        self._seen: dict[str, float] = {}   # token -> monotonic time it was taken
+        self._lock = threading.Lock()
+
+    def refusal(self, token: str, now: float | None = None) -> str:
+        """'' when `token` has not been taken before (it is remembered now), else why it is refused."""
+        now = time.monotonic() if now is None else now
+        with self._lock:   # a token passes `check` from window before to window after its stamp
+            self._seen = {t: at for t, at in self._seen.items() if now - at <= 2 * self.window}
+            if token in self._seen:
+                return "its authentication token was used before (a replayed command)"
+            self._seen[token] = now
+        return ""
 
 
 def networked(env: dict | None = None) -> bool:

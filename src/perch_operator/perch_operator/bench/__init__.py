@@ -1,0 +1,1 @@
+"""Benchmarks: `perch bench mission`, `memory`, `scans` and `soak`."""
