@@ -78,9 +78,10 @@ def run(args: argparse.Namespace) -> int:
                   f"median {per_count[str(k)]['seconds_median']:.3f} s", file=sys.stderr)
         result["methods"][method] = per_count
     if objectives:
-        result["objectives"] = compare_objectives(problem, config, cache, objectives, args.cameras, args.seeds)
+        result["objectives"] = compare_objectives(problem, config, cache, objectives, args.cameras, args.seeds,
+                                                  args.reference)
     if args.reference:
-        result["reference"] = _reference(problem, config, scene, args.cameras, dense)
+        result["reference"] = _reference(problem, config, cache, args.cameras, dense)
     if args.bound_check:
         from perch_placement.optimality import bound_check_suite
 
@@ -103,12 +104,14 @@ def parser_default_methods() -> str:
     return "pso,random,grid,naive,celf"
 
 
-def compare_objectives(problem, config, cache, objectives: list, k: int, seeds: int) -> dict:
+def compare_objectives(problem, config, cache, objectives: list, k: int, seeds: int, with_reference: bool = False) -> dict:
     """Greedy PSO with each objective at k cameras over `seeds` seeds; every arrangement is assessed
-    with the same landing samples (the configured model and seed: common random numbers)."""
+    with the same landing samples (the configured model and seed: common random numbers). With
+    `with_reference`, each objective's exhaustive greedy reference (perch_placement.core.reference) and
+    the ratio of the mean objective value to it."""
     from dataclasses import replace
 
-    from perch_placement.core import optimise
+    from perch_placement.core import objective_value, optimise, reference
 
     out = {}
     for objective in objectives:
@@ -136,7 +139,14 @@ def compare_objectives(problem, config, cache, objectives: list, k: int, seeds: 
             "certificate_seconds_median": float(np.median([r.certificate_seconds for r in runs])),
             "certificate_seconds_max": float(np.max([r.certificate_seconds for r in runs])),
             "cameras_placed_mean": float(np.mean([len(r.placements) for r in runs])),
-            "expected_fitness_per_seed": [x.expected_fitness for x in a]}
+            "expected_fitness_per_seed": [x.expected_fitness for x in a],
+            "objective_mean": float(np.mean([objective_value(x, cfg) for x in a]))}
+        if with_reference:
+            ref = reference(problem.mesh, problem.regions, problem.target, k, cfg, cache)
+            out[objective].update({
+                "reference_objective": ref.objective, "reference_fitness": ref.fitness[-1] if ref.fitness else 0.0,
+                "reference_candidates": ref.candidates, "reference_seconds": ref.seconds,
+                "objective_ratio_to_reference": out[objective]["objective_mean"] / max(ref.objective, 1e-12)})
         print(f"objective {objective}: fitness {out[objective]['fitness_mean']:.4f} expected "
               f"{out[objective]['expected_fitness_mean']:.4f} median {out[objective]['seconds_median']:.3f} s",
               file=sys.stderr)
@@ -159,13 +169,16 @@ def objectives_table(result: dict) -> str:
              f"{100 * land['position_sigma']:g} cm / {land['yaw_sigma_deg']:g} deg, {land['samples']} common samples; "
              f"{o['kview_k']}-view at {o['kview_angle_deg']:g} deg)", "",
              "| Objective | Fitness | Expected under error | 5th pct | k-view cov. | Worst 1-camera loss (cov.) "
-             "| k-view after worst loss | Certificate gap (cov.) | Seconds (median) |", "|" + "---|" * 9]
+             "| k-view after worst loss | Certificate gap (cov.) | Seconds (median) | Objective / reference |",
+             "|" + "---|" * 10]
     for name, r in o["rows"].items():
+        ratio = (f"{r['objective_mean']:.4f} / {r['reference_objective']:.4f} = "
+                 f"{100 * r['objective_ratio_to_reference']:.1f} %") if "reference_objective" in r else "-"
         lines.append(f"| {name} | {r['fitness_mean']:.4f} ± {r['fitness_std']:.4f} | {r['expected_fitness_mean']:.4f} "
                      f"| {r['p5_fitness_mean']:.4f} | {100 * r['kview_coverage_mean']:.1f} % "
                      f"| {100 * r['worst_loss_coverage_mean']:.1f} pt | {100 * r['worst_kview_without_mean']:.1f} % "
                      f"| {100 * r['certificate_gap_mean']:.1f} % ({r['certificates']}/{o['seeds']}) "
-                     f"| {r['seconds_median']:.2f} |")
+                     f"| {r['seconds_median']:.2f} | {ratio} |")
     return "\n".join(lines) + "\n"
 
 
@@ -208,29 +221,21 @@ def _summary(runs, dense) -> dict:
             "cameras_placed_mean": float(np.mean([len(r.placements) for r in runs]))}
 
 
-def _reference(problem, config, scene, k: int, dense) -> dict:
-    from perch_placement.fitness import Evaluator
-    from perch_placement.perches import Perches
-    from perch_placement.search import SearchContext
-    from perch_placement.search.exhaustive import exhaustive_reference
+def _reference(problem, config, cache, k: int, dense) -> dict:
+    """The nominal exhaustive reference (perch_placement.core.reference: the same perches, border margin
+    and seating on the scan as an answer), with dense coverage and uncertainty after each camera."""
+    from perch_placement.core import reference
 
-    started = time.perf_counter()
-    ev = Evaluator(scene, problem.target.sample(config.target_points, seed=config.seed), config.camera,
-                   config.occlusion_epsilon)
-    perches = Perches(problem.regions, problem.target.centroid(), config.drone, up_of(config), "plane",
-                      config.camera.max_zoom)
-    ctx = SearchContext(perches, ev, config, np.random.default_rng(0))
-    fitness, chosen, candidates, arrangements = exhaustive_reference(ctx, k)
-    seconds = time.perf_counter() - started
+    ref = reference(problem.mesh, problem.regions, problem.target, k, config, cache)
     cover, unc = [], []
     dense.reset()
-    for perch in chosen:
+    for perch in ref.perches:
         dense.commit(perch.camera_position, perch.camera_rotation, perch.zoom)
         score = dense.current()
         cover.append(float(score.coverage))
         unc.append(float(score.mean_uncertainty))
-    return {"fitness": fitness, "coverage_dense": cover, "uncertainty_dense_m2": unc, "candidates": candidates,
-            "arrangements_scored": arrangements, "seconds": seconds,
+    return {"fitness": ref.fitness, "coverage_dense": cover, "uncertainty_dense_m2": unc, "candidates": ref.candidates,
+            "arrangements_scored": ref.arrangements_scored, "seconds": ref.seconds,
             "grid": {"spacing_m": config.reference_spacing, "angles": config.reference_angles}}
 
 
@@ -254,6 +259,11 @@ def _checks(result: dict, counts: list) -> dict:
         cov, unc = ref["coverage_dense"], ref["uncertainty_dense_m2"]
         checks["reference_coverage_rises"] = all(b >= a for a, b in zip(cov, cov[1:]))
         checks["reference_uncertainty_falls"] = all(b <= a for a, b in zip(unc, unc[1:]))
+    rows = result.get("objectives", {}).get("rows", {})
+    ratios = {name: r["objective_ratio_to_reference"] for name, r in rows.items() if "objective_ratio_to_reference" in r}
+    if ratios:
+        checks["objective_ratio_to_reference"] = ratios
+        checks["objectives_at_least_99pct_of_reference"] = min(ratios.values()) >= 0.99
     if pso:
         cov = [pso[str(k)]["coverage_dense_mean"] for k in counts]
         unc = [pso[str(k)]["uncertainty_dense_mean_m2"] for k in counts]

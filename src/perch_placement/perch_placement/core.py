@@ -27,7 +27,8 @@ from perch_placement.robustness import Arrangement, Assessment, LandingSampler, 
 from perch_placement.search import METHODS, SearchContext
 from perch_placement.shortfall import shortfall_sentence
 
-__all__ = ["PlacementConfig", "PlacementCache", "PlacementResult", "optimise", "scene_for", "METHODS"]
+__all__ = ["PlacementConfig", "PlacementCache", "PlacementResult", "ReferenceResult", "optimise", "reference",
+           "objective_value", "scene_for", "METHODS"]
 
 
 @dataclass
@@ -76,18 +77,9 @@ def optimise(mesh: Mesh, regions: list[PerchRegion], target: TargetVolume, num_c
     points = target.sample(cfg.target_points, seed=cfg.seed)
     if len(points) == 0:
         raise PerchError("the target volume yields no sample points (is it degenerate?)")
-    cache = cache or PlacementCache()
-    digest = mesh_digest(mesh)
-    scene = cache.scene(mesh, digest)  # validates the mesh when it is new
-    evaluator = Evaluator(scene, points, cfg.camera, cfg.occlusion_epsilon)
-    perches = Perches(regions, target.centroid(), cfg.drone, parse_up_axis(cfg.up_axis), cfg.encoding,
-                      cfg.camera.max_zoom, cfg.border_margin)
-    if fixed:
-        evaluator.commit(*placement_cameras(fixed))
+    ctx = search_context(mesh, regions, target, points, cfg, fixed, exclusions, seed, cache or PlacementCache())
+    scene, evaluator, perches = ctx.evaluator.scene, ctx.evaluator, ctx.perches
     fixed_state = evaluator.info, evaluator.seen  # replaced, never modified in place, by the searches
-    ctx = SearchContext(perches, evaluator, cfg, np.random.default_rng(seed), tuple(exclusions),
-                        [np.asarray(p.drone_pose, np.float64)[:3, 3] for p in fixed], len(fixed), cache, digest,
-                        Arrangement.of(fixed) if fixed else None)
     if num_cameras == 0:
         outcome_perches, reason = [], ""
     else:
@@ -121,6 +113,79 @@ def optimise(mesh: Mesh, regions: list[PerchRegion], target: TargetVolume, num_c
                            certificate.coverage_bound if certificate else float("nan"),
                            certificate.status if certificate else "not computed",
                            certificate.seconds if certificate else 0.0)
+
+
+def search_context(mesh: Mesh, regions: list[PerchRegion], target: TargetVolume, points: np.ndarray,
+                   cfg: PlacementConfig, fixed=(), exclusions=(), seed: int = 0, cache: PlacementCache | None = None,
+                   encoding: str | None = None) -> SearchContext:
+    """The search context `optimise` works in (the references use the same one, so they search the same
+    perches: the same border margin, exclusions and fixed drones): the evaluator holding the fixed cameras."""
+    cache = cache or PlacementCache()
+    digest = mesh_digest(mesh)
+    scene = cache.scene(mesh, digest)  # validates the mesh when it is new
+    evaluator = Evaluator(scene, points, cfg.camera, cfg.occlusion_epsilon)
+    perches = Perches(regions, target.centroid(), cfg.drone, parse_up_axis(cfg.up_axis), encoding or cfg.encoding,
+                      cfg.camera.max_zoom, cfg.border_margin)
+    if fixed:
+        evaluator.commit(*placement_cameras(fixed))
+    return SearchContext(perches, evaluator, cfg, np.random.default_rng(seed), tuple(exclusions),
+                         [np.asarray(p.drone_pose, np.float64)[:3, 3] for p in fixed], len(fixed), cache, digest,
+                         Arrangement.of(fixed) if fixed else None)
+
+
+@dataclass
+class ReferenceResult:
+    """A reference arrangement (greedy over a grid of candidates), seated and scored as an answer is."""
+
+    fitness: list[float]        # nominal fitness after each camera (seated)
+    objective: float            # the configured objective's value of the whole arrangement (objective_value)
+    assessment: Assessment
+    candidates: int
+    arrangements_scored: int
+    seconds: float
+    perches: list = field(default_factory=list)
+
+
+def reference(mesh: Mesh, regions: list[PerchRegion], target: TargetVolume, num_cameras: int,
+              config: PlacementConfig | None = None, cache: PlacementCache | None = None,
+              spacing: float | None = None, angles: int | None = None) -> ReferenceResult:
+    """The exhaustive greedy reference for the configured objective on the problem `optimise` solves:
+    the same target points, perches (border margin included) and seating on the scan. The nominal
+    `fitness` objective runs greedy over the dense reference grid (reference_spacing, reference_angles)
+    from the candidate set's cached visibility; the other objectives score every candidate of a grid
+    (default the candidate set's: candidate_spacing, candidate_angles) with the objective itself."""
+    from perch_placement.search.exhaustive import exhaustive_reference, objective_reference
+
+    start = time.perf_counter()
+    cfg = (config or PlacementConfig()).resolved()
+    points = target.sample(cfg.target_points, seed=cfg.seed)
+    ctx = search_context(mesh, regions, target, points, cfg, cache=cache, encoding="plane")
+    if cfg.objective == "fitness":
+        _, chosen, count, scored = exhaustive_reference(ctx, num_cameras, spacing, angles)
+    else:
+        chosen, count, scored = objective_reference(ctx, num_cameras, spacing or cfg.candidate_spacing,
+                                                    angles or cfg.candidate_angles)
+    if cfg.seat_depth > 0:
+        chosen = [seat_on_scan(p, ctx.evaluator.scene, cfg.drone.radius, cfg.seat_depth) for p in chosen]
+    placements = _placements(ctx.evaluator, ctx.perches, chosen, (np.zeros_like(ctx.evaluator.info),
+                                                                np.zeros_like(ctx.evaluator.seen)), 0)
+    assessment = assess_arrangement(ctx.evaluator, placements, cfg)
+    return ReferenceResult([p.fitness for p in placements], objective_value(assessment, cfg), assessment, count,
+                           scored, time.perf_counter() - start, chosen)
+
+
+def objective_value(a: Assessment, cfg: PlacementConfig) -> float:
+    """The configured objective of a whole arrangement, from its assessment: fitness, expected fitness
+    under the landing error (the assessment's samples), fitness + kview_weight x k-view coverage, or
+    fitness + resilience_weight x coverage after losing the worst camera."""
+    if cfg.objective == "expected":
+        return float(a.expected_fitness)
+    if cfg.objective == "kview":
+        return float(a.fitness + cfg.kview_weight * a.kview_coverage)
+    if cfg.objective == "worst_case":
+        worst = a.worst_coverage_without if len(a.coverage_without) > 1 else 0.0
+        return float(a.fitness + cfg.resilience_weight * worst)
+    return float(a.fitness)
 
 
 def landing_sampler(cfg: PlacementConfig, samples: int | None = None) -> LandingSampler:
