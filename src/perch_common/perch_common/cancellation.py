@@ -36,6 +36,11 @@ class CancelToken:
         """True once cancel() was called."""
         return self._event.is_set()
 
+    def check(self, step: str = "") -> None:
+        """Raise Cancelled once cancel() was called (perch_common.work's context also checks its budget)."""
+        if self.cancelled:
+            raise Cancelled(f"{self.reason}" + (f" (stopped before {step})" if step else ""))
+
 
 _current: contextvars.ContextVar[CancelToken | None] = contextvars.ContextVar("perch_cancel_token", default=None)
 
@@ -50,8 +55,14 @@ def cancellable(token: CancelToken) -> Iterator[CancelToken]:
         _current.reset(reset)
 
 
+def current_token() -> CancelToken | None:
+    """This thread's token (set by `cancellable`), None outside one."""
+    return _current.get()
+
+
 def checkpoint(step: str = "") -> None:
-    """Raise Cancelled when this thread's work was cancelled; a no-op outside `cancellable`."""
+    """Raise Cancelled when this thread's work was cancelled (or, under a perch_common.work context, ran
+    out of its work budget); a no-op outside `cancellable`."""
     token = _current.get()
-    if token is not None and token.cancelled:
-        raise Cancelled(f"{token.reason}" + (f" (stopped before {step})" if step else ""))
+    if token is not None:
+        token.check(step)

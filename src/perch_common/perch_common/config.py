@@ -98,6 +98,15 @@ class StageNodeConfig(Generic[T]):
 
     introspection: bool = param(True, "publish service introspection events (requests and replies) for the recorder",
                                 read_only=True)
+    # Work budget (perch_common.work): a call may work base + rate x (input faces / 1000) seconds, then it is
+    # refused naming the budget; measured rates are ~0.01-0.02 s per 1000 faces (filter, apartment and
+    # multi_storey), a triangle soup ~2 s: the default refuses a soup in under a minute and leaves a
+    # normal scan 10-20x headroom for a loaded machine.
+    work_budget_base: float = param(30.0, "work budget: seconds any call may take whatever its input", "s",
+                                    low=1.0, high=86400.0)
+    work_budget_rate: float = param(0.2, "work budget: seconds added per 1000 faces of the call's input mesh "
+                                    "(reconstruct: per bag frame, see work_budget_per_frame)", "s",
+                                    low=0.0, high=3600.0)
 
     def stage_config(self) -> T:
         """The stage's settings alone, as the stage's config class (the dataclass this node config extends)."""

@@ -36,6 +36,7 @@ from perch_common.raycast import ray_scene as shared_ray_scene
 from perch_common.target import TargetVolume
 from perch_common.timing import Laps
 from perch_common.types import NOT_MEASURED, FilterRemoval, PerchEvidence, PerchRegion, Surface, SurfaceClass
+from perch_common.work import report, steps
 from perch_filtering.checks import approach_clearance, free_fall, geometry_in_front
 from perch_filtering.config import FilterConfig
 from perch_filtering.holes import hole_patches
@@ -98,6 +99,8 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
     validate_mesh(mesh, "environment mesh")
     up = validate_inputs(mesh, surfaces, target, up)
     clock = Laps()
+    # Progress (perch_common.work): shares of the call by phase, from a cProfile of a large scene.
+    report(0.0, "flight grid")
     samples = mesh_samples(mesh, config.voxel_size)
     wall = is_wall([s.frame.normal for s in surfaces], up, config.class_angle_deg)
     walls = [s for s, is_a_wall in zip(surfaces, wall) if is_a_wall]
@@ -107,9 +110,11 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
                              config.max_voxels, config.seed)
     index = SampleIndex(samples, rotation)
     clock.lap("grid")
+    report(0.12, "ray scene")
     scene = ray_scene if ray_scene is not None else shared_ray_scene(mesh)
     centre = target.centroid()
     clock.lap("ray_scene")
+    report(0.2, "orientation")
     orientations = orient(winding_votes(mesh, surfaces),
                           visibility_scores(mesh, surfaces, grid, scene, centre, config.seed,
                                             config.los_offset))
@@ -118,19 +123,22 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
     clock.lap("orientation")
 
     kernel = window_kernel(config.window_width, config.window_height, config.cell, config.window_ellipse)
-    work = [_raster_filters(s, mesh, samples, index, scene, up, floor_height, kernel, config) for s in oriented]
+    work = [_raster_filters(s, mesh, samples, index, scene, up, floor_height, kernel, config)
+            for s in steps(oriented, "raster filters: surface", 0.25, 0.6)]
     clock.lap("raster_filters")
-    for w in work:
+    for w in steps(work, "support: surface", 0.6, 0.65):
         if w.raster is not None:
             _support(w, scene, kernel, config)
     clock.lap("support")
+    report(0.65, "line of sight")
     patches = hole_patches(oriented, config.drone_radius)
     _visibility(work, scene, RayScene(patches) if patches is not None else None,
                 target.sample(config.visibility_points, seed=config.seed), config)
     clock.lap("line_of_sight")
+    report(0.8, "reachability")
     reached = _reachability([w for w in work if w.raster is not None], grid, scene.mesh, config)
     clock.lap("reachability")
-    for w, kept in reached:
+    for w, kept in steps(reached, "observed space: surface", 0.95, 0.99):
         _observed(w, kept, scene, up, config)
     clock.lap("observed")
     regions: list[PerchRegion] = []

@@ -5,6 +5,10 @@ Every request is validated first (perch_common.request_validation); one stage ca
 cancelled by its caller (a perch_interfaces/StageCancel naming the service and the request's
 request_id on CANCEL_TOPIC stops that call at its next `checkpoint()`, and no other call), and
 after each call the node gives freed memory back to the system.
+
+Each call runs under a perch_common.work.WorkContext: what the core reports (`report`, `steps`) is
+published on PROGRESS_TOPIC (perch_interfaces/StageProgress, naming the service and request_id), and
+the node sets the call's work budget once it knows its input (`set_work_budget`).
 """
 
 from __future__ import annotations
@@ -20,8 +24,10 @@ from perch_common.cancellation import CancelToken, cancellable, checkpoint
 from perch_common.errors import EXPECTED
 from perch_common.memory import release_memory
 from perch_common.request_validation import validate_request
+from perch_common.work import WorkContext, current, work_budget
 
 CANCEL_TOPIC = "perch/stage_cancel"    # perch_interfaces/StageCancel: the one call whose work to stop
+PROGRESS_TOPIC = "perch/stage_progress"  # perch_interfaces/StageProgress: how far each call in progress is
 RELEASE_DELAY = 0.2                    # s after a reply before freeing memory (the reply is sent by then)
 EARLY_CANCELS = 256                    # cancels remembered for calls not started yet (queued behind others)
 
@@ -70,7 +76,7 @@ class StageWork:
     def __init__(self, node) -> None:
         from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 
-        from perch_interfaces.msg import StageCancel
+        from perch_interfaces.msg import StageCancel, StageProgress
 
         self.node = node
         self._lock = threading.Lock()
@@ -81,6 +87,8 @@ class StageWork:
         # Its own group: a cancel must get through while a service callback is busy.
         self.group = MutuallyExclusiveCallbackGroup()
         node.create_subscription(StageCancel, CANCEL_TOPIC, self._on_cancel, 10, callback_group=self.group)
+        self._progress_type = StageProgress
+        self._progress = node.create_publisher(StageProgress, PROGRESS_TOPIC, 10)
 
     @classmethod
     def of(cls, node) -> "StageWork":
@@ -131,7 +139,7 @@ class StageWork:
 
         def run(request, response):
             key = (name, str(getattr(request, "request_id", "")))
-            token = CancelToken()
+            token = WorkContext(name, functools.partial(self._publish_progress, name, key[1]))
             with self._lock:
                 self._running.setdefault(key, set()).add(token)
                 early = self._early.pop(key, None)
@@ -151,6 +159,11 @@ class StageWork:
 
         return run
 
+    def _publish_progress(self, service: str, request_id: str, fraction: float, phase: str) -> None:
+        msg = self._progress_type(service=service, request_id=request_id, fraction=float(fraction), phase=phase)
+        msg.header.stamp = self.node.get_clock().now().to_msg()
+        self._progress.publish(msg)
+
     def _schedule_release(self) -> None:
         if self._release_timer is None:
             self._release_timer = self.node.create_timer(RELEASE_DELAY, self._release, callback_group=self.group)
@@ -160,6 +173,17 @@ class StageWork:
     def _release(self) -> None:
         self._release_timer.cancel()
         release_memory()
+
+
+def set_work_budget(config, size: int, unit: str = "faces", hint: str = "", per: float = 1000.0) -> float:
+    """Give the current call its work budget: `config.work_budget_base + config.work_budget_rate x size / per`
+    seconds from its start (a StageNodeConfig's parameters); returns it (0: no budget, outside a call)."""
+    context = current()
+    if context is None:
+        return 0.0
+    seconds = work_budget(size, config.work_budget_base, config.work_budget_rate, per)
+    context.set_budget(seconds, f"{size:,} {unit}", hint)
+    return seconds
 
 
 def create_stage_service(node, srv_type, name: str, callback: Callable, introspection: bool = True,

@@ -1,0 +1,119 @@
+"""One stage call's work context: progress, cancel and a work budget, without ROS.
+
+The serving node runs each call under a `WorkContext` (a CancelToken, so `checkpoint()` in the cores
+keeps working) and the pure cores, which never see ROS, call the module functions at their existing
+loop points:
+
+  report(fraction, phase)        the share of the call's work done (0..1) and what it is doing now;
+  steps(items, phase, lo, hi)    iterate `items`, reporting lo..hi of the call as they go;
+  checkpoint(step)               stop here when the call was cancelled or ran out of its budget.
+
+All three are no-ops outside a context (a core used from a script or a unit test). The context is
+per thread (a contextvar), like the cancel token it extends, so no core signature changes.
+
+Work budget (issue 22): a call may work at most `base + rate x size` seconds, `size` being its input
+(faces of the mesh; frames of a bag), set by the node once it knows the input (`set_budget`). Past
+it, the next checkpoint or report raises BudgetExceeded with the stage, the budget, the size and a
+hint: a pathological input (a triangle soup) is refused in seconds with its reason, not after minutes.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Callable, Iterable, Iterator, TypeVar
+
+from perch_common.cancellation import Cancelled, CancelToken, current_token
+from perch_common.errors import PerchError
+
+T = TypeVar("T")
+
+REPORT_INTERVAL = 0.25   # s between progress callbacks while the phase stays the same
+
+
+class BudgetExceeded(PerchError):
+    """A call worked longer than its work budget allows for its input."""
+
+
+def work_budget(size: float, base: float, rate: float, per: float = 1000.0) -> float:
+    """Seconds a call may work: `base + rate * size / per` (rate: seconds per `per` units of input)."""
+    return float(base) + float(rate) * max(float(size), 0.0) / float(per)
+
+
+class WorkContext(CancelToken):
+    """A cancel token that also carries the call's progress callback and its deadline.
+
+    on_progress(fraction, phase) is called from the working thread: on every phase change and at most
+    every REPORT_INTERVAL s otherwise (a cheap loop may report every step). `clock` is injectable for tests.
+    """
+
+    def __init__(self, name: str = "the stage", on_progress: Callable[[float, str], None] | None = None,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        super().__init__()
+        self.name = name
+        self.on_progress = on_progress
+        self.clock = clock
+        self.started = clock()
+        self.deadline = math.inf
+        self.budget_reason = ""
+        self.fraction = 0.0
+        self.phase = ""
+        self._sent_at = -math.inf
+
+    def set_budget(self, seconds: float, size: str, hint: str = "") -> None:
+        """Allow `seconds` from the call's start for an input described by `size` ('122,000 faces')."""
+        self.deadline = self.started + float(seconds)
+        self.budget_reason = (f"{self.name} exceeded its work budget of {seconds:.0f} s for {size}"
+                              + (f": {hint}" if hint else ""))
+
+    def check(self, step: str = "") -> None:
+        """Raise Cancelled when cancelled, BudgetExceeded when past the deadline."""
+        super().check(step)
+        if self.clock() > self.deadline:
+            raise BudgetExceeded(self.budget_reason)
+
+    def report(self, fraction: float, phase: str = "", detail: str = "") -> None:
+        """Record progress (clipped to 0..1, never backwards), tell the callback when due, then check.
+
+        `detail` ('12/40') is shown after the phase but a change of it alone is not a new phase."""
+        fraction = min(max(float(fraction), self.fraction), 1.0)
+        now = self.clock()
+        changed = bool(phase) and phase != self.phase
+        self.fraction = fraction
+        if phase:
+            self.phase = phase
+        if self.on_progress is not None and (changed or now - self._sent_at >= REPORT_INTERVAL):
+            self._sent_at = now
+            self.on_progress(self.fraction, f"{self.phase} {detail}" if detail else self.phase)
+        self.check(phase)
+
+
+def current() -> WorkContext | None:
+    """This thread's work context, None outside one (or under a bare CancelToken)."""
+    token = current_token()
+    return token if isinstance(token, WorkContext) else None
+
+
+def report(fraction: float, phase: str = "") -> None:
+    """Report the share of the current call's work done and its phase; a no-op outside a call."""
+    context = current()
+    if context is not None:
+        context.report(fraction, phase)
+
+
+def steps(items: Iterable[T], phase: str, low: float = 0.0, high: float = 1.0) -> Iterator[T]:
+    """Yield `items`, reporting low..high of the call (phase 'PHASE i/n') before each one.
+
+    Within a call's context every step is also a checkpoint (cancel, budget)."""
+    items = list(items) if not hasattr(items, "__len__") else items
+    total = len(items)
+    context = current()
+    for i, item in enumerate(items):
+        if context is not None:
+            context.report(low + (high - low) * i / max(total, 1), phase, f"{i + 1}/{total}")
+        yield item
+    if context is not None:
+        context.report(high, phase, f"{total}/{total}")
+
+
+__all__ = ["BudgetExceeded", "Cancelled", "WorkContext", "current", "report", "steps", "work_budget"]
