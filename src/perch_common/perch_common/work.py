@@ -6,7 +6,9 @@ loop points:
 
   report(fraction, phase)        the share of the call's work done (0..1) and what it is doing now;
   steps(items, phase, lo, hi)    iterate `items`, reporting lo..hi of the call as they go;
-  checkpoint(step)               stop here when the call was cancelled or ran out of its budget.
+  checkpoint(step)               stop here when the call was cancelled or ran out of its budget;
+  with span(lo, hi): ...         reports inside the block (0..1 of its own work) become lo..hi of the call,
+                                 so a helper reports its own share without knowing its caller's phases.
 
 All three are no-ops outside a context (a core used from a script or a unit test). The context is
 per thread (a contextvar), like the cancel token it extends, so no core signature changes.
@@ -19,6 +21,7 @@ hint: a pathological input (a triangle soup) is refused in seconds with its reas
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 from typing import Callable, Iterable, Iterator, TypeVar
@@ -59,6 +62,7 @@ class WorkContext(CancelToken):
         self.fraction = 0.0
         self.phase = ""
         self._sent_at = -math.inf
+        self._spans: list[tuple[float, float]] = []   # nested (low, high) of the call a report maps into
 
     def set_budget(self, seconds: float, size: str, hint: str = "") -> None:
         """Allow `seconds` from the call's start for an input described by `size` ('122,000 faces')."""
@@ -76,6 +80,8 @@ class WorkContext(CancelToken):
         """Record progress (clipped to 0..1, never backwards), tell the callback when due, then check.
 
         `detail` ('12/40') is shown after the phase but a change of it alone is not a new phase."""
+        for low, high in reversed(self._spans):
+            fraction = low + (high - low) * min(max(float(fraction), 0.0), 1.0)
         fraction = min(max(float(fraction), self.fraction), 1.0)
         now = self.clock()
         changed = bool(phase) and phase != self.phase
@@ -86,6 +92,20 @@ class WorkContext(CancelToken):
             self._sent_at = now
             self.on_progress(self.fraction, f"{self.phase} {detail}" if detail else self.phase)
         self.check(phase)
+
+
+@contextlib.contextmanager
+def span(low: float, high: float) -> Iterator[None]:
+    """Within the block, a report of f (0..1) means low + (high - low) * f of the enclosing span."""
+    context = current()
+    if context is None:
+        yield
+        return
+    context._spans.append((float(low), float(high)))
+    try:
+        yield
+    finally:
+        context._spans.pop()
 
 
 def current() -> WorkContext | None:
@@ -116,4 +136,4 @@ def steps(items: Iterable[T], phase: str, low: float = 0.0, high: float = 1.0) -
         context.report(high, phase, f"{total}/{total}")
 
 
-__all__ = ["BudgetExceeded", "Cancelled", "WorkContext", "current", "report", "steps", "work_budget"]
+__all__ = ["BudgetExceeded", "Cancelled", "WorkContext", "current", "report", "span", "steps", "work_budget"]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from perch_common.cancellation import Cancelled, cancellable, checkpoint
-from perch_common.work import BudgetExceeded, WorkContext, report, steps, work_budget
+from perch_common.work import BudgetExceeded, WorkContext, report, span, steps, work_budget
 
 
 class FakeClock:
@@ -87,3 +87,21 @@ def test_the_budget_grows_with_the_input():
     assert work_budget(0, base=30.0, rate=0.2) == pytest.approx(30.0)
     assert work_budget(1_000_000, base=30.0, rate=0.2) == pytest.approx(230.0)
     assert work_budget(60, base=60.0, rate=5.0, per=1) == pytest.approx(360.0)
+
+
+def test_a_span_maps_a_helpers_own_share_into_its_callers_phase():
+    sent = []
+    clock = FakeClock()
+    context = WorkContext("perch/segment", lambda f, p: sent.append((round(f, 3), p)), clock)
+
+    def helper():   # knows only its own work
+        for _ in steps(range(2), "merge round"):
+            clock.now += 1.0
+
+    with cancellable(context):
+        with span(0.2, 0.6):
+            helper()
+        report(0.7, "surfaces")
+    assert sent == [(0.2, "merge round 1/2"), (0.4, "merge round 2/2"), (0.6, "merge round 2/2"), (0.7, "surfaces")]
+    with span(0.1, 0.2):   # outside a call: nothing to map
+        report(0.5)

@@ -30,7 +30,7 @@ from perch_common.conventions import FILTER_NAMES, is_wall
 from perch_common.mesh import Mesh, validate_mesh
 from perch_common.mesh_samples import mesh_samples
 from perch_common.polygons import faces_outline, from_shapely
-from perch_common.proximity import clear_of_mesh
+from perch_common.proximity import LARGE_QUERY, clear_of_mesh
 from perch_common.raycast import RayScene
 from perch_common.raycast import ray_scene as shared_ray_scene
 from perch_common.target import TargetVolume
@@ -45,6 +45,7 @@ from perch_filtering.orientation import class_enabled, find_floor, orient, orien
 from perch_filtering.raster import SurfaceRaster, erode_window, rasterise, window_kernel
 from perch_filtering.regions import mask_polygons, triangulate
 from perch_filtering.sampling import SampleIndex, project
+from perch_filtering.standoff import standoffs_clear
 from perch_filtering.support import first_surface_depth, local_window_support, scan_noise
 from perch_filtering.validation import validate_inputs
 from perch_filtering.visibility import visible_shares
@@ -240,9 +241,12 @@ def _reachability(work: list[_Work], grid: FlightGrid, mesh: Mesh,
     stands = [w.raster.cell_world(w.alive) + config.standoff * w.surface.frame.normal for w in work]
     nears = [grid.lookup(grid.reachable_near, stand) for stand in stands]
     asked = np.concatenate([stand[near] for stand, near in zip(stands, nears)]) if work else np.zeros((0, 3))
-    # The clearance test reuses the samples the filter drew (same spacing: kept with the mesh).
-    fits = np.split(clear_of_mesh(mesh, asked, config.drone_radius, config.voxel_size),
-                    np.cumsum([n.sum() for n in nears])[:-1])
+    if len(asked) >= LARGE_QUERY:
+        clear = standoffs_clear(mesh, [(w.raster, w.alive, near) for w, near in zip(work, nears)], asked,
+                                config.standoff, config.drone_radius, config.voxel_size)
+    else:  # the clearance test reuses the samples the filter drew (same spacing: kept with the mesh)
+        clear = clear_of_mesh(mesh, asked, config.drone_radius, config.voxel_size)
+    fits = np.split(clear, np.cumsum([n.sum() for n in nears])[:-1])
     out = []
     for w, near, fit in zip(work, nears, fits):
         near[near] = fit

@@ -19,6 +19,7 @@ from perch_common.raycast import RayScene, ray_scene
 from perch_common.target import TargetVolume
 from perch_common.transforms import parse_up_axis
 from perch_common.types import CameraPlacement, ExclusionZone, PerchRegion
+from perch_common.work import report, span
 from perch_placement.cache import PlacementCache, mesh_digest
 from perch_placement.config import PlacementConfig
 from perch_placement.fitness import Evaluator, placement_cameras
@@ -77,13 +78,15 @@ def optimise(mesh: Mesh, regions: list[PerchRegion], target: TargetVolume, num_c
     points = target.sample(cfg.target_points, seed=cfg.seed)
     if len(points) == 0:
         raise PerchError("the target volume yields no sample points (is it degenerate?)")
+    report(0.0, "candidates")   # progress (perch_common.work); the searches report each camera
     ctx = search_context(mesh, regions, target, points, cfg, fixed, exclusions, seed, cache or PlacementCache())
     scene, evaluator, perches = ctx.evaluator.scene, ctx.evaluator, ctx.perches
     fixed_state = evaluator.info, evaluator.seen  # replaced, never modified in place, by the searches
     if num_cameras == 0:
         outcome_perches, reason = [], ""
     else:
-        outcome = METHODS[method](ctx, num_cameras)
+        with span(0.1, 0.85):
+            outcome = METHODS[method](ctx, num_cameras)
         outcome_perches, reason = outcome.perches, outcome.stop_reason
     if cfg.seat_depth > 0:
         outcome_perches = [seat_on_scan(p, scene, cfg.drone.radius, cfg.seat_depth) for p in outcome_perches]
@@ -92,6 +95,7 @@ def optimise(mesh: Mesh, regions: list[PerchRegion], target: TargetVolume, num_c
     bound = float("nan")
     if cfg.compute_bound and outcome_perches:
         bound = ctx.online_bound(len(outcome_perches))
+    report(0.85, "robustness")
     assessment = assess_arrangement(evaluator, list(fixed) + placements, cfg)
     for placement, i in zip(placements, range(len(fixed), len(fixed) + len(placements))):
         annotate(placement, assessment, i)

@@ -18,6 +18,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from perch_common.cancellation import checkpoint
+from perch_common.work import report
 from perch_segmentation import stats as st
 from perch_segmentation.adjacency import unique_edges
 
@@ -126,6 +127,9 @@ def grow_clusters(face_stats: np.ndarray, adjacency: np.ndarray, rules: MergeRul
     table, edges = face_stats, adjacency
     for _ in range(max_rounds):
         checkpoint("the next merge round")
+        # Progress: clusters shrink geometrically from faces towards target, so the share is logarithmic.
+        faces = max(len(face_stats), 1)
+        report(math.log(faces / max(count, 1)) / math.log(max(faces / max(target, 1), 2.0)), "grow clusters")
         if count <= target or len(edges) == 0:
             break
         u, v = edges[:, 0], edges[:, 1]

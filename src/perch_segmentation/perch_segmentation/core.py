@@ -18,6 +18,7 @@ from perch_common.mesh import Mesh, validate_mesh
 from perch_common.timing import Laps
 from perch_common.transforms import parse_up_axis
 from perch_common.types import Surface
+from perch_common.work import report, span
 from perch_segmentation import stats as st
 from perch_segmentation.adjacency import face_adjacency
 from perch_segmentation.agglomerate import MergeRules, grow_clusters
@@ -46,6 +47,7 @@ def segment_mesh(mesh: Mesh, config: SegmentationConfig | None = None) -> Segmen
     config = config or SegmentationConfig()
     config.validate()
     clock = Laps()
+    report(0.0, "prepare")   # progress (perch_common.work) at the existing phase boundaries
     validate_mesh(mesh, "mesh to segment")
     up = parse_up_axis(config.up_axis)
     colors = mesh.face_colors()  # mean colours are reported even when not used for merging
@@ -65,11 +67,13 @@ def segment_mesh(mesh: Mesh, config: SegmentationConfig | None = None) -> Segmen
     rules = MergeRules(config.energy_bound, color_threshold, config.normal_guard_area,
                        math.cos(math.radians(config.theta_max_deg)))
     # Step 1 needs moments, winding and colour only; the other columns are summed once after it.
-    labels, table, edges = grow_clusters(faces_table[:, :st.STEP1_COLUMNS], adjacency, rules,
-                                         config.target_clusters)
+    with span(0.15, 0.6):
+        labels, table, edges = grow_clusters(faces_table[:, :st.STEP1_COLUMNS], adjacency, rules,
+                                             config.target_clusters)
     table = st.aggregate(faces_table, labels, len(table))
     clusters_step1 = len(table)
     clock.lap("step1_grow")
+    report(0.6, "merge planes")
 
     plane_rules = PlaneRules(config.theta_max_deg, config.theta_min_deg, config.d_max, color_threshold)
     mapping, table, edges = merge_coplanar(table, edges, plane_rules)
@@ -85,6 +89,7 @@ def segment_mesh(mesh: Mesh, config: SegmentationConfig | None = None) -> Segmen
         labels = mapping[labels]
     clusters_step2 = len(table)
     clock.lap("step2_merge")
+    report(0.8, "surface outlines")
 
     # Areas to 1 cm^2: a surface of exactly min_area, or two of equal area (generated rooms have them),
     # are kept and ordered alike when the same mesh comes in another orientation (float rounding).

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from perch_common.work import steps
 from perch_placement.candidates import CandidateGreedy, GreedyPick
 from perch_placement.perches import Perches
 from perch_placement.search.context import SearchContext, SearchOutcome, candidate_encoding, commit, no_gain_reason, polish
@@ -41,7 +42,7 @@ def lazy_greedy(state: CandidateGreedy, k: int, block: int = LAZY_BLOCK) -> Gree
     """Up to k candidates by lazy greedy: the first step scores every candidate, later ones lazily."""
     chosen, gains = [], []
     bounds = None
-    for _ in range(k):
+    for _ in steps(range(k), "camera"):
         picked = _lazy_step(state, bounds, block) if bounds is not None else None
         if picked is None:
             pos = np.flatnonzero(state.valid)

@@ -9,6 +9,7 @@ from typing import Callable
 import numpy as np
 
 from perch_common.types import ExclusionZone
+from perch_common.work import steps
 from perch_placement.cache import PlacementCache
 from perch_placement.candidates import CandidateGreedy, CandidateSet, cached_candidates
 from perch_placement.config import PlacementConfig
@@ -141,7 +142,7 @@ def greedy(ctx: SearchContext, k: int, best_camera: CameraSearch) -> SearchOutco
     again on a packing of the regions and its answer is taken if it places more cameras."""
     base = (ctx.evaluator.info, ctx.evaluator.seen, list(ctx.others))
     chosen: list[Perch] = []
-    for _ in range(k):
+    for _ in steps(range(k), "camera"):
         before = float(ctx.evaluator.current().fitness)
         x, f = best_camera(ctx)
         if x is None or not f > before + 1e-12:

@@ -1,0 +1,52 @@
+"""Standoff clearance of many perch cells at once, settled mostly on a coarse grid of each surface.
+
+A cell's standoff point lies `standoff` in front of its cell centre; the standoff points of one surface
+form a lattice on a plane, one raster cell apart. The distance from a point to the mesh changes by at
+most the distance the point moves (it is 1-Lipschitz), so the distance at a coarse node NODE_STEP cells
+apart bounds it at every cell within NODE_STEP / 2 cells (both axes) of the node: where the bound
+settles the question (clear by more than that slack, or blocked by more) the cell gets its answer
+from the node; only the cells within the slack of the drone radius are measured exactly
+(perch_common.proximity.clear_of_mesh). Same answers as measuring every cell, at a fraction of
+the closest-point queries (the building: ~1 in 30).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from perch_common.mesh import Mesh
+from perch_common.proximity import clear_of_mesh
+from perch_common.raycast import ray_scene
+from perch_filtering.raster import SurfaceRaster
+
+NODE_STEP = 8            # cells between coarse nodes (16 cm at 50 px/m)
+FLOAT32_SLACK = 1e-3     # m: the closest-point scene works in float32 (~1e-5 m at 100 m); generous
+
+
+def standoffs_clear(mesh: Mesh, surfaces: list[tuple[SurfaceRaster, np.ndarray, np.ndarray]], points: np.ndarray,
+                    standoff: float, radius: float, spacing: float) -> np.ndarray:
+    """(N,) True where no point of the mesh is within `radius` of each of `points`.
+
+    `points` are, surface after surface, the standoff points of the cells of `mask` (row-major) that
+    `asked` selects: raster.cell_world(mask)[asked] + standoff * normal; `surfaces` holds
+    (raster, mask, asked) for each. `spacing` is the clearance test's sample spacing."""
+    nodes, owner = [], []
+    for raster, mask, asked in surfaces:
+        rows, cols = np.nonzero(mask)
+        rows, cols = rows[asked], cols[asked]
+        half = NODE_STEP // 2
+        node = np.column_stack([(rows + half) // NODE_STEP, (cols + half) // NODE_STEP]) * NODE_STEP
+        unique, inverse = np.unique(node, axis=0, return_inverse=True)
+        uv = np.column_stack([raster.u0 + unique[:, 1] * raster.cell, raster.v0 + unique[:, 0] * raster.cell])
+        owner.append(inverse.reshape(-1) + sum(len(n) for n in nodes))
+        nodes.append(raster.frame.to_world(uv) + standoff * raster.frame.normal)
+    if not nodes:
+        return np.ones(0, bool)
+    node_distance = ray_scene(mesh).closest_points(np.concatenate(nodes))[2]
+    cell = max((raster.cell for raster, _, _ in surfaces), default=0.0)
+    slack = np.sqrt(2.0) * (NODE_STEP // 2) * cell + FLOAT32_SLACK
+    distance = node_distance[np.concatenate(owner)]
+    clear = distance - slack >= radius
+    unsure = np.flatnonzero((distance + slack >= radius) & ~clear)
+    clear[unsure] = clear_of_mesh(mesh, points[unsure], radius, spacing)
+    return clear

@@ -1,0 +1,63 @@
+"""The filter's fast paths give the answers of the simple computations they replace.
+
+Each fast path is checked against the plain version on seeded scenes and seeded random inputs; the
+whole filter's answers before and after a speed-up are compared by filter_summary.py (region
+summaries and per-filter removals on every generated kind and the shared real scans).
+"""
+
+import numpy as np
+import pytest
+from filter_summary import compare, summarise
+
+from perch_common.proximity import clear_of_mesh
+from perch_common.scene_generator import generate_scene
+from perch_filtering.raster import rasterise
+from perch_filtering.standoff import NODE_STEP, standoffs_clear
+
+
+@pytest.fixture(scope="module")
+def room():
+    return generate_scene(3, "two_rooms")
+
+
+@pytest.mark.parametrize("standoff", [0.4, 0.5, 0.8])
+def test_standoff_clearance_on_the_coarse_grid_equals_every_cell_measured(room, standoff):
+    rng = np.random.default_rng(7)
+    surfaces = [s for s in room.ground_truth_surfaces() if s.area > 2.0][:6]
+    parts, points = [], []
+    for s in surfaces:
+        raster = rasterise(s.frame, s.boundary, 0.02, 3, 4_000_000)
+        mask = raster.inside & (rng.random(raster.shape) < 0.7)
+        asked = rng.random(int(mask.sum())) < 0.8
+        parts.append((raster, mask, asked))
+        points.append(raster.cell_world(mask)[asked] + standoff * s.frame.normal)
+    points = np.concatenate(points)
+    fast = standoffs_clear(room.mesh, parts, points, standoff, 0.35, 0.05)
+    exact = clear_of_mesh(room.mesh, points, 0.35, 0.05)
+    assert len(points) > 50_000 and 0 < exact.sum() < len(exact)  # both answers occur
+    np.testing.assert_array_equal(fast, exact)
+
+
+def test_standoff_clearance_cells_are_bounded_by_their_node():
+    """The slack covers the farthest cell from its node: NODE_STEP / 2 cells on both axes."""
+    rows = np.arange(40)
+    node = (rows + NODE_STEP // 2) // NODE_STEP * NODE_STEP
+    assert np.abs(rows - node).max() == NODE_STEP // 2
+
+
+def test_summaries_compare_equal_to_themselves_and_name_a_changed_area():
+    from perch_filtering.core import FilterConfig, filter_surfaces
+
+    scene = generate_scene(1, "room")
+    from filtering_accuracy import filter_input_surfaces
+
+    result = filter_surfaces(scene.mesh, filter_input_surfaces(scene), scene.target, scene.up, FilterConfig())
+    base = summarise(result)
+    assert base["regions"] and compare(base, base) == []
+    changed = summarise(result)
+    changed["regions"][0]["area"] += 0.5
+    first = next(iter(changed["removals"]))
+    changed["removals"][first]["support"] += 0.5
+    diffs = compare(base, changed)
+    assert any("region 0" in d and "area" in d for d in diffs)
+    assert any(f"surface {first} support" in d for d in diffs)
