@@ -46,7 +46,7 @@ def test_every_client_process_uses_the_host_only_profile(monkeypatch):
     monkeypatch.delenv("FASTRTPS_DEFAULT_PROFILES_FILE", raising=False)
     monkeypatch.delenv("PERCH_NETWORK", raising=False)
     monkeypatch.setenv("ROS_LOCALHOST_ONLY", "1")
-    from perch_operator.runner import client_context
+    from perch_operator.cli.runner import client_context
 
     assert apply is use_perch_dds
     with client_context():
@@ -70,9 +70,9 @@ def test_confirms_bind_to_the_current_mission_and_a_spoofed_waypoint_set_is_refu
     from perch_interfaces.action import PlanPerches
     from perch_interfaces.msg import PerchWaypoint, PerchWaypointSet
     from perch_interfaces.srv import Confirm
-    from perch_operator.dispatcher import Dispatcher
-    from perch_operator.mission_data import mission_id_text
-    from perch_operator.node import LATCHED_LAST, OperatorNode
+    from perch_operator.cli.dispatcher import Dispatcher
+    from perch_operator.coordinator.node import LATCHED_LAST, OperatorNode
+    from perch_operator.outputs.mission_data import mission_id_text
 
     rclpy.init()   # the coordinator's (OperatorNode takes the default context)
     contexts = [rclpy.get_default_context(), Context(), Context()]
@@ -191,8 +191,8 @@ def test_a_networked_graph_refuses_unsigned_and_forged_commands(tmp_path, monkey
 
     from perch_interfaces.msg import PerchWaypointSet
     from perch_interfaces.srv import Confirm
-    from perch_operator.dispatcher import Dispatcher
-    from perch_operator.node import OperatorNode
+    from perch_operator.cli.dispatcher import Dispatcher
+    from perch_operator.coordinator.node import OperatorNode
 
     rclpy.init()
     other = Context()

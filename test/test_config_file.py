@@ -6,7 +6,7 @@ import pytest
 from perch_common.config import WILDCARD, ConfigError, default_config_path, flatten, from_parameters, load_yaml
 from perch_common.mesh_node import MeshToolsConfig
 from perch_filtering.config import FilterNodeConfig
-from perch_operator.config import OperatorConfig
+from perch_operator.coordinator.config import OperatorConfig
 from perch_placement.config import PlacementNodeConfig
 from perch_reconstruction.config import ReconstructionNodeConfig
 from perch_segmentation.config import SegmentationNodeConfig

@@ -57,7 +57,7 @@ def alive(pid: int) -> bool:
 
 
 def test_a_killed_stage_or_coordinator_ends_the_mission_in_seconds_and_the_next_one_succeeds(client_node, tmp_path):
-    from perch_operator.soak import FaultSoak
+    from perch_operator.bench.soak import FaultSoak
 
     soak = FaultSoak(tmp_path, client_node, seed=3)
     try:
@@ -162,7 +162,7 @@ def test_a_node_that_only_calls_perch_services_is_not_taken_for_a_running_graph(
     from perch_common.conventions import NODE_SERVICES
     from perch_common.launch import GraphProcesses, running_graph
     from perch_interfaces import srv
-    from perch_operator.runner import existing_perch_graph, offered_services
+    from perch_operator.cli.runner import existing_perch_graph, offered_services
 
     clients = [client_node.create_client(srv.Segment, "/perch/segment"),
                client_node.create_client(srv.Filter, "/perch/filter"),

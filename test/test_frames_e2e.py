@@ -36,7 +36,7 @@ def target_in(target, transform: np.ndarray):
 
 
 def run_mission(graph, goal, tmp_path_factory, name: str):
-    from perch_operator.runner import run_recorded_mission
+    from perch_operator.cli.runner import run_recorded_mission
 
     return run_recorded_mission(graph.node, goal, tmp_path_factory.mktemp(name), progress=False, timeout=300).result
 

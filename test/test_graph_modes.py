@@ -51,7 +51,7 @@ def test_one_process_graph_gives_the_same_perches_as_node_processes(per_node_run
     for name in ("run.mcap", "run.rrd", "report.html"):
         assert (tmp_path / name).stat().st_size > 0
     # The recording of the one-process mission replays (each mesh recorded once, later named by id).
-    from perch_operator.runfile import stage_calls
+    from perch_operator.outputs.runfile import stage_calls
 
     calls = stage_calls(tmp_path / "run.mcap")
     assert [c.stage for c in calls] == ["clean", "crop", "segment", "filter", "optimise"]

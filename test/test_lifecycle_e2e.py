@@ -62,7 +62,7 @@ def wait_for_output(proc: subprocess.Popen, log: Path, text: str, timeout: float
 
 def run_when_free(node, goal, within: float):
     """Run a mission, retrying while the coordinator still refuses goals; (result, seconds until accepted)."""
-    from perch_operator.client import GoalRejected, run_mission
+    from perch_operator.api.client import GoalRejected, run_mission
 
     started = time.monotonic()
     while True:
@@ -171,7 +171,7 @@ def test_cancelling_during_a_long_segment_stops_it_and_the_next_mission_is_fast(
     from perch_common.scene_generator import generate_scene
     from perch_interfaces.action import PlanPerches
     from perch_interfaces.srv import Segment
-    from perch_operator.client import run_mission
+    from perch_operator.api.client import run_mission
 
     started = time.monotonic()
     assert run_mission(graph.node, small_goal, timeout=300).success

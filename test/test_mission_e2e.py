@@ -48,7 +48,7 @@ def wait_for(predicate, timeout: float, what: str):
 @pytest.fixture(scope="module")
 def recorded(graph, scene, tmp_path_factory):
     """The first mission: auto-accept, recorded, with outputs written."""
-    from perch_operator.runner import run_recorded_mission, write_outputs
+    from perch_operator.cli.runner import run_recorded_mission, write_outputs
 
     out = tmp_path_factory.mktemp("mission")
     outputs = run_recorded_mission(graph.node, make_goal(scene), out, progress=False, timeout=300)
@@ -59,10 +59,10 @@ def recorded(graph, scene, tmp_path_factory):
 def test_auto_accept_mission_reaches_a_late_dispatcher(graph, recorded):
     from geometry_msgs.msg import PoseArray
 
-    from perch_operator.dispatcher import Dispatcher
-    from perch_operator.node import LATCHED_LAST
-    from perch_operator.runfile import metadata
-    from perch_operator.runner import spin_for
+    from perch_operator.cli.dispatcher import Dispatcher
+    from perch_operator.cli.runner import spin_for
+    from perch_operator.coordinator.node import LATCHED_LAST
+    from perch_operator.outputs.runfile import metadata
 
     result = recorded.result
     assert len(result.placements) == CAMERAS and len(result.waypoints) == CAMERAS
@@ -97,10 +97,10 @@ def test_auto_accept_mission_reaches_a_late_dispatcher(graph, recorded):
 
 
 def test_late_dispatcher_gets_exactly_the_current_missions_waypoints(graph, scene):
-    from perch_operator.client import run_mission
-    from perch_operator.dispatcher import Dispatcher
-    from perch_operator.mission_data import mission_id_text
-    from perch_operator.runner import spin_for
+    from perch_operator.api.client import run_mission
+    from perch_operator.cli.dispatcher import Dispatcher
+    from perch_operator.cli.runner import spin_for
+    from perch_operator.outputs.mission_data import mission_id_text
 
     results = [run_mission(graph.node, make_goal(scene, cameras=cameras), timeout=300) for cameras in (2, 1)]
     assert all(r.success for r in results), [r.message for r in results]
@@ -124,7 +124,7 @@ def test_a_lost_answer_to_the_goal_is_recovered_from_the_coordinators_status_lis
     from rclpy.action import ActionClient
     from rclpy.task import Future
 
-    from perch_operator.client import run_mission
+    from perch_operator.api.client import run_mission
 
     original = ActionClient.send_goal_async
 
@@ -144,7 +144,7 @@ def test_a_goal_that_never_arrives_times_out_naming_the_cause(graph, scene, monk
     from rclpy.action import ActionClient
     from rclpy.task import Future
 
-    from perch_operator.client import run_mission
+    from perch_operator.api.client import run_mission
 
     monkeypatch.setattr(ActionClient, "send_goal_async", lambda self, *args, **kwargs: Future())   # never sent
     with pytest.raises(TimeoutError, match="did not answer the goal within 2 s"):
@@ -152,8 +152,8 @@ def test_a_goal_that_never_arrives_times_out_naming_the_cause(graph, scene, monk
 
 
 def test_recording_holds_every_stage_call_and_replays_clean(graph, recorded):
-    from perch_operator.replay import replay
-    from perch_operator.runfile import channel_counts, stage_calls
+    from perch_operator.cli.replay import replay
+    from perch_operator.outputs.runfile import channel_counts, stage_calls
 
     calls = stage_calls(recorded.mcap)
     assert [c.stage for c in calls] == ["clean", "crop", "segment", "filter", "optimise"]
@@ -176,7 +176,7 @@ def test_recording_decodes_with_rosbags_and_foxglove_and_keeps_rosbag2_metadata(
     from rosbags.rosbag2.metadata import parse_qos
 
     from perch_common.bag_check import DecoderUnavailable, foxglove_counts, rosbags_counts
-    from perch_operator.runfile import channel_counts, iter_messages
+    from perch_operator.outputs.runfile import channel_counts, iter_messages
 
     counts = channel_counts(recorded.mcap)
     assert any(t.endswith("/_service_event") for t in counts) and "/perch/plan_perches/_action/feedback" in counts
@@ -215,7 +215,7 @@ def test_recording_decodes_with_rosbags_and_foxglove_and_keeps_rosbag2_metadata(
 
 
 def test_replay_check_fails_after_a_parameter_change(graph, recorded, restart_with):
-    from perch_operator.replay import replay
+    from perch_operator.cli.replay import replay
 
     with restart_with("perch_placement", {"seed": 12345}):
         out = io.StringIO()
@@ -233,7 +233,7 @@ class LiveMission:
         from perch_interfaces.action import PlanPerches
         from perch_interfaces.msg import Proposal
         from perch_interfaces.srv import Confirm
-        from perch_operator.node import LATCHED
+        from perch_operator.coordinator.node import LATCHED
 
         self.node = node
         self.proposals: dict[int, Proposal] = {}
@@ -334,7 +334,7 @@ def test_surface_review_rejection_keeps_perches_off_the_rejected_surface(graph, 
     from perch_common.ros.conversions import surface_from_msg
     from perch_interfaces.msg import SurfaceReview
     from perch_interfaces.srv import ReviewSurfaces
-    from perch_operator.node import LATCHED_LAST
+    from perch_operator.coordinator.node import LATCHED_LAST
 
     reviews: list = []
     sub = graph.node.create_subscription(SurfaceReview, "/perch/surface_review", reviews.append, LATCHED_LAST)
@@ -372,7 +372,7 @@ def test_killed_stage_ends_the_mission_with_its_name_and_the_next_one_succeeds(g
     from rclpy.qos import qos_profile_services_default
 
     from perch_interfaces.srv import Optimise
-    from perch_operator.client import run_mission
+    from perch_operator.api.client import run_mission
 
     # A deliberately long search, so that the stage dies in the middle of its call.
     slow = {"pso.particles": 400, "pso.iterations": 400, "pso.tolerance": 0.0, "pso.patience": 1000}
@@ -412,8 +412,8 @@ def test_killing_the_node_holding_a_cached_mesh_mid_mission_is_recovered_by_rese
     from perch_common.mesh_cache import MESH_NOT_CACHED
     from perch_interfaces.msg import SurfaceReview
     from perch_interfaces.srv import Filter, ReviewSurfaces
-    from perch_operator.client import run_mission
-    from perch_operator.node import LATCHED_LAST
+    from perch_operator.api.client import run_mission
+    from perch_operator.coordinator.node import LATCHED_LAST
 
     warm = run_mission(graph.node, make_goal(scene), timeout=300)   # every stage now holds the meshes
     assert warm.success, warm.message
@@ -462,7 +462,7 @@ def test_killing_the_node_holding_a_cached_mesh_mid_mission_is_recovered_by_rese
 def test_twenty_missions_without_crashes_or_memory_growth(graph, scene):
     import psutil
 
-    from perch_operator.client import run_mission
+    from perch_operator.api.client import run_mission
 
     goal = make_goal(scene, cameras=2)
     procs = {n: psutil.Process(p.pid) for n, p in graph.processes.processes.items()}

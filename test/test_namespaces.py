@@ -33,8 +33,8 @@ def test_two_namespaced_graphs_run_missions_side_by_side(tmp_path, graph_parts):
     from perch_common.ros.conversions import mesh_to_msg, target_to_msg
     from perch_common.scene_generator import generate_scene
     from perch_interfaces.action import PlanPerches
-    from perch_operator.runfile import channel_counts, iter_messages
-    from perch_operator.runner import offered_services, run_recorded_mission
+    from perch_operator.cli.runner import offered_services, run_recorded_mission
+    from perch_operator.outputs.runfile import channel_counts, iter_messages
 
     scene = generate_scene(3, "room")
     config = graph_parts.write_config(tmp_path / "perch.yaml")

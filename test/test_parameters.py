@@ -14,7 +14,7 @@ NODE_CONFIGS = {
     "perch_segmentation": ("perch_segmentation.config", "SegmentationNodeConfig"),
     "perch_filtering": ("perch_filtering.config", "FilterNodeConfig"),
     "perch_placement": ("perch_placement.config", "PlacementNodeConfig"),
-    "perch_operator": ("perch_operator.config", "OperatorConfig"),
+    "perch_operator": ("perch_operator.coordinator.config", "OperatorConfig"),
 }
 
 
@@ -62,7 +62,7 @@ def test_running_nodes_refuse_bad_values_with_a_reason_and_keep_the_old_one():
     from perch_common.ros.node_main import ros_context
     from perch_common.ros.testing import use_isolated_ros_env
     from perch_filtering.node import FilterNode
-    from perch_operator.node import OperatorNode
+    from perch_operator.coordinator.node import OperatorNode
     from perch_placement.node import PlacementNode
 
     use_isolated_ros_env()

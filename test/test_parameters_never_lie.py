@@ -101,7 +101,7 @@ def test_an_integer_in_a_parameter_file_is_taken_for_a_float(tmp_path):
     from rclpy.context import Context
 
     from perch_common.ros.params import declare_config
-    from perch_operator.config import OperatorConfig
+    from perch_operator.coordinator.config import OperatorConfig
 
     path = tmp_path / "op.yaml"
     path.write_text("perch_operator:\n  ros__parameters:\n    stage_timeout: 60\n    confirm_timeout: 30\n")
@@ -118,7 +118,7 @@ def test_an_integer_in_a_parameter_file_is_taken_for_a_float(tmp_path):
 
 
 @pytest.mark.parametrize("module, cls, read_only, live", [
-    ("perch_operator.config", "OperatorConfig", ["stage_timeout", "service_wait", "gone_grace", "introspection"],
+    ("perch_operator.coordinator.config", "OperatorConfig", ["stage_timeout", "service_wait", "gone_grace", "introspection"],
      ("exclusion_radius", 0.5)),
     ("perch_reconstruction.config", "ReconstructionNodeConfig",
      ["color_topic", "depth_topic", "camera_info_topic", "pose_topic", "pose_type", "compressed_images",

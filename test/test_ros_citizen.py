@@ -29,7 +29,7 @@ def mission(graph):
     from perch_common.ros.conversions import mesh_to_msg, target_to_msg
     from perch_common.scene_generator import generate_scene
     from perch_interfaces.action import PlanPerches
-    from perch_operator.client import run_mission
+    from perch_operator.api.client import run_mission
 
     scene = generate_scene(3, "room")
     goal = PlanPerches.Goal(mesh=mesh_to_msg(scene.mesh), target=target_to_msg(scene.target),
@@ -41,8 +41,8 @@ def mission(graph):
 
 def record_until(node, path, wanted, timeout: float = 60.0):
     """Record like `perch record` (latched) until every `wanted` topic has a message (or the deadline)."""
-    from perch_operator.recorder import MissionRecorder
-    from perch_operator.runner import spin_for
+    from perch_operator.cli.runner import spin_for
+    from perch_operator.outputs.recorder import MissionRecorder
 
     recorder = MissionRecorder(node, path, latched=True)
     deadline = time.monotonic() + timeout
@@ -54,7 +54,7 @@ def record_until(node, path, wanted, timeout: float = 60.0):
 
 
 def test_a_recording_started_after_the_mission_holds_the_latched_state(graph, mission, tmp_path):
-    from perch_operator.runfile import channel_counts, iter_messages
+    from perch_operator.outputs.runfile import channel_counts, iter_messages
 
     path = tmp_path / "late.mcap"
     record_until(graph.node, path, LATCHED_TOPICS)
@@ -189,7 +189,7 @@ def test_the_commander_inside_a_users_node_and_executor(graph, mission):
 
     from perch_common.ros.conversions import mesh_to_msg, target_to_msg
     from perch_common.scene_generator import generate_scene
-    from perch_operator.commander import MissionResult, PerchCommander
+    from perch_operator.api.commander import MissionResult, PerchCommander
 
     node = rclpy.create_node("users_own_node")
     executor = MultiThreadedExecutor(num_threads=2)
@@ -253,7 +253,7 @@ def test_mission_feedback_moves_inside_the_reconstruction(graph, mission, tmp_pa
 
     from perch_common.ros.conversions import target_to_msg
     from perch_interfaces.action import PlanPerches
-    from perch_operator.client import ProgressPrinter, run_mission
+    from perch_operator.api.client import ProgressPrinter, run_mission
     from perch_reconstruction.bag_write import write_bag
     from perch_reconstruction.synthetic import DEFAULT_INTRINSICS, synthetic_room_frames
 

@@ -25,7 +25,7 @@ def client_node():
 
 
 def test_short_soak_with_a_kill_a_cancel_a_bad_goal_and_a_respawn(client_node, tmp_path):
-    from perch_operator.soak import Soak, launched
+    from perch_operator.bench.soak import Soak, launched
 
     graph = launched(tmp_path, client_node)
     try:

@@ -55,7 +55,7 @@ def segmentation(tmp_path_factory):
 def _caller(node):
     from rclpy.callback_groups import ReentrantCallbackGroup
 
-    from perch_operator.stages import StageCaller
+    from perch_operator.coordinator.stages import StageCaller
 
     return StageCaller(node, ReentrantCallbackGroup(), service_wait=30.0, timeout=300.0, gone_grace=5.0)
 
@@ -77,7 +77,7 @@ def test_cancelling_one_callers_call_leaves_the_other_callers_call_to_finish(seg
     from rclpy.qos import qos_profile_services_default
 
     from perch_interfaces.srv import Segment
-    from perch_operator.stages import MissionCancelled
+    from perch_operator.coordinator.stages import MissionCancelled
 
     _, (node_a, node_b) = segmentation
     events: list = []
@@ -142,7 +142,7 @@ def test_a_big_request_leaves_no_copy_of_itself_in_the_node(segmentation):
     from perch_common.ros.conversions import mesh_to_msg
     from perch_common.ros.testing import call_service
     from perch_interfaces.srv import Segment
-    from perch_operator.bench_memory import big_scene
+    from perch_operator.bench.memory import big_scene
 
     graph, (node, _) = segmentation
     process = psutil.Process(graph.processes["perch_segmentation"].pid)

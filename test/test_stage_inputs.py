@@ -28,7 +28,7 @@ def stages():
 
     from perch_common.ros.testing import use_isolated_ros_env
     from perch_filtering.node import FilterNode
-    from perch_operator.node import OperatorNode
+    from perch_operator.coordinator.node import OperatorNode
     from perch_placement.node import PlacementNode
     from perch_reconstruction.node import ReconstructionNode
     from perch_segmentation.node import SegmentationNode

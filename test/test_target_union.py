@@ -54,7 +54,7 @@ def test_several_boxes_travel_as_box_plus_more_boxes():
 
 def test_cli_target_spec_joins_boxes_with_plus():
     from perch_common.ros.conversions import target_from_msg
-    from perch_operator.cli import parse_target
+    from perch_operator.cli.plan import parse_target
 
     target = target_from_msg(parse_target("box:0,0,1,1,1,1+box:10,0,1,4,4,1,90"))
     assert len(target.volumes()) == 2 and target.volume() == pytest.approx(17)

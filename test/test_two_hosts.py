@@ -75,7 +75,7 @@ def _driver() -> int:
     from perch_common.ros.conversions import mesh_to_msg, target_to_msg
     from perch_common.scene_generator import generate_scene
     from perch_interfaces.action import PlanPerches
-    from perch_operator.stages import STAGES
+    from perch_operator.coordinator.stages import STAGES
 
     def say(**event) -> None:
         sys.stdout.write(json.dumps(event) + "\n")

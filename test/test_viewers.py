@@ -26,7 +26,7 @@ def recorded(graph, tmp_path_factory):
     from perch_common.ros.conversions import mesh_to_msg, target_to_msg
     from perch_common.scene_generator import generate_scene
     from perch_interfaces.action import PlanPerches
-    from perch_operator.runner import run_recorded_mission
+    from perch_operator.cli.runner import run_recorded_mission
 
     scene = generate_scene(SCENE_SEED, "room")
     goal = PlanPerches.Goal(mesh=mesh_to_msg(scene.mesh), target=target_to_msg(scene.target), num_cameras=CAMERAS,
@@ -64,8 +64,8 @@ def test_rviz_reads_every_latched_topic_transient_local():
 def test_recording_holds_the_room_and_every_drone_view_a_viewer_shows(recorded):
     from visualization_msgs.msg import Marker
 
-    from perch_operator.markers import SCAN_TRIANGLE_BUDGET
-    from perch_operator.runfile import channel_counts, iter_messages
+    from perch_operator.coordinator.markers import SCAN_TRIANGLE_BUDGET
+    from perch_operator.outputs.runfile import channel_counts, iter_messages
 
     outputs, scene = recorded
     counts = channel_counts(outputs.mcap)
@@ -92,7 +92,7 @@ def test_recording_holds_the_room_and_every_drone_view_a_viewer_shows(recorded):
 
 def test_viewer_topics_decode_with_foxgloves_own_decoders(recorded):
     from perch_common.bag_check import DecoderUnavailable, foxglove_counts
-    from perch_operator.runfile import channel_counts
+    from perch_operator.outputs.runfile import channel_counts
 
     outputs, _ = recorded
     counts = channel_counts(outputs.mcap)
@@ -108,8 +108,8 @@ def test_a_viewer_joining_late_gets_the_scan_and_each_drones_view(graph, recorde
     from sensor_msgs.msg import Image
     from visualization_msgs.msg import Marker
 
-    from perch_operator.node import LATCHED_LAST
-    from perch_operator.runner import spin_for
+    from perch_operator.cli.runner import spin_for
+    from perch_operator.coordinator.node import LATCHED_LAST
 
     got: dict[str, object] = {}
     node = graph.node

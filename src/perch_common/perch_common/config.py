@@ -233,7 +233,7 @@ def _plain(value: Any) -> Any:
 # Node name -> its parameters' config class ("module:Class"), for checking values before a node starts.
 NODE_CONFIGS = {
     "perch_reconstruction": "perch_reconstruction.config:ReconstructionNodeConfig",
-    "perch_operator": "perch_operator.config:OperatorConfig",
+    "perch_operator": "perch_operator.coordinator.config:OperatorConfig",
     "perch_segmentation": "perch_segmentation.config:SegmentationNodeConfig",
     "perch_filtering": "perch_filtering.config:FilterNodeConfig",
     "perch_placement": "perch_placement.config:PlacementNodeConfig",

@@ -1,4 +1,4 @@
-"""The real-scan corpus and how an up estimate is scored on it (perch_operator.bench_scans runs it).
+"""The real-scan corpus and how an up estimate is scored on it (perch_operator.bench.scans runs it).
 
 The corpus: the three older scans of ../shared/data/meshes and every row of meshes/scans/MANIFEST.tsv
 (its true up column), each in its own frame (the file's header and format convention count) and in

@@ -85,9 +85,9 @@ def _run(args) -> int:
     from perch_common.mesh import load_mesh
     from perch_common.ros.conversions import mesh_to_msg
     from perch_interfaces.action import PlanPerches
-    from perch_operator.cli import parse_target
-    from perch_operator.client import run_mission
-    from perch_operator.runner import client_context
+    from perch_operator.api.client import run_mission
+    from perch_operator.cli.plan import parse_target
+    from perch_operator.cli.runner import client_context
 
     chromium = Path("/usr/bin/chromium")
     if not chromium.exists():

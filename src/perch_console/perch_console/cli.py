@@ -112,7 +112,7 @@ def start_console(mesh_path: Path | None, host: str = "127.0.0.1", port: int = D
 
 
 def _console(args) -> int:
-    from perch_operator.runner import client_context
+    from perch_operator.cli.runner import client_context
 
     started = time.monotonic()
     with client_context():

@@ -28,7 +28,7 @@ from perch_console.state import MissionPicture, shortfall_of
 from perch_interfaces import msg as pm
 from perch_interfaces import srv
 from perch_interfaces.action import PlanPerches
-from perch_operator.node import LATCHED, LATCHED_LAST
+from perch_operator.coordinator.node import LATCHED, LATCHED_LAST
 from tf2_msgs.msg import TFMessage
 
 EVENTS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -170,7 +170,7 @@ class ConsoleGraph:
     def show_recording(self, path) -> int:
         """Feed a mission's run.mcap into the picture, as if the graph were publishing it now (the
         scan, markers, proposals, views, review, waypoints, frames, removals); returns the messages read."""
-        from perch_operator.runfile import iter_messages
+        from perch_operator.outputs.runfile import iter_messages
 
         handlers = {"/perch/scan_marker": self._on_scan, "/perch/markers": self._on_markers,
                     "/perch/proposals": self._on_proposal, "/perch/views/image": self._on_view,

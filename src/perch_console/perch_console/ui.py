@@ -190,7 +190,7 @@ class Console:
         """The scan file (a perch_common Mesh, input frame), decimated with its colours, until the graph's own."""
         import trimesh
 
-        from perch_operator.markers import display_mesh
+        from perch_operator.coordinator.markers import display_mesh
 
         shown = display_mesh(mesh)
         colours = shown.vertex_colors if shown.vertex_colors is not None else np.full((shown.num_vertices, 3), 184)
@@ -294,7 +294,7 @@ class Console:
     # --- (2) surface review -------------------------------------------------------------------
 
     def _show_review(self) -> None:
-        from perch_operator.markers import surface_outline
+        from perch_operator.coordinator.markers import surface_outline
 
         for handle in self._review_handles:
             handle.remove()

@@ -114,8 +114,8 @@ def open_buttons(page) -> list[int]:
 def test_first_time_operator_flow_in_chromium(graph, console):
 
     from perch_interfaces import msg as pm
-    from perch_operator.node import LATCHED_LAST
-    from perch_operator.runner import spin_for
+    from perch_operator.cli.runner import spin_for
+    from perch_operator.coordinator.node import LATCHED_LAST
 
     sync_playwright, chromium = browser_or_skip()
     console_obj, url, scene = console

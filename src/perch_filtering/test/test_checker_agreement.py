@@ -35,7 +35,7 @@ def test_placed_perches_agree_with_the_checker(name, path, up):
     from perch_common.mesh import load_mesh
     from perch_filtering.core import FilterConfig, filter_surfaces
     from perch_filtering.perch_check import OBSERVED_SLACK, check_perches, spec_from_config
-    from perch_operator.crop import floor_target
+    from perch_operator.coordinator.crop import floor_target
     from perch_reconstruction.config import ReconstructionConfig
 
     mesh = load_mesh(path)

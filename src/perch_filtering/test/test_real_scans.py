@@ -23,7 +23,7 @@ def load_scan(name: str, up: str):
     from perch_common.mesh import load_mesh
     from perch_common.target import TargetVolume
     from perch_common.transforms import rotation_between
-    from perch_operator.crop import floor_target
+    from perch_operator.coordinator.crop import floor_target
 
     path = shared_file("meshes", name)
     if path is None:

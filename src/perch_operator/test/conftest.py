@@ -60,7 +60,7 @@ def operator_process(**params):
     from perch_common.config import default_config_path
     from perch_common.ros import testing
 
-    return testing.node_process("perch_operator.node", params_file=default_config_path(),
+    return testing.node_process("perch_operator.coordinator.node", params_file=default_config_path(),
                                 params={f"perch_operator:{k}": v for k, v in params.items()})
 
 

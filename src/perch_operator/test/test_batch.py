@@ -10,7 +10,7 @@ from types import SimpleNamespace
 import pytest
 
 from perch_common.errors import PerchError
-from perch_operator import batch
+from perch_operator.cli import batch
 
 
 def _touch(path: Path, text: str = "x") -> Path:
@@ -83,7 +83,7 @@ def test_plan_command_passes_values_that_start_with_a_minus(tmp_path):
 
 
 def test_plan_output_numbers_follow_perch_plans_summary_table():
-    from perch_operator.runner import summary_table
+    from perch_operator.cli.runner import summary_table
 
     result = SimpleNamespace(placements=[1, 2, 3], coverage=0.9871, mean_uncertainty=0.000123, fitness=0.9512,
                              stage_names=["clean", "segment", "filter"], stage_seconds=[0.2, 1.25, 3.5])

@@ -7,7 +7,7 @@ from action_msgs.msg import GoalInfo
 from action_msgs.srv import CancelGoal
 from rclpy.task import Future
 
-from perch_operator import client
+from perch_operator.api import client
 
 
 class _Logger:

@@ -5,7 +5,7 @@ import pytest
 
 from perch_common.mesh import Mesh, MeshError
 from perch_common.target import TargetVolume
-from perch_operator.crop import Box, CropConfig, crop_mesh, floor_target
+from perch_operator.coordinator.crop import Box, CropConfig, crop_mesh, floor_target
 
 
 def test_no_boxes_keeps_everything_and_input_is_untouched(meshes):

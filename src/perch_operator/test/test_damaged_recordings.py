@@ -55,7 +55,7 @@ def recordings(tmp_path):
 
 def test_stage_calls_of_a_killed_or_cut_recording(recordings):
     from perch_common.mcap_read import scan_mcap
-    from perch_operator.runfile import channel_counts, stage_calls
+    from perch_operator.outputs.runfile import channel_counts, stage_calls
 
     whole, killed, tail = recordings
     assert len(stage_calls(whole)) == CALLS and scan_mcap(whole).damage() == ""
@@ -72,7 +72,7 @@ def test_stage_calls_of_a_killed_or_cut_recording(recordings):
 def test_replay_of_a_killed_recording_warns_and_replays_what_is_there(recordings, monkeypatch):
     import perch_common.ros.testing as testing
     from perch_interfaces.srv import Segment
-    from perch_operator.replay import replay, summary_line
+    from perch_operator.cli.replay import replay, summary_line
 
     _, killed, _ = recordings
     sent = []

@@ -7,7 +7,7 @@ import pytest
 from perch_common.ros.msgdefs import full_definition, message_class
 from perch_interfaces import msg as pm
 from perch_interfaces import srv
-from perch_operator.diff import Tolerance, diff_messages
+from perch_operator.cli.diff import Tolerance, diff_messages
 
 
 def optimise_reply(x: float, fitness: float = 0.5, count: int = 2) -> srv.Optimise.Response:

@@ -20,7 +20,7 @@ def room():
 
 
 def _mission():
-    from perch_operator.mission import Mission, MissionOptions
+    from perch_operator.coordinator.mission import Mission, MissionOptions
 
     class NoStages:
         def call(self, stage, request, cancelled):
@@ -102,7 +102,7 @@ def test_a_union_target_checks_every_box(room):
     ("--timeout", "-5", "-5 must be a finite number > 0"),
 ])
 def test_cli_numbers_are_range_checked_before_they_become_goal_fields(option, text, message, capsys):
-    from perch_operator.cli import register_plan
+    from perch_operator.cli.plan import register_plan
 
     parser = argparse.ArgumentParser()
     register_plan(parser.add_subparsers())

@@ -9,7 +9,7 @@ import pytest
 from visualization_msgs.msg import Marker
 
 from perch_interfaces import msg as pm
-from perch_operator.markers import frustum_lines, mission_markers
+from perch_operator.coordinator.markers import frustum_lines, mission_markers
 
 
 def camera(width=1280, height=720, hfov_deg=87.0, vfov_deg=58.0, max_range=10.0) -> pm.CameraSpec:
@@ -84,7 +84,7 @@ def test_a_camera_without_intrinsics_is_a_clear_error():
 
 
 def test_view_camera_info_scales_the_pinhole_model_with_the_image():
-    from perch_operator.views import camera_info_msg, image_msg
+    from perch_operator.coordinator.views import camera_info_msg, image_msg
 
     spec = camera()
     info = camera_info_msg(spec, 320, 180, "perch_drone_2_camera_optical", None)
@@ -135,7 +135,7 @@ def scan(faces_per_side: int = 60, coloured: bool = True):
 
 
 def test_scan_marker_is_a_coloured_triangle_list_within_its_budget_in_the_input_frame():
-    from perch_operator.markers import scan_marker
+    from perch_operator.coordinator.markers import scan_marker
 
     mesh = scan()
     assert mesh.num_faces > 20_000
@@ -155,7 +155,7 @@ def test_scan_marker_is_a_coloured_triangle_list_within_its_budget_in_the_input_
 
 
 def test_scan_marker_without_colours_is_grey_and_a_small_scan_is_sent_whole():
-    from perch_operator.markers import SCAN_GREY, scan_marker
+    from perch_operator.coordinator.markers import SCAN_GREY, scan_marker
 
     mesh = scan(faces_per_side=8, coloured=False)
     marker = scan_marker(mesh, np.eye(4), "odom", None)

@@ -9,9 +9,9 @@ from perch_common.ros.static_transforms import alignment_to_msg
 from perch_interfaces import msg as pm
 from perch_interfaces import srv
 from perch_interfaces.action import PlanPerches
-from perch_operator.mission import Mission, MissionOptions, replan_slot
-from perch_operator.proposals import Decision, Status
-from perch_operator.stages import StageError
+from perch_operator.coordinator.mission import Mission, MissionOptions, replan_slot
+from perch_operator.coordinator.proposals import Decision, Status
+from perch_operator.coordinator.stages import StageError
 
 
 def placement_msg(x: float) -> pm.CameraPlacement:
@@ -151,7 +151,7 @@ def test_replan_keeps_the_other_slots_and_sends_every_exclusion(goal):
 
 
 def test_waiting_for_decisions_ends_on_cancel_and_on_timeout(goal):
-    from perch_operator.stages import MissionCancelled
+    from perch_operator.coordinator.stages import MissionCancelled
 
     goal.auto_accept = False
     calls = {"n": 0}
@@ -196,7 +196,7 @@ def test_a_rotated_mesh_is_planned_gravity_aligned_and_answered_in_its_own_frame
     from perch_common.ros.conversions import pose_matrix
     from perch_common.ros.static_transforms import alignment_from_msg
     from perch_common.target import TargetVolume
-    from perch_operator.cli import parse_target
+    from perch_operator.cli.plan import parse_target
 
     goal, up, _ = rotated_room_goal(meshes)
     goal.target = parse_target("box:1,-1,0.5,1,1,1")  # in the mesh's (input) frame

@@ -70,7 +70,7 @@ def test_confirm_without_a_mission_is_refused(ros):
 
 def test_mission_with_a_missing_stage_names_it(ros, room_msg):
     from perch_interfaces.action import PlanPerches
-    from perch_operator.client import run_mission
+    from perch_operator.api.client import run_mission
 
     goal = PlanPerches.Goal(mesh=room_msg, auto_accept=True)
     result = run_mission(ros, goal, timeout=30)

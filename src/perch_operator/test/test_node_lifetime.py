@@ -12,7 +12,7 @@ ACTION = "/perch/plan_perches/_action"
 def test_a_destroyed_coordinator_leaves_no_action_server_in_the_graph(ros_node):
     """rclpy's destroy_node leaves action servers alive; a dead coordinator's server in a process that
     goes on (after a one-process graph stopped) took goals meant for the graph's live one."""
-    from perch_operator.node import OperatorNode
+    from perch_operator.coordinator.node import OperatorNode
 
     def status_publishers() -> list[str]:
         return [i.node_name for i in ros_node.get_publishers_info_by_topic(f"{ACTION}/status")]

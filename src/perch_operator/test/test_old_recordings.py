@@ -53,7 +53,7 @@ def test_an_event_recorded_without_request_id_reads_into_the_installed_class():
 def test_stage_calls_read_an_old_recording(tmp_path):
     from mcap.writer import Writer
 
-    from perch_operator.runfile import stage_calls
+    from perch_operator.outputs.runfile import stage_calls
 
     path = tmp_path / "old.mcap"
     with open(path, "wb") as stream:

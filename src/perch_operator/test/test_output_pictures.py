@@ -10,7 +10,7 @@ from perch_common.raycast import RayScene
 from perch_common.scene_generator import generate_scene
 from perch_common.transforms import optical_pose_looking_at
 from perch_common.types import CameraPlacement
-from perch_operator.mission_data import MissionData
+from perch_operator.outputs.mission_data import MissionData
 
 
 @pytest.fixture(scope="module")
@@ -38,7 +38,7 @@ def reference_top_view(mesh: Mesh, view) -> np.ndarray:
 
 @pytest.mark.parametrize("coloured", [True, False])
 def test_top_view_is_the_culled_submesh_render(scene, coloured):
-    from perch_operator.render import TopView, shaded_top_view
+    from perch_operator.outputs.render import TopView, shaded_top_view
 
     mesh = scene.mesh if coloured else Mesh(scene.mesh.vertices, scene.mesh.faces)
     view = TopView(mesh.bounds(), 300)
@@ -77,8 +77,8 @@ def scene_mission(scene) -> MissionData:
 
 def test_views_and_target_scores_share_one_scene(scene, monkeypatch):
     import perch_common.raycast
-    from perch_operator.mission_data import placement_config, target_point_scores
-    from perch_operator.render import camera_views
+    from perch_operator.outputs.mission_data import placement_config, target_point_scores
+    from perch_operator.outputs.render import camera_views
 
     built = []
 

@@ -38,7 +38,7 @@ def umask_027():
 def _good_mission(out: Path, label: str) -> None:
     """What a successful `perch plan` leaves: waypoints first, then the rest swapped in together."""
     from perch_interfaces.action import PlanPerches
-    from perch_operator.runner import GOOD_SET, OUTPUT_NAMES, PlanOutputs, publish_waypoints
+    from perch_operator.cli.runner import GOOD_SET, OUTPUT_NAMES, PlanOutputs, publish_waypoints
 
     staged = staging_folder(out)
     (staged / "run.mcap").write_text(f"recording {label}")
@@ -64,7 +64,7 @@ def test_outputs_get_the_users_umask(tmp_path, umask_027):
 
 def test_a_failed_rerun_keeps_the_last_good_waypoints_and_says_so(tmp_path):
     from perch_interfaces.action import PlanPerches
-    from perch_operator.runner import PlanOutputs, fail_outputs
+    from perch_operator.cli.runner import PlanOutputs, fail_outputs
 
     out = tmp_path / "run"
     _good_mission(out, "good")
@@ -89,7 +89,7 @@ def test_a_failed_rerun_keeps_the_last_good_waypoints_and_says_so(tmp_path):
 
 def test_a_first_failure_leaves_failed_and_its_recording(tmp_path):
     from perch_interfaces.action import PlanPerches
-    from perch_operator.runner import PlanOutputs, fail_outputs
+    from perch_operator.cli.runner import PlanOutputs, fail_outputs
 
     out = tmp_path / "run"
     staged = staging_folder(out)
@@ -201,7 +201,7 @@ def test_the_dispatchers_waypoints_file_is_replaced_atomically_with_the_umask(tm
     """`perch dispatch --output FILE` rewrites FILE on every waypoint set (write_waypoints_yaml)."""
     from unittest import mock
 
-    from perch_operator.mission_data import write_waypoints_yaml
+    from perch_operator.outputs.mission_data import write_waypoints_yaml
 
     path = tmp_path / "dispatch.yaml"
     write_waypoints_yaml(path, [])

@@ -7,7 +7,7 @@ import yaml
 from perch_common.target import TargetVolume
 from perch_common.transforms import optical_pose_looking_at
 from perch_common.types import CameraPlacement
-from perch_operator.mission_data import MissionData, write_waypoints_yaml
+from perch_operator.outputs.mission_data import MissionData, write_waypoints_yaml
 
 
 @pytest.fixture
@@ -28,7 +28,7 @@ def mission(meshes) -> MissionData:
 
 
 def test_overview_shows_the_floor_from_above_and_marks_cameras(mission):
-    from perch_operator.render import REJECTED, TopView, overview
+    from perch_operator.outputs.render import REJECTED, TopView, overview
 
     image = overview(mission, size=400)
     view = TopView(mission.mesh.bounds(), 400)
@@ -44,7 +44,7 @@ def test_overview_shows_the_floor_from_above_and_marks_cameras(mission):
 
 
 def test_report_has_numbers_images_and_waypoints(mission, tmp_path):
-    from perch_operator.report import write_report
+    from perch_operator.outputs.report import write_report
 
     path = write_report(mission, tmp_path)
     text = path.read_text()
@@ -55,7 +55,7 @@ def test_report_has_numbers_images_and_waypoints(mission, tmp_path):
 
 
 def test_rerun_file_is_written(mission, tmp_path):
-    from perch_operator.rerun_log import write_rrd
+    from perch_operator.outputs.rerun_log import write_rrd
 
     path = write_rrd(mission, tmp_path / "run.rrd")
     data = path.read_bytes()
@@ -73,7 +73,7 @@ def test_waypoints_yaml_keeps_the_latest_per_drone(mission, tmp_path):
 def test_summary_table_lists_scores_and_stage_times():
     from perch_interfaces.action import PlanPerches
     from perch_interfaces.msg import CameraPlacement as PlacementMsg
-    from perch_operator.runner import summary_table
+    from perch_operator.cli.runner import summary_table
 
     result = PlanPerches.Result(success=True, coverage=0.815, mean_uncertainty=float("nan"), fitness=0.5,
                                 stage_names=["segment", "total"], stage_seconds=[1.234, 5.0],
@@ -85,7 +85,7 @@ def test_summary_table_lists_scores_and_stage_times():
 
 def test_target_spec_parsing(tmp_path):
     from perch_interfaces import msg as pm
-    from perch_operator.cli import parse_target
+    from perch_operator.cli.plan import parse_target
 
     assert parse_target(None).kind == pm.TargetVolume.KIND_DEFAULT
     box = parse_target("box:1,2,0.6,2,3,1.2,90")
@@ -98,7 +98,7 @@ def test_target_spec_parsing(tmp_path):
 def test_report_explains_removals_evidence_and_shortfall(mission, tmp_path):
     from perch_common.conventions import FILTER_COLOURS, FILTER_NAMES
     from perch_common.types import FilterRemoval, PerchEvidence, PerchRegion, PlaneFrame, Surface, SurfaceClass
-    from perch_operator.report import removal_picture, write_report
+    from perch_operator.outputs.report import removal_picture, write_report
 
     frame = PlaneFrame.from_normal(np.array([2.0, 1.5, 2.5]), np.array([0, 0, -1.0]), np.array([0, 0, 1.0]))
     mission.surfaces = [Surface(id=k, surface_class=SurfaceClass.CEILING if k == 0 else SurfaceClass.WALL,
@@ -128,7 +128,7 @@ def test_report_explains_removals_evidence_and_shortfall(mission, tmp_path):
 
 def test_operator_list_line_shows_the_safety_evidence():
     from perch_interfaces.msg import PerchEvidence, Proposal
-    from perch_operator.cli_operator import _proposal_line
+    from perch_operator.cli.commands import _proposal_line
 
     p = Proposal(id=7, evidence=PerchEvidence(approach_clearance=1.0, free_fall=0.62, support_share=0.94,
                                               flatness_rms=0.011))
@@ -141,7 +141,7 @@ def test_operator_list_line_shows_the_safety_evidence():
 def test_removal_text_lists_the_largest_surfaces_by_filter(mission):
     from perch_common.conventions import FILTER_NAMES
     from perch_common.types import FilterRemoval, PlaneFrame, Surface, SurfaceClass
-    from perch_operator.report import removal_text
+    from perch_operator.outputs.report import removal_text
 
     assert removal_text(mission) == ""  # no filter data recorded
     frame = PlaneFrame.from_normal(np.array([2.0, 1.5, 2.5]), np.array([0, 0, -1.0]), np.array([0, 0, 1.0]))

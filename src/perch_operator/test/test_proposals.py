@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from perch_common.types import CameraPlacement
-from perch_operator.proposals import Decision, ProposalBook, ProposalError, Status, approach_point
+from perch_operator.coordinator.proposals import Decision, ProposalBook, ProposalError, Status, approach_point
 
 
 def placement(x: float, slot: int = 0) -> CameraPlacement:
@@ -90,7 +90,7 @@ def test_approach_point_is_in_front_of_the_perch_along_the_normal():
 def test_surface_review_desk_decisions_and_errors():
     import threading
 
-    from perch_operator.review import ReviewDesk, ReviewError
+    from perch_operator.coordinator.review import ReviewDesk, ReviewError
 
     desk = ReviewDesk()
     review = desk.open([4, 7, 9])

@@ -22,10 +22,10 @@ def test_crop_calls_are_recorded_and_replay_check_catches_a_parameter_change(ros
     from perch_common.ros.conversions import from_array, mesh_to_msg, pose_msg, vector_msg
     from perch_interfaces import msg as pm
     from perch_interfaces.srv import Crop
-    from perch_operator.recorder import MissionRecorder
-    from perch_operator.replay import replay, summary_line
-    from perch_operator.runfile import channel_counts, stage_calls
-    from perch_operator.runner import spin_for
+    from perch_operator.cli.replay import replay, summary_line
+    from perch_operator.cli.runner import spin_for
+    from perch_operator.outputs.recorder import MissionRecorder
+    from perch_operator.outputs.runfile import channel_counts, stage_calls
 
     path = tmp_path / "run.mcap"
     room = mesh_to_msg(meshes.room())

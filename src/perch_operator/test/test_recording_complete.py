@@ -39,7 +39,7 @@ def event(srv, event_type: int, client: int, sequence: int) -> bytes:
 
 @pytest.fixture
 def recorder(tmp_path):
-    from perch_operator.recorder import MissionRecorder
+    from perch_operator.outputs.recorder import MissionRecorder
 
     made = MissionRecorder(GraphlessNode(), tmp_path / "run.mcap")
     yield made
@@ -71,7 +71,7 @@ def test_calls_are_told_apart_by_client_and_sequence_and_halves_are_named(record
 
 def test_the_client_waits_for_late_events_then_names_what_is_missing(recorder, monkeypatch):
     from perch_interfaces.srv import Crop, Segment
-    from perch_operator import runner
+    from perch_operator.cli import runner
 
     result = SimpleNamespace(success=True, stage_names=["crop", "segment", "confirm", "total"])
     watched = {CROP_EVENTS: "crop", SEGMENT_EVENTS: "segment"}
@@ -100,8 +100,8 @@ def test_the_client_waits_for_late_events_then_names_what_is_missing(recorder, m
 
 
 def test_a_missing_stage_call_is_in_the_report(tmp_path):
-    from perch_operator.mission_data import MissionData
-    from perch_operator.report import summary_rows
+    from perch_operator.outputs.mission_data import MissionData
+    from perch_operator.outputs.report import summary_rows
 
     data = MissionData()
     data.summary = {"message": "placed 2", "recording_missing": ["/perch/clean_mesh: 1 of 1 call(s) not recorded whole"]}

@@ -10,7 +10,7 @@ from perch_common.frames import Alignment
 from perch_common.target import TargetVolume
 from perch_common.transforms import optical_pose_looking_at
 from perch_common.types import CameraPlacement
-from perch_operator.mission_data import MissionData
+from perch_operator.outputs.mission_data import MissionData
 
 
 @pytest.fixture
@@ -42,7 +42,7 @@ def _table_after(text: str, heading: str) -> list[list[str]]:
 
 
 def test_report_tables_are_in_the_input_frame_and_name_it(tilted_mission, tmp_path):
-    from perch_operator.report import write_report
+    from perch_operator.outputs.report import write_report
 
     text = write_report(tilted_mission, tmp_path, views=[]).read_text()
     cameras = _table_after(text, "Cameras")
@@ -61,7 +61,7 @@ def test_report_tables_are_in_the_input_frame_and_name_it(tilted_mission, tmp_pa
 
 
 def test_console_perch_lines_are_in_the_input_frame(tilted_mission):
-    from perch_operator.report import perch_text
+    from perch_operator.outputs.report import perch_text
 
     lines = perch_text(tilted_mission).splitlines()
     assert "input frame 'odom'" in lines[0]
@@ -70,7 +70,7 @@ def test_console_perch_lines_are_in_the_input_frame(tilted_mission):
 
 
 def test_rerun_recording_names_its_frames(tilted_mission, tmp_path):
-    from perch_operator.rerun_log import frames_markdown, write_rrd
+    from perch_operator.outputs.rerun_log import frames_markdown, write_rrd
 
     doc = frames_markdown(tilted_mission)
     assert "input frame `odom`" in doc and "`odom_gravity_aligned`" in doc

@@ -5,9 +5,9 @@ import re
 import numpy as np
 
 from perch_common.types import CameraPlacement
-from perch_operator.mission_data import MissionData
-from perch_operator.report import _table
-from perch_operator.report_robustness import robustness_section
+from perch_operator.outputs.mission_data import MissionData
+from perch_operator.outputs.report import _table
+from perch_operator.outputs.report_robustness import robustness_section
 
 
 def _rows(text: str, heading: str) -> list[list[str]]:

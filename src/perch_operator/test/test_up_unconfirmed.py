@@ -12,8 +12,8 @@ from perch_common.mesh import Mesh
 from perch_common.ros.conversions import mesh_to_msg
 from perch_common.up_axis import UnsureUpError
 from perch_interfaces.action import PlanPerches
-from perch_operator.mission import Mission, replan_slot
-from perch_operator.proposals import Decision
+from perch_operator.coordinator.mission import Mission, replan_slot
+from perch_operator.coordinator.proposals import Decision
 
 
 def _mission_helpers():

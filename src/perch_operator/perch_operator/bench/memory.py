@@ -143,7 +143,7 @@ def _run(args) -> int:
     from perch_common.launch import GraphProcesses, use_perch_dds
     from perch_common.ros.conversions import mesh_to_msg, target_to_msg
     from perch_common.ros.testing import call_service, use_isolated_ros_env
-    from perch_operator.runner import client_context
+    from perch_operator.cli.runner import client_context
 
     if "ROS_DOMAIN_ID" not in os.environ:
         use_isolated_ros_env()

@@ -69,7 +69,7 @@ def build_goal(args):
     """The PlanPerches goal, a description of its source, and its face count."""
     from perch_common.ros.conversions import mesh_to_msg, target_to_msg
     from perch_interfaces.action import PlanPerches
-    from perch_operator.cli import parse_target
+    from perch_operator.cli.plan import parse_target
 
     goal = PlanPerches.Goal(num_cameras=max(0, args.cameras), auto_accept=True, seed=-1)
     if args.mesh:
@@ -138,9 +138,8 @@ def _one_run(args) -> dict:
 
     from perch_common.bench import peak_rss_mb
     from perch_common.launch import use_perch_dds
-    from perch_operator.client import run_mission
-    from perch_operator.mission_data import waypoint_dict, write_waypoints_yaml
-    from perch_operator.runner import (
+    from perch_operator.api.client import run_mission
+    from perch_operator.cli.runner import (
         choose_domain,
         client_context,
         graph_ros_args,
@@ -148,6 +147,7 @@ def _one_run(args) -> dict:
         start_own_graph,
         write_outputs,
     )
+    from perch_operator.outputs.mission_data import waypoint_dict, write_waypoints_yaml
 
     process_start = psutil.Process().create_time()
     use_perch_dds(network=args.network or None)
@@ -236,8 +236,8 @@ def _time_rejection(node, result) -> float:
     from perch_common.ros.testing import call_service
     from perch_interfaces.msg import Proposal
     from perch_interfaces.srv import Confirm
-    from perch_operator.node import LATCHED
-    from perch_operator.runner import spin_for
+    from perch_operator.cli.runner import spin_for
+    from perch_operator.coordinator.node import LATCHED
 
     latest: dict[int, Proposal] = {}
     sub = node.create_subscription(Proposal, "perch/proposals", lambda m: latest.__setitem__(m.id, m), LATCHED)

@@ -94,8 +94,8 @@ class _MissionRunner:
 
         from perch_common.launch import use_perch_dds
         from perch_interfaces.msg import Proposal
-        from perch_operator.node import LATCHED
-        from perch_operator.runner import choose_domain, client_context, graph_ros_args, start_own_graph
+        from perch_operator.cli.runner import choose_domain, client_context, graph_ros_args, start_own_graph
+        from perch_operator.coordinator.node import LATCHED
 
         self.cameras = cameras
         self.notes: list[str] = []
@@ -116,8 +116,8 @@ class _MissionRunner:
         from perch_common.up_axis import file_convention
         from perch_interfaces import msg as pm
         from perch_interfaces.action import PlanPerches
-        from perch_operator.client import run_mission
-        from perch_operator.runner import spin_for
+        from perch_operator.api.client import run_mission
+        from perch_operator.cli.runner import spin_for
 
         goal = PlanPerches.Goal(num_cameras=self.cameras, auto_accept=True, seed=-1, up_axis="auto",
                                 up_convention=file_convention(path), mesh=mesh_to_msg(mesh))

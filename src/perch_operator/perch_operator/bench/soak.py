@@ -283,8 +283,8 @@ class Soak:
         from rclpy.action import ActionClient
 
         from perch_interfaces.action import PlanPerches
-        from perch_operator.client import ACTION
-        from perch_operator.runner import spin_for
+        from perch_operator.api.client import ACTION
+        from perch_operator.cli.runner import spin_for
 
         started = time.monotonic()
         client = ActionClient(self.node, PlanPerches, ACTION)
@@ -430,7 +430,7 @@ def _run(args) -> int:
 
     from perch_common.bench import emit
     from perch_common.ros.testing import use_isolated_ros_env
-    from perch_operator.runner import client_context
+    from perch_operator.cli.runner import client_context
 
     if "ROS_DOMAIN_ID" not in os.environ:
         use_isolated_ros_env()
@@ -556,7 +556,7 @@ class FaultSoak:
     def _killed_mission(self, target: str, report: FaultReport) -> None:
         import threading
 
-        from perch_operator.client import run_mission
+        from perch_operator.api.client import run_mission
 
         report.missions += 1
         pids = self.graph.pids()
@@ -626,7 +626,7 @@ class FaultSoak:
         self.graph = launched(self.work, self.node)
 
     def _next_mission(self, report: FaultReport) -> None:
-        from perch_operator.client import run_mission
+        from perch_operator.api.client import run_mission
 
         missing = self._wait_whole()
         if missing:
@@ -647,7 +647,7 @@ class FaultSoak:
         """Wait until every node runs again and each service has exactly live servers (a killed one's
         endpoints have left the graph after the lease); returns what is still missing."""
         from perch_common.ros.servers import server_endpoints
-        from perch_operator.client import GoalStatusWatch
+        from perch_operator.api.client import GoalStatusWatch
 
         services = {n: self.node.resolve_service_name(s[0]) for n, s in NODE_SERVICES.items()}
         deadline = time.monotonic() + timeout

@@ -1,1 +1,1 @@
-"""The command line: `perch plan`/`demo`, `perch operator ...`, `record`, `replay`, `dispatch`, `batch`, and the runner they share."""
+"""The command line: `perch plan`/`demo`, `perch operator ...`, `record`, `replay`, `dispatch`, `batch` and their runner."""

@@ -230,7 +230,7 @@ _NUMBER = re.compile(r"[-+]?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?")
 
 
 def parse_plan_output(text: str) -> dict:
-    """Numbers of `perch plan`'s summary table and closing line (perch_operator.runner.summary_table)."""
+    """Numbers of `perch plan`'s summary table and closing line (perch_operator.cli.runner.summary_table)."""
     found: dict = {"stage_seconds": {}}
     for line in text.splitlines():
         match = _TABLE_ROW.match(line.strip())
@@ -484,7 +484,7 @@ def _run(args) -> int:
     return 0 if result.totals["failed"] == 0 else 3
 
 
-if __name__ == "__main__":  # pragma: no cover - `python -m perch_operator.batch` = `perch batch`
+if __name__ == "__main__":  # pragma: no cover - `python -m perch_operator.cli.batch` = `perch batch`
     from perch_common.cli import main
 
     sys.exit(main(["batch", *sys.argv[1:]]))

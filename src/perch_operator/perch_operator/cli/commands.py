@@ -13,6 +13,7 @@ from pathlib import Path
 
 from perch_common.conventions import CONFIRM_SERVICE
 from perch_common.errors import PerchError
+from perch_operator.outputs.text import evidence_text
 
 
 def register(sub) -> None:
@@ -42,7 +43,7 @@ def register(sub) -> None:
 def _with_node(name: str, body):
     import rclpy
 
-    from perch_operator.runner import client_context
+    from perch_operator.cli.runner import client_context
 
     with client_context():
         return body(rclpy.create_node(name))
@@ -82,7 +83,7 @@ def _cancel(args) -> int:
     from action_msgs.srv import CancelGoal
 
     from perch_common.ros.testing import call_service
-    from perch_operator.client import ACTION
+    from perch_operator.api.client import ACTION
 
     def body(node) -> int:
         try:
@@ -122,7 +123,7 @@ def _call_and_report(srv_type, name: str, request, timeout: float):
 
 
 def _proposal_line(p) -> str:
-    from perch_operator.proposals import Status
+    from perch_operator.coordinator.proposals import Status
 
     pos = p.placement.drone_pose.position
     return (f"proposal {p.id:>4}  drone {p.placement.drone_index}  {Status(p.status).name.lower():<8} "
@@ -130,20 +131,10 @@ def _proposal_line(p) -> str:
             f"{evidence_text(p.evidence)}" + (f"  ({p.reason})" if p.reason else ""))
 
 
-def evidence_text(e) -> str:
-    """'approach >= 1.00 m, fall >= 0.80 m, support 93 %, flat 1.2 cm' (the region's worst values)."""
-    if e.support_share < 0:
-        return "evidence not measured"
-    return (f"approach {e.approach_clearance:.2f} m, fall {e.free_fall:.2f} m, "
-            f"support {100 * e.support_share:.0f} %, flat {100 * e.flatness_rms:.1f} cm"
-            + (f", observed {100 * min(e.approach_observed, e.fall_observed):.0f} %"
-               if min(e.approach_observed, e.fall_observed) >= 0 else ""))
-
-
 def _list(args) -> int:
     from perch_interfaces.msg import Proposal
-    from perch_operator.node import LATCHED
-    from perch_operator.runner import spin_for
+    from perch_operator.cli.runner import spin_for
+    from perch_operator.coordinator.node import LATCHED
 
     def body(node) -> int:
         latest: dict[int, Proposal] = {}
@@ -175,9 +166,9 @@ def register_replay(sub) -> None:
 
 
 def _replay(args) -> int:
-    from perch_operator.diff import Tolerance
-    from perch_operator.replay import replay, summary_line
-    from perch_operator.runner import ensure_graph
+    from perch_operator.cli.diff import Tolerance
+    from perch_operator.cli.replay import replay, summary_line
+    from perch_operator.cli.runner import ensure_graph
 
     if not args.recording.is_file():
         raise FileNotFoundError(f"{args.recording}: no such recording")
@@ -206,7 +197,7 @@ def register_dispatch(sub) -> None:
 
 
 def _dispatch(args) -> int:
-    from perch_operator.dispatcher import main
+    from perch_operator.cli.dispatcher import main
 
     return main(args.output)
 
@@ -221,8 +212,8 @@ def register_record(sub) -> None:
 
 
 def _record(args) -> int:
-    from perch_operator.recorder import MissionRecorder
-    from perch_operator.runner import spin_for
+    from perch_operator.cli.runner import spin_for
+    from perch_operator.outputs.recorder import MissionRecorder
 
     def body(node) -> int:
         recorder = MissionRecorder(node, args.output, latched=True)  # the latched state, as ros2 bag record

@@ -24,8 +24,8 @@ from rclpy.node import Node
 
 from perch_common.conventions import MISSION_STATUS_TOPIC
 from perch_interfaces.msg import PerchWaypointSet
-from perch_operator.mission_data import mission_id_text, waypoint_dict, write_waypoints_yaml
-from perch_operator.node import LATCHED_LAST
+from perch_operator.coordinator.node import LATCHED_LAST
+from perch_operator.outputs.mission_data import mission_id_text, waypoint_dict, write_waypoints_yaml
 
 WAYPOINT_SET_TOPIC = "perch/mission_waypoints"
 ATTRIBUTE_WITHIN = 5.0   # s for discovery to list a set's writers and the coordinator's goal status

@@ -203,7 +203,7 @@ def check_output_folder(out: Path, overwrite: bool, inputs) -> None:
         refuse_foreign_outputs,
         refuse_overwriting_inputs,
     )
-    from perch_operator.runner import OUTPUT_NAMES
+    from perch_operator.cli.runner import OUTPUT_NAMES
 
     out = Path(out)
     if out.exists() and not out.is_dir():
@@ -226,7 +226,7 @@ def run_plan(goal, args, describe: dict) -> int:
     from perch_common import namespace
     from perch_common.config import check_overrides
     from perch_common.launch import parse_overrides, use_perch_dds
-    from perch_operator.runner import (
+    from perch_operator.cli.runner import (
         choose_domain,
         client_context,
         existing_perch_graph,
@@ -280,7 +280,7 @@ def _use_running_graph(node, existing: tuple[list[str], list[str]], domain: int,
 
 
 def _mission_and_outputs(node, goal, args, describe: dict, started: float) -> int:
-    from perch_operator.runner import run_recorded_mission, summary_table, write_outputs
+    from perch_operator.cli.runner import run_recorded_mission, summary_table, write_outputs
 
     outputs = run_recorded_mission(node, goal, args.out, progress=not args.quiet, timeout=args.timeout,
                                    describe=describe)

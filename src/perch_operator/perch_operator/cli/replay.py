@@ -13,9 +13,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from perch_common.errors import PerchError
-from perch_operator.diff import Tolerance, diff_messages
-from perch_operator.runfile import StageCall, resolve_mesh_ids, stage_calls
-from perch_operator.stages import STAGES
+from perch_operator.cli.diff import Tolerance, diff_messages
+from perch_operator.coordinator.stages import STAGES
+from perch_operator.outputs.runfile import StageCall, resolve_mesh_ids, stage_calls
 
 
 @dataclass

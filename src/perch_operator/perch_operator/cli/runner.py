@@ -30,8 +30,8 @@ from perch_common.outputs import (
 )
 from perch_common.ros.servers import server_endpoints
 from perch_interfaces.action import PlanPerches
-from perch_operator.recorder import EVENT_SUFFIX, MISSION_TOPICS, MissionRecorder
-from perch_operator.stages import STAGES
+from perch_operator.coordinator.stages import STAGES
+from perch_operator.outputs.recorder import EVENT_SUFFIX, MISSION_TOPICS, MissionRecorder
 
 
 @dataclass
@@ -137,8 +137,8 @@ def existing_perch_graph(node, wait: float = 6.0, settle: float = 1.0) -> tuple[
     from perch_common.conventions import MISSION_FEEDBACK_TOPIC
     from perch_common.launch import current_domain, domains_in_use
     from perch_common.ros.msgdefs import type_hash
-    from perch_operator.recorder import EVENT_SUFFIX
-    from perch_operator.stages import STAGES
+    from perch_operator.coordinator.stages import STAGES
+    from perch_operator.outputs.recorder import EVENT_SUFFIX
 
     if current_domain() not in domains_in_use():
         return [], []
@@ -315,7 +315,7 @@ def run_recorded_mission(node, goal: PlanPerches.Goal, out_dir: Path, progress: 
     A goal the coordinator rejects leaves nothing behind (GoalRejected); an interrupted or timed-out
     mission leaves out_dir with a FAILED marker and its recording (PerchError).
     """
-    from perch_operator.client import GoalRejected, ProgressPrinter, run_mission
+    from perch_operator.api.client import GoalRejected, ProgressPrinter, run_mission
 
     check_writable_folder(out_dir)   # before the mission: a finished mission is never lost to a PermissionError
     staged = staging_folder(out_dir)
@@ -395,7 +395,7 @@ def publish_waypoints(outputs: PlanOutputs) -> Path:
     a dispatcher reading the file does not wait for the report. It replaces the earlier mission's in
     one rename (a reader polling the file never finds it missing); an earlier failure's FAILED goes;
     the earlier report, rerun file and recording are swapped for the new ones by write_outputs."""
-    from perch_operator.mission_data import waypoint_dict, write_waypoints_yaml
+    from perch_operator.outputs.mission_data import waypoint_dict, write_waypoints_yaml
 
     waypoints = [waypoint_dict(w) for w in outputs.result.waypoints]
     outputs.waypoints = publish_output(outputs.out_dir, "waypoints.yaml",
@@ -478,10 +478,10 @@ def write_outputs(outputs: PlanOutputs, out=sys.stderr) -> PlanOutputs:
 
 
 def _write_success(outputs: PlanOutputs, out) -> None:
-    from perch_operator.mission_data import mission_data_from_result, write_waypoints_yaml
-    from perch_operator.render import camera_views
-    from perch_operator.report import perch_text, removal_text, write_report
-    from perch_operator.rerun_log import write_rrd
+    from perch_operator.outputs.mission_data import mission_data_from_result, write_waypoints_yaml
+    from perch_operator.outputs.render import camera_views
+    from perch_operator.outputs.report import perch_text, removal_text, write_report
+    from perch_operator.outputs.rerun_log import write_rrd
 
     staged = outputs.staged
     data = mission_data_from_result(outputs.mcap, outputs.result, outputs.goal)

@@ -15,7 +15,7 @@ import numpy as np
 from perch_common.mesh import Mesh, MeshError
 from perch_common.polygons import raster_outline
 from perch_common.target import TargetVolume
-from perch_operator.config import CropConfig
+from perch_operator.coordinator.config import CropConfig
 
 
 @dataclass

@@ -24,8 +24,8 @@ from perch_common.ros.conversions import (
 from perch_common.transforms import pose_to_matrix
 from perch_common.types import PerchEvidence
 from perch_interfaces import msg as pm
-from perch_operator.crop import Box
-from perch_operator.proposals import Proposal, approach_point
+from perch_operator.coordinator.crop import Box
+from perch_operator.coordinator.proposals import Proposal, approach_point
 
 
 def box_from_ros(msg: pm.OrientedBox, what: str) -> Box:

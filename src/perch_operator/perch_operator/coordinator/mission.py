@@ -30,16 +30,16 @@ from perch_common.ros.static_transforms import alignment_from_msg, alignment_to_
 from perch_common.up_axis import choose_up, file_convention
 from perch_interfaces import srv
 from perch_interfaces.action import PlanPerches
-from perch_operator.messages import (
+from perch_operator.coordinator.messages import (
     boxes_to_aligned,
     classed_surfaces,
     placement_msg,
     surface_to_input,
     target_to_aligned,
 )
-from perch_operator.proposals import Decision, Proposal, ProposalBook, ProposalError, Status
-from perch_operator.report_robustness import ROBUSTNESS_FIELDS
-from perch_operator.stages import MissionCancelled, StageCaller, StageError
+from perch_operator.coordinator.proposals import Decision, Proposal, ProposalBook, ProposalError, Status
+from perch_operator.coordinator.stages import MissionCancelled, StageCaller, StageError
+from perch_operator.outputs.report_robustness import ROBUSTNESS_FIELDS
 
 # Rough share of a mission's time per stage, for the feedback fraction.
 STAGE_WEIGHTS = {"reconstruct": 0.30, "clean": 0.05, "crop": 0.02, "segment": 0.20, "review": 0.0,

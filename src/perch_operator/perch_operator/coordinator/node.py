@@ -41,17 +41,17 @@ from perch_common.transforms import parse_up_axis, pose_to_matrix
 from perch_interfaces import msg as pm
 from perch_interfaces import srv
 from perch_interfaces.action import PlanPerches
-from perch_operator.config import OperatorConfig
-from perch_operator.crop import crop_mesh
-from perch_operator.goal_watch import GoalWatch
-from perch_operator.markers import camera_frame, current_picture, scan_marker, scene_markers
-from perch_operator.messages import box_from_ros, pose_array_msg, proposal_msg, waypoint_msg, waypoint_set_msg
-from perch_operator.mission import Mission, MissionOptions, Operator, decide
-from perch_operator.mission_data import placement_config
-from perch_operator.proposals import Decision, Proposal, ProposalError, Status
-from perch_operator.review import ReviewDesk, ReviewError
-from perch_operator.stages import MissionCancelled, StageCaller, StageError
-from perch_operator.views import camera_info_msg, image_msg, render_proposal_view
+from perch_operator.coordinator.config import OperatorConfig
+from perch_operator.coordinator.crop import crop_mesh
+from perch_operator.coordinator.goal_watch import GoalWatch
+from perch_operator.coordinator.markers import camera_frame, current_picture, scan_marker, scene_markers
+from perch_operator.coordinator.messages import box_from_ros, pose_array_msg, proposal_msg, waypoint_msg, waypoint_set_msg
+from perch_operator.coordinator.mission import Mission, MissionOptions, Operator, decide
+from perch_operator.coordinator.proposals import Decision, Proposal, ProposalError, Status
+from perch_operator.coordinator.review import ReviewDesk, ReviewError
+from perch_operator.coordinator.stages import MissionCancelled, StageCaller, StageError
+from perch_operator.coordinator.views import camera_info_msg, image_msg, render_proposal_view
+from perch_operator.outputs.mission_data import placement_config
 
 # Late joiners (a dispatcher started after the mission, a UI) still get every waypoint/proposal.
 LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
@@ -297,7 +297,7 @@ class OperatorNode(Node):
 
     def _open_replacement(self, proposal_id: int) -> bool:
         """An undecided proposal of the succeeded mission: the replacement a failed-in-flight re-plan made."""
-        from perch_operator.proposals import ProposalError, Status
+        from perch_operator.coordinator.proposals import ProposalError, Status
 
         try:
             return self.operator.book.get(proposal_id).status == Status.PENDING

@@ -18,8 +18,8 @@ from perch_common.frames import ALIGNED_SUFFIX, Alignment
 from perch_common.mesh import Mesh
 from perch_common.target import TargetVolume
 from perch_common.types import CameraPlacement, FilterRemoval, PerchRegion, Surface
-from perch_operator.proposals import Status
-from perch_operator.report_robustness import ROBUSTNESS_FIELDS
+from perch_operator.coordinator.proposals import Status
+from perch_operator.outputs.report_robustness import ROBUSTNESS_FIELDS
 
 MISSION_METADATA = "perch_mission"
 
@@ -68,8 +68,8 @@ def load_mission(path: str | Path) -> MissionData:
         target_from_msg,
     )
     from perch_common.ros.static_transforms import TF_STATIC_TOPIC, alignment_from_msg
-    from perch_operator.messages import classed_surfaces
-    from perch_operator.runfile import iter_messages, metadata, stage_calls
+    from perch_operator.coordinator.messages import classed_surfaces
+    from perch_operator.outputs.runfile import iter_messages, metadata, stage_calls
 
     def recorded_mesh(msg):
         # A mesh sent by content id only (its arrays went in an earlier mission) is not in this file.
@@ -131,7 +131,7 @@ def mission_data_from_result(path: str | Path, result, goal=None) -> MissionData
     result; mesh, surfaces, regions and target from the recorded stage replies, else from the goal."""
     from perch_common.ros.conversions import mesh_from_msg, placement_from_msg, target_from_msg
     from perch_common.ros.static_transforms import alignment_from_msg
-    from perch_operator.messages import target_to_aligned
+    from perch_operator.coordinator.messages import target_to_aligned
 
     data = load_mission(path)
     if result.alignment.header.frame_id:

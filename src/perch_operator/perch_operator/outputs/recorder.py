@@ -27,7 +27,7 @@ from perch_common.conventions import CONFIRM_SERVICE, MISSION_FEEDBACK_TOPIC
 from perch_common.ros import bag_format
 from perch_common.ros.msgdefs import full_definition, message_class, type_hash
 from perch_common.ros.static_transforms import TF_STATIC_TOPIC
-from perch_operator.stages import STAGES
+from perch_operator.coordinator.stages import STAGES
 
 EVENT_SUFFIX = "/_service_event"
 # Where a service event's CDR (4-byte encapsulation header, then service_msgs/ServiceEventInfo: uint8

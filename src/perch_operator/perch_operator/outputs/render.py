@@ -10,7 +10,7 @@ import numpy as np
 
 from perch_common.mesh import Mesh
 from perch_common.raycast import RayScene
-from perch_operator.mission_data import MissionData
+from perch_operator.outputs.mission_data import MissionData
 
 # BGR colours (OpenCV)
 REGION = (80, 200, 80)
@@ -129,7 +129,7 @@ def camera_views(data: MissionData) -> list[np.ndarray | None]:
     if importlib.util.find_spec("perch_placement") is None or \
             importlib.util.find_spec("perch_placement.render") is None or data.mesh is None:
         return []
-    from perch_operator.mission_data import placement_config
+    from perch_operator.outputs.mission_data import placement_config
     from perch_placement.core import scene_for
     from perch_placement.render import render_view
 

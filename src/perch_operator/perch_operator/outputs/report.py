@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 
 from perch_common.conventions import FILTER_COLOURS, FILTER_NAMES
-from perch_operator.mission_data import MissionData, latest_waypoints
-from perch_operator.report_robustness import robustness_section
+from perch_operator.outputs.mission_data import MissionData, latest_waypoints
+from perch_operator.outputs.report_robustness import robustness_section
 
 STYLE = """
 body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1100px; color: #222; }
@@ -39,7 +39,7 @@ def summary_rows(data: MissionData) -> list[tuple[str, str]]:
         rows.append(("target volume", f"{data.target.volume():.2f} m³"))
     if s.get("message"):
         rows.append(("answer", str(s["message"])))  # with the shortfall sentence when cameras are missing
-    if s.get("recording_missing"):   # the recording lacks stage calls the mission made (perch_operator.runner)
+    if s.get("recording_missing"):   # the recording lacks stage calls the mission made (perch_operator.cli.runner)
         rows.append(("recording incomplete", "; ".join(map(str, s["recording_missing"]))))
     return rows
 
@@ -73,7 +73,7 @@ def removal_text(data: MissionData, count: int = LARGEST_SURFACES) -> str:
 
 def perch_text(data: MissionData) -> str:
     """Each accepted perch, where it is (input frame) and its safety evidence, as text lines ("" if none)."""
-    from perch_operator.cli_operator import evidence_text
+    from perch_operator.outputs.text import evidence_text
 
     if not data.placements:
         return ""
@@ -151,7 +151,7 @@ def write_report(data: MissionData, out_dir: str | Path, title: str = "Perch mis
     """
     import cv2
 
-    from perch_operator.render import camera_views, overview
+    from perch_operator.outputs.render import camera_views, overview
 
     out_dir = Path(out_dir)
     files = out_dir / "report_files"

@@ -12,7 +12,7 @@ import numpy as np
 from perch_common.conventions import FILTER_COLOURS
 from perch_common.conventions import FILTER_NAMES as FILTERS
 from perch_common.mesh import Mesh
-from perch_operator.mission_data import MissionData, latest_waypoints, target_point_scores
+from perch_operator.outputs.mission_data import MissionData, latest_waypoints, target_point_scores
 
 CLASS_COLOURS = {0: ("unknown", (150, 150, 150)), 1: ("floor", (200, 170, 90)), 2: ("wall", (90, 140, 220)),
                  3: ("ceiling", (200, 200, 240)), 4: ("intermediate", (220, 120, 60))}
@@ -94,7 +94,7 @@ def _log_cameras(rr, rec, data: MissionData, views: list | None) -> None:
 
     camera = None
     if importlib.util.find_spec("perch_placement") is not None:
-        from perch_operator.mission_data import placement_config
+        from perch_operator.outputs.mission_data import placement_config
 
         camera = placement_config().camera
     for i, p in enumerate(data.placements):
@@ -128,7 +128,7 @@ def frames_markdown(data: MissionData) -> str:
 
 
 def _summary_markdown(data: MissionData) -> str:
-    from perch_operator.report import summary_rows
+    from perch_operator.outputs.report import summary_rows
 
     lines = ["| | |", "|---|---|"] + [f"| {k} | {v} |" for k, v in summary_rows(data)]
     stages = zip(data.summary.get("stage_names", []), data.summary.get("stage_seconds", []))

@@ -8,8 +8,8 @@ from pathlib import Path
 from typing import Any, Iterator
 
 from perch_common.ros.msgdefs import message_reader
-from perch_operator.recorder import EVENT_SUFFIX, GRAPH_METADATA
-from perch_operator.stages import STAGES
+from perch_operator.coordinator.stages import STAGES
+from perch_operator.outputs.recorder import EVENT_SUFFIX, GRAPH_METADATA
 
 SERVICE_TO_STAGE = {s.service: name for name, s in STAGES.items()}
 REQUEST_SENT, REQUEST_RECEIVED, RESPONSE_SENT, RESPONSE_RECEIVED = range(4)
