@@ -44,9 +44,14 @@ def geometry_in_front(samples: MeshSamples, index: SampleIndex, raster: SurfaceR
     corners = [f.to_world(np.array([[u, v]]), np.array([d]))[0]
                for u in (u_lo, u_hi) for v in (v_lo, v_hi) for d in (min_depth, max_depth)]
     candidates = index.near_box(np.array(corners))
-    local = project(samples.points[candidates], np.stack([f.normal, f.axis_u, f.axis_v]), f.origin)
-    keep = (local[:, 0] > min_depth) & (local[:, 0] <= max_depth)
-    keep &= (local[:, 1] >= u_lo) & (local[:, 1] <= u_hi) & (local[:, 2] >= v_lo) & (local[:, 2] <= v_hi)
+    # Depth first, then the plane coordinates of the samples within the depth range only (the
+    # buckets' box holds the surface's own samples and those behind it): the same sums, a third of them.
+    offsets = samples.points[candidates] - f.origin
+    depth = project(offsets, f.normal)[:, 0]
+    in_range = (depth > min_depth) & (depth <= max_depth)
+    candidates = candidates[in_range]
+    local = np.column_stack([depth[in_range], project(offsets[in_range], np.stack([f.axis_u, f.axis_v]))])
+    keep = (local[:, 1] >= u_lo) & (local[:, 1] <= u_hi) & (local[:, 2] >= v_lo) & (local[:, 2] <= v_hi)
     if len(own_faces):
         own = np.zeros(int(own_faces.max()) + 1, bool)
         own[own_faces[own_faces < len(own)]] = True

@@ -9,10 +9,14 @@ import numpy as np
 import pytest
 from filter_summary import compare, summarise
 
+from perch_common.mesh_samples import mesh_samples
 from perch_common.proximity import clear_of_mesh
 from perch_common.scene_generator import generate_scene
+from perch_filtering.checks import geometry_in_front
 from perch_filtering.raster import rasterise
+from perch_filtering.sampling import SampleIndex, project
 from perch_filtering.standoff import NODE_STEP, standoffs_clear
+from perch_filtering.voxels import grid_rotation
 
 
 @pytest.fixture(scope="module")
@@ -61,3 +65,42 @@ def test_summaries_compare_equal_to_themselves_and_name_a_changed_area():
     diffs = compare(base, changed)
     assert any("region 0" in d and "area" in d for d in diffs)
     assert any(f"surface {first} support" in d for d in diffs)
+
+
+def _geometry_in_front_simple(samples, index, raster, own_faces, up, min_depth, max_depth, margin, own_min_depth):
+    """All three plane coordinates of every candidate, then the tests (the code before the fast path)."""
+    f = raster.frame
+    rows, cols = raster.shape
+    u_lo, u_hi = raster.u0 - margin, raster.u0 + (cols - 1) * raster.cell + margin
+    v_lo, v_hi = raster.v0 - margin, raster.v0 + (rows - 1) * raster.cell + margin
+    corners = [f.to_world(np.array([[u, v]]), np.array([d]))[0]
+               for u in (u_lo, u_hi) for v in (v_lo, v_hi) for d in (min_depth, max_depth)]
+    candidates = index.near_box(np.array(corners))
+    local = project(samples.points[candidates], np.stack([f.normal, f.axis_u, f.axis_v]), f.origin)
+    keep = (local[:, 0] > min_depth) & (local[:, 0] <= max_depth)
+    keep &= (local[:, 1] >= u_lo) & (local[:, 1] <= u_hi) & (local[:, 2] >= v_lo) & (local[:, 2] <= v_hi)
+    own = np.zeros(len(samples.face), bool)
+    own[np.isin(samples.face, own_faces)] = True
+    mine = keep & own[candidates]
+    keep[mine] = local[mine, 0] > own_min_depth
+    sel = local[keep]
+    return sel[:, 0], sel[:, 1:], project(samples.points[candidates[keep]], up)[:, 0]
+
+
+def test_geometry_in_front_equals_the_simple_selection(room):
+    rng = np.random.default_rng(11)
+    samples = mesh_samples(room.mesh, 0.05)
+    index = SampleIndex(samples, grid_rotation(room.up))
+    checked = 0
+    for s in room.ground_truth_surfaces():
+        raster = rasterise(s.frame, s.boundary, 0.02, 20, 4_000_000)
+        min_depth, own_min = rng.uniform(0.01, 0.06), rng.uniform(0.03, 0.08)
+        max_depth, margin = rng.uniform(0.5, 1.2), rng.uniform(0.3, 1.0)
+        fast = geometry_in_front(samples, index, raster, s.face_indices, room.up, min_depth, max_depth, margin, own_min)
+        depth, uv, height = _geometry_in_front_simple(samples, index, raster, s.face_indices, room.up, min_depth,
+                                                      max_depth, margin, own_min)
+        np.testing.assert_array_equal(fast.depth, depth)
+        np.testing.assert_array_equal(fast.uv, uv)
+        np.testing.assert_array_equal(fast.height, height)
+        checked += len(depth)
+    assert checked > 10_000
