@@ -52,6 +52,21 @@ class EditBox:
         size = np.maximum(local, MIN_BOX_SIZE)
         return EditBox(opposite + self.rotation @ (size / 2), size, self.wxyz)
 
+    def face(self, axis: int, sign: float) -> np.ndarray:
+        """The centre of the face on the box's `axis` (0, 1, 2) at side `sign` (+1 or -1): where that
+        face's handle sits."""
+        return self.center + self.rotation[:, axis] * (sign * self.size[axis] / 2)
+
+    def face_moved(self, axis: int, sign: float, position: np.ndarray) -> EditBox:
+        """The box with one face dragged to `position` (only its part along the face's axis counts),
+        the opposite face staying put; the box cannot turn inside out (MIN_BOX_SIZE)."""
+        direction = self.rotation[:, axis] * sign
+        opposite = self.center - direction * (self.size[axis] / 2)
+        extent = max(float((np.asarray(position, np.float64) - opposite) @ direction), MIN_BOX_SIZE)
+        size = self.size.copy()
+        size[axis] = extent
+        return EditBox(opposite + direction * (extent / 2), size, self.wxyz)
+
     def contains(self, points: np.ndarray) -> np.ndarray:
         """Which of the (N,3) points lie inside the box."""
         local = (np.asarray(points, np.float64).reshape(-1, 3) - self.center) @ self.rotation
@@ -67,6 +82,68 @@ class EditBox:
         """A box at the centre of the points' bounds, `share` of their extent on each axis."""
         low, high = np.min(vertices, axis=0), np.max(vertices, axis=0)
         return EditBox((low + high) / 2, (high - low) * share)
+
+
+FACES = tuple((axis, sign) for axis in range(3) for sign in (1.0, -1.0))   # the six face handles
+
+
+def surface_box(frame, boundary: list, thickness: float = 0.3) -> EditBox:
+    """A box around a surface's outline (plane coordinates of a perch_common PlaneFrame), turned with
+    the surface (box x, y, z = its u, v, normal), `thickness` m across the plane: where the console's
+    crop box for that surface starts."""
+    rings = [np.asarray(ring, np.float64) for polygon in boundary for ring in polygon[:1]]
+    uv = np.vstack(rings) if rings else np.zeros((1, 2))
+    low, high = uv.min(axis=0), uv.max(axis=0)
+    middle = (low + high) / 2
+    rotation = np.column_stack([frame.axis_u, frame.axis_v, frame.normal])
+    if np.linalg.det(rotation) < 0:
+        rotation[:, 2] *= -1
+    center = frame.origin + middle[0] * frame.axis_u + middle[1] * frame.axis_v
+    return EditBox(center, (*(high - low), thickness), quaternion_wxyz(rotation))
+
+
+def quaternion_wxyz(rotation: np.ndarray) -> np.ndarray:
+    """(w, x, y, z) of a 3x3 rotation."""
+    from scipy.spatial.transform import Rotation
+
+    x, y, z, w = Rotation.from_matrix(np.asarray(rotation, np.float64)).as_quat()
+    return np.array([w, x, y, z])
+
+
+def floor_hit(ray_origin, ray_direction, up, floor_height: float) -> np.ndarray | None:
+    """Where a click's ray meets the floor plane (height `floor_height` along `up`); None when it
+    runs parallel to the floor or away from it."""
+    origin, direction = np.asarray(ray_origin, np.float64), np.asarray(ray_direction, np.float64)
+    up = np.asarray(up, np.float64) / np.linalg.norm(up)
+    along = float(direction @ up)
+    if abs(along) < 1e-9:
+        return None
+    distance = (floor_height - float(origin @ up)) / along
+    return None if distance <= 0 else origin + distance * direction
+
+
+def footprint_triangles(points: np.ndarray, up) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices (K,3), triangles (M,3)) covering the polygon the clicked floor points outline (in
+    click order): what a target footprint mesh carries. ValueError when they outline no area."""
+    import shapely
+
+    points = np.asarray(points, np.float64).reshape(-1, 3)
+    if len(points) < 3:
+        raise ValueError(f"a floor footprint needs at least 3 points, got {len(points)}: click more on the floor")
+    up = np.asarray(up, np.float64) / np.linalg.norm(up)
+    u = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(up, u)
+    uv = np.column_stack([points @ u, points @ v])
+    polygon = shapely.make_valid(shapely.Polygon(uv))
+    if polygon.area < 1e-4:
+        raise ValueError("the clicked floor points outline no area: click around the area to watch")
+    triangles = shapely.constrained_delaunay_triangles(polygon)
+    corners = np.array([np.asarray(t.exterior.coords)[:3] for t in triangles.geoms])
+    level = float(np.mean(points @ up))
+    flat = corners.reshape(-1, 2)
+    vertices = flat[:, :1] * u + flat[:, 1:] * v + level * up
+    return vertices, np.arange(len(vertices)).reshape(-1, 3)
 
 
 @dataclass

@@ -6,7 +6,19 @@ import threading
 
 import numpy as np
 import pytest
-from perch_console.state import DecisionDesk, EditBox, removal_table, shortfall_of, waypoint_rows
+from perch_console.state import (
+    FACES,
+    MIN_BOX_SIZE,
+    DecisionDesk,
+    EditBox,
+    floor_hit,
+    footprint_triangles,
+    quaternion_wxyz,
+    removal_table,
+    shortfall_of,
+    surface_box,
+    waypoint_rows,
+)
 
 
 def test_corner_handle_resizes_and_keeps_the_opposite_corner():
@@ -26,6 +38,70 @@ def test_a_turned_box_resizes_along_its_own_axes():
     assert box.contains(np.array([[0.0, 0.9, 0.0], [0.9, 0.0, 0.0]])).tolist() == [True, False]
     assert box.describe().endswith("(rotated)") and EditBox([0, 0, 1], [1, 2, 3]).describe() == \
         "box:0.00,0.00,1.00,1.00,2.00,3.00"
+
+
+def test_face_handles_move_one_face_and_keep_the_opposite_one():
+    box = EditBox([1.0, 2.0, 1.0], [2.0, 4.0, 2.0])
+    np.testing.assert_allclose(box.face(0, 1.0), [2.0, 2.0, 1.0])
+    np.testing.assert_allclose(box.face(1, -1.0), [1.0, 0.0, 1.0])
+    # the +x face dragged out by 0.5 m (the handle's sideways drift is ignored): -x face stays at x = 0
+    grown = box.face_moved(0, 1.0, [2.5, 9.0, -3.0])
+    np.testing.assert_allclose(grown.size, [2.5, 4.0, 2.0])
+    np.testing.assert_allclose(grown.center, [1.25, 2.0, 1.0])
+    # the -y face dragged in by 1 m: +y face stays at y = 4
+    shrunk = box.face_moved(1, -1.0, [1.0, 1.0, 1.0])
+    np.testing.assert_allclose(shrunk.size, [2.0, 3.0, 2.0])
+    np.testing.assert_allclose(shrunk.center, [1.0, 2.5, 1.0])
+    # dragged past the opposite face: the box keeps its minimum size instead of turning inside out
+    flat = box.face_moved(2, 1.0, [1.0, 2.0, -5.0])
+    np.testing.assert_allclose(flat.size[2], MIN_BOX_SIZE)
+    np.testing.assert_allclose(flat.center[2] - flat.size[2] / 2, 0.0, atol=1e-12)
+    assert len(FACES) == 6 and len(set(FACES)) == 6
+
+
+def test_face_handles_of_a_turned_box_work_along_its_axes():
+    quarter = np.array([np.cos(np.pi / 4), 0.0, 0.0, np.sin(np.pi / 4)])   # 90 deg about z: box x = world y
+    box = EditBox([0.0, 0.0, 0.0], [2.0, 1.0, 1.0], quarter)
+    np.testing.assert_allclose(box.face(0, 1.0), [0.0, 1.0, 0.0], atol=1e-12)
+    moved = box.face_moved(0, 1.0, [0.3, 2.0, 0.0])    # world y 2: box x grows to 3
+    np.testing.assert_allclose(moved.size, [3.0, 1.0, 1.0])
+    np.testing.assert_allclose(moved.center, [0.0, 0.5, 0.0], atol=1e-12)
+
+
+def test_a_surface_box_wraps_its_outline_turned_with_it():
+    from perch_common.types import PlaneFrame
+
+    # a wall facing -y at y = 3, u along x, v up (u x v = -y... so the normal is -y)
+    frame = PlaneFrame(np.array([1.0, 3.0, 1.5]), np.array([1.0, 0, 0]), np.array([0, 0, 1.0]),
+                       np.array([0, -1.0, 0]))
+    outline = [[np.array([[-1.0, -1.0], [2.0, -1.0], [2.0, 1.0], [-1.0, 1.0]])]]
+    box = surface_box(frame, outline, thickness=0.2)
+    np.testing.assert_allclose(box.size, [3.0, 2.0, 0.2])
+    np.testing.assert_allclose(box.center, [1.5, 3.0, 1.5])
+    corners = frame.to_world(outline[0][0])
+    assert box.contains(corners * 0.999 + box.center * 0.001).all()
+    np.testing.assert_allclose(box.rotation[:, 2], [0, -1, 0], atol=1e-9)
+    np.testing.assert_allclose(quaternion_wxyz(np.eye(3)), [1, 0, 0, 0])
+
+
+def test_floor_clicks_make_a_footprint():
+    up = np.array([0.0, 0.0, 1.0])
+    hit = floor_hit([1.0, 1.0, 3.0], [0.5, 0.0, -1.0], up, 0.5)
+    np.testing.assert_allclose(hit, [2.25, 1.0, 0.5])
+    assert floor_hit([0, 0, 3.0], [1.0, 0, 0], up, 0.5) is None      # parallel to the floor
+    assert floor_hit([0, 0, 3.0], [0, 0, 1.0], up, 0.5) is None      # looking up, away from it
+    # an L-shaped footprint (concave): its triangles cover exactly its 3 m^2 and stay on the floor
+    clicks = np.array([[0, 0, 0.5], [2, 0, 0.5], [2, 1, 0.5], [1, 1, 0.5], [1, 2, 0.5], [0, 2, 0.5]], float)
+    vertices, triangles = footprint_triangles(clicks, up)
+    tri = vertices[triangles]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum()
+    assert area == pytest.approx(3.0, abs=1e-9)
+    np.testing.assert_allclose(vertices[:, 2], 0.5, atol=1e-12)
+    assert not ((tri.mean(axis=1)[:, 0] > 1.0) & (tri.mean(axis=1)[:, 1] > 1.0)).any()   # the notch stays empty
+    with pytest.raises(ValueError, match="at least 3 points"):
+        footprint_triangles(clicks[:2], up)
+    with pytest.raises(ValueError, match="no area"):
+        footprint_triangles(np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0.0]]), up)
 
 
 def test_decisions_are_serialised_and_remember_who():
