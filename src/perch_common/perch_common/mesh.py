@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, TypeVar
@@ -31,6 +32,8 @@ class Mesh:
     vertex_colors: np.ndarray | None = None   # (V,3) uint8
     vertex_normals: np.ndarray | None = None  # (V,3) float
     frame_id: str = "map"
+    # (K, 8) camera views the mesh was observed from (perch_common.viewpoints), or None (a bare mesh)
+    viewpoints: np.ndarray | None = None
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -40,6 +43,10 @@ class Mesh:
             self.vertex_colors = np.asarray(self.vertex_colors, dtype=np.uint8).reshape(-1, 3)
         if self.vertex_normals is not None:
             self.vertex_normals = np.asarray(self.vertex_normals, dtype=np.float64).reshape(-1, 3)
+        if self.viewpoints is not None:
+            from perch_common.viewpoints import VIEWPOINT_COLUMNS
+
+            self.viewpoints = np.asarray(self.viewpoints, dtype=np.float64).reshape(-1, VIEWPOINT_COLUMNS)
 
     @property
     def num_faces(self) -> int:
@@ -131,13 +138,28 @@ class Mesh:
             vertex_colors=None if self.vertex_colors is None else self.vertex_colors[used],
             vertex_normals=None if self.vertex_normals is None else self.vertex_normals[used],
             frame_id=self.frame_id,
+            viewpoints=self.viewpoints,   # what observed the whole mesh observed its parts
         )
 
     def transformed(self, matrix: np.ndarray) -> "Mesh":
         """Copy under a 4x4 rigid transform."""
         r, t = matrix[:3, :3], matrix[:3, 3]
         normals = None if self.vertex_normals is None else self.vertex_normals @ r.T
-        return replace(self, vertices=self.vertices @ r.T + t, vertex_normals=normals, _cache={})
+        views = None
+        if self.viewpoints is not None:
+            from perch_common.viewpoints import transform_viewpoints
+
+            views = transform_viewpoints(self.viewpoints, matrix)
+        return replace(self, vertices=self.vertices @ r.T + t, vertex_normals=normals, viewpoints=views, _cache={})
+
+    def with_viewpoints_of(self, source: "Mesh") -> "Mesh":
+        """This mesh carrying `source`'s viewpoints (a stage's output built from `source` in its frame);
+        self when source has none."""
+        if source.viewpoints is None or self.viewpoints is source.viewpoints:
+            return self
+        out = copy.copy(self)   # the arrays and the derived data stay shared
+        out.viewpoints = source.viewpoints
+        return out
 
 
 @dataclass

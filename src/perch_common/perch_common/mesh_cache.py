@@ -35,10 +35,14 @@ class MeshNotCached(PerchError):
 
 
 def content_id(vertices: np.ndarray, faces: np.ndarray, colors: np.ndarray | None = None,
-               normals: np.ndarray | None = None) -> str:
-    """A 128-bit hash of the mesh as it travels (float32 vertices, uint32 faces, colours, normals)."""
+               normals: np.ndarray | None = None, viewpoints: np.ndarray | None = None) -> str:
+    """A 128-bit hash of the mesh as it travels (float32 vertices, uint32 faces, colours, normals, and
+    the float64 viewpoints when it has any: a bare mesh keeps the id it had before they existed)."""
     digest = hashlib.blake2b(digest_size=16)
-    for array, dtype in ((vertices, np.float32), (faces, np.uint32), (colors, np.uint8), (normals, np.float32)):
+    arrays = [(vertices, np.float32), (faces, np.uint32), (colors, np.uint8), (normals, np.float32)]
+    if viewpoints is not None and np.size(viewpoints):
+        arrays.append((viewpoints, np.float64))
+    for array, dtype in arrays:
         data = np.ascontiguousarray(np.zeros(0) if array is None else array, dtype)
         digest.update(np.int64(data.size).tobytes())
         digest.update(memoryview(data).cast("B"))
@@ -47,14 +51,14 @@ def content_id(vertices: np.ndarray, faces: np.ndarray, colors: np.ndarray | Non
 
 def mesh_content_id(mesh: Mesh) -> str:
     """content_id of a Mesh."""
-    return content_id(mesh.vertices, mesh.faces, mesh.vertex_colors, mesh.vertex_normals)
+    return content_id(mesh.vertices, mesh.faces, mesh.vertex_colors, mesh.vertex_normals, mesh.viewpoints)
 
 
 def _mesh_bytes(mesh: Mesh) -> int:
     """Every array the mesh holds and what stages derive and keep with it (face cross products,
     24 B per face, once face areas or normals were asked for; its ray-cast scene, ~64 B per face)."""
     derived = tuple(mesh._cache.values())   # one C-level copy: another thread may be adding to it
-    arrays = (mesh.vertices, mesh.faces, mesh.vertex_colors, mesh.vertex_normals, *derived)
+    arrays = (mesh.vertices, mesh.faces, mesh.vertex_colors, mesh.vertex_normals, mesh.viewpoints, *derived)
     return sum(int(getattr(a, "nbytes", 0)) for a in arrays if a is not None)
 
 

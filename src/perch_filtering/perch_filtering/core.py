@@ -140,7 +140,7 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
     reached = _reachability([w for w in work if w.raster is not None], grid, scene.mesh, config)
     clock.lap("reachability")
     for w, kept in steps(reached, "observed space: surface", 0.95, 0.99):
-        _observed(w, kept, scene, up, config)
+        _observed(w, kept, scene, up, config, mesh.viewpoints)
     clock.lap("observed")
     regions: list[PerchRegion] = []
     for w, kept in reached:
@@ -258,7 +258,8 @@ def _reachability(work: list[_Work], grid: FlightGrid, mesh: Mesh,
     return out
 
 
-def _observed(w: _Work, kept: np.ndarray, scene: RayScene, up: np.ndarray, config: FilterConfig) -> None:
+def _observed(w: _Work, kept: np.ndarray, scene: RayScene, up: np.ndarray, config: FilterConfig,
+              viewpoints: np.ndarray | None = None) -> None:
     """The observed-space rule (perch_filtering.observed): at most max_unobserved_share of a perch's
     approach prism and of its fall corridor (column below ceilings) may lie in space the scan does not
     enclose (in the fall's, also where nothing was scanned below). Runs on the cells every other filter
@@ -268,15 +269,19 @@ def _observed(w: _Work, kept: np.ndarray, scene: RayScene, up: np.ndarray, confi
     start = s.surface_depth + s.cell  # in front of what counts as the surface itself
     half_u = 0.5 * s.window_width + s.approach_margin
     half_v = 0.5 * s.window_height + s.approach_margin
+    views = viewpoints  # the cameras' evidence, when the mesh was reconstructed from posed frames
     approach = unobserved_share(scene, w.raster, kept, (-half_u, half_u), (-half_v, half_v),
-                                (start, max(s.approach_distance, start + s.cell)), s.enclosed_escape_share)
+                                (start, max(s.approach_distance, start + s.cell)), s.enclosed_escape_share,
+                                viewpoints=views)
     if w.surface.surface_class == SurfaceClass.WALL:  # the corridor below the window, 2 radii deep
         fall = unobserved_share(scene, w.raster, kept, (-half_u, half_u),
                                 (-(0.5 * s.window_height + s.min_recovery_height), 0.5 * s.window_height),
-                                (start, max(2 * s.drone_radius, start + s.cell)), s.enclosed_escape_share, -up)
+                                (start, max(2 * s.drone_radius, start + s.cell)), s.enclosed_escape_share, -up,
+                                viewpoints=views)
     elif float(w.surface.frame.normal @ up) < 0:  # the column below a ceiling (or a downward surface)
         fall = unobserved_share(scene, w.raster, kept, (-half_u, half_u), (-half_v, half_v),
-                                (start, max(s.min_recovery_height, start + s.cell)), s.enclosed_escape_share, -up)
+                                (start, max(s.min_recovery_height, start + s.cell)), s.enclosed_escape_share, -up,
+                                viewpoints=views)
     else:  # landing: no fall
         fall = np.zeros(w.raster.shape, np.float32)
     limit = s.max_unobserved_share + 1e-6

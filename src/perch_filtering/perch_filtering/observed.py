@@ -1,7 +1,12 @@
-"""Observed versus unknown space on a bare mesh: which part of a perch's approach prism and fall
-corridor the scan actually saw.
+"""Observed versus unknown space: which part of a perch's approach prism and fall corridor the scan
+actually saw.
 
-A mesh carries no camera poses, so "observed" is what the scan encloses: a point is observed when at
+A reconstructed mesh carries the camera views it was built from (Mesh.viewpoints): then a point is
+observed when some camera saw through it, i.e. measured a surface behind it within its range with
+nothing before it (perch_common.viewpoints.seen_free); the cameras' evidence replaces the escape rule
+below (a room the cameras saw only half of encloses its other half too, unseen).
+
+A bare mesh carries no camera poses, so "observed" is what the scan encloses: a point is observed when at
 most `enclosed_escape_share` of the rays cast from it in ESCAPE_DIRECTIONS fixed directions leave
 the model without a hit. Inside a scanned room almost every ray ends on a wall, floor or ceiling (a
 doorway or window opening lets a minority out; a room without ceiling lets out less than half); in
@@ -21,6 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from perch_common.raycast import RayScene, sphere_directions
+from perch_common.viewpoints import seen_free
 from perch_filtering.raster import SurfaceRaster
 
 ESCAPE_DIRECTIONS = 32  # rays per grid node (Fibonacci sphere, fixed)
@@ -54,11 +60,12 @@ def escape_shares(scene: RayScene, points: np.ndarray, directions: np.ndarray) -
 
 def unobserved_share(scene: RayScene, raster: SurfaceRaster, alive: np.ndarray, u_range: tuple[float, float],
                      v_range: tuple[float, float], depth_range: tuple[float, float],
-                     enclosed_escape_share: float, down: np.ndarray | None = None) -> np.ndarray:
+                     enclosed_escape_share: float, down: np.ndarray | None = None,
+                     viewpoints: np.ndarray | None = None) -> np.ndarray:
     """Per cell of `alive`, the share of its volume (plane offsets u_range x v_range around the cell,
-    depth_range along the normal) the scan does not enclose; 0 elsewhere. With `down` (a fall volume:
-    the direction of gravity), a point with nothing scanned below it (down_cone) is unobserved too: a
-    drone falling there would fall into space nobody saw."""
+    depth_range along the normal) the scan does not enclose (with `viewpoints`: no camera saw free);
+    0 elsewhere. With `down` (a fall volume: the direction of gravity), a point with nothing scanned
+    below it (down_cone) is unobserved too: a drone falling there would fall into space nobody saw."""
     out = np.zeros(raster.shape, np.float32)
     if not alive.any():
         return out
@@ -83,7 +90,10 @@ def unobserved_share(scene: RayScene, raster: SurfaceRaster, alive: np.ndarray, 
     uv = np.column_stack([raster.u0 + (nc + c0) * spacing, raster.v0 + (nr + r0) * spacing])
     depths = depth_range[0] + (np.arange(DEPTH_LAYERS) + 0.5) / DEPTH_LAYERS * (depth_range[1] - depth_range[0])
     points = np.concatenate([raster.frame.to_world(uv, np.full(len(uv), d)) for d in depths])
-    escaped = escape_shares(scene, points, sphere_directions(ESCAPE_DIRECTIONS)) > enclosed_escape_share
+    if viewpoints is not None and len(viewpoints):
+        escaped = ~seen_free(scene, viewpoints, points)
+    else:
+        escaped = escape_shares(scene, points, sphere_directions(ESCAPE_DIRECTIONS)) > enclosed_escape_share
     if down is not None:  # nothing scanned below: most of a narrow downward cone escapes (a hole lets a few out)
         escaped |= escape_shares(scene, points, down_cone(down)) > 0.5
     unknown = np.zeros(shape, np.float64)

@@ -20,6 +20,9 @@ and tests triangles against boxes directly), so that the two can check each othe
 START (7 cm): geometry nearer the plane than surface_depth (6 cm) is the scanned surface itself
 (support bounds what it may do), plus 1 cm for faces crossing a box's side between mesh samples.
 
+Observed space with camera viewpoints (a reconstruction from posed RGB-D frames, Mesh.viewpoints): a
+point is observed when some camera saw through it (perch_common.viewpoints.seen_free); the reason then
+names the cause ("fall corridor 44 % unobserved (no camera saw it)").
 Observed space on a bare mesh (no camera poses): a point is observed when the scan encloses it,
 i.e. at most enclosed_escape_share (0.5) of the rays cast from it in ESCAPE_DIRECTIONS fixed directions leave
 the model without a hit. A room's interior is enclosed (a doorway or window opening lets a minority
@@ -40,6 +43,7 @@ import numpy as np
 from perch_common.mesh import Mesh
 from perch_common.raycast import RayScene, sphere_directions
 from perch_common.target import TargetVolume
+from perch_common.viewpoints import seen_free
 
 __all__ = ["CheckSpec", "PerchVerdict", "ScanChecker", "check_perches", "spec_from_config"]
 
@@ -238,9 +242,16 @@ class ScanChecker:
         a, b, c = np.meshgrid(ticks, ticks, ticks, indexing="ij")
         local = np.column_stack([a.ravel(), b.ravel(), c.ravel()]) * half
         points = centre + local @ axes
-        unknown = self.escape_shares(points) > self.spec.enclosed_escape_share
+        if self.mesh.viewpoints is not None and len(self.mesh.viewpoints):  # a reconstruction's cameras
+            unknown = ~seen_free(self.rays, self.mesh.viewpoints, points)
+            self.unobserved_cause = "no camera saw it"
+        else:
+            unknown = self.escape_shares(points) > self.spec.enclosed_escape_share
         if fall:  # nothing scanned below: most rays of a 20 deg cone around gravity escape
-            unknown |= self.escape_shares(points, self.floor_cone) > 0.5
+            no_floor = self.escape_shares(points, self.floor_cone) > 0.5
+            if no_floor.sum() > unknown.sum():
+                self.unobserved_cause = "no floor scanned below"
+            unknown |= no_floor
         return float(unknown.mean())
 
     def escape_shares(self, points: np.ndarray, directions: np.ndarray | None = None) -> np.ndarray:
@@ -293,15 +304,21 @@ class ScanChecker:
             out.reasons.append(f"support {100 * out.support_share:.0f} %")
         if out.flatness_rms > s.max_support_rms + 1e-9:
             out.reasons.append(f"not flat ({100 * out.flatness_rms:.1f} cm RMS)")
+        causes = {}   # with camera viewpoints, why a volume is unobserved (said in its reason)
+        self.unobserved_cause = ""
         out.approach_observed = 1.0 - self.unobserved_share(*self.approach_box(point, normal))
+        causes["approach"], self.unobserved_cause = self.unobserved_cause, ""
         box = self.fall_box(point, normal)
         out.fall_observed = 1.0 - self.unobserved_share(*box, fall=True) if box is not None else 1.0
+        causes["fall"] = self.unobserved_cause
         out.observed_share = min(out.approach_observed, out.fall_observed)
         limit = 1.0 - s.max_unobserved_share - OBSERVED_SLACK
-        for name, share in (("approach prism", out.approach_observed),
-                            ("fall corridor" if kind == "wall" else "fall column", out.fall_observed)):
+        for name, share, cause in (("approach prism", out.approach_observed, causes["approach"]),
+                                   ("fall corridor" if kind == "wall" else "fall column", out.fall_observed,
+                                    causes["fall"])):
             if share < limit - 1e-9:
-                out.reasons.append(f"{name} {100 * (1 - share):.0f} % unobserved")
+                why = f" ({cause})" if cause and self.mesh.viewpoints is not None else ""
+                out.reasons.append(f"{name} {100 * (1 - share):.0f} % unobserved{why}")
         seated = point + offset * normal  # the drone sits on the scan, at the window's perch plane
         if self.target_points is not None:
             out.visible_share = self.visible_share(seated, normal)
