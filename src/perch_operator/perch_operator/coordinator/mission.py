@@ -21,6 +21,7 @@ from perch_common.request_validation import validate_request
 from perch_common.ros.conversions import (
     exclusion_to_msg,
     mesh_from_msg,
+    mesh_from_request,
     mesh_to_msg,
     placement_from_msg,
     placement_to_msg,
@@ -38,6 +39,7 @@ from perch_operator.coordinator.messages import (
     target_to_aligned,
 )
 from perch_operator.coordinator.proposals import Decision, Proposal, ProposalBook, ProposalError, Status
+from perch_operator.coordinator.review import ReviewDecision, cropped_surfaces
 from perch_operator.coordinator.stages import MissionCancelled, StageCaller, StageError
 from perch_operator.outputs.report_robustness import ROBUSTNESS_FIELDS
 
@@ -83,7 +85,7 @@ class Mission:
     def __init__(self, caller: StageCaller, options: MissionOptions, first_proposal_id: int,
                  feedback: Callable[[str, float, str], None], cancelled: Callable[[], bool],
                  on_proposal: Callable[..., None], on_operator: Callable[[Operator], None],
-                 review: Callable[[list], set[int]] | None = None,
+                 review: Callable[[list], ReviewDecision | set[int]] | None = None,
                  on_alignment: Callable[[Alignment], None] | None = None):
         self.caller = caller
         self.options = options
@@ -92,7 +94,7 @@ class Mission:
         self.cancelled = cancelled
         self.on_proposal = on_proposal  # publishes proposal events, in order, given together when made together
         self.on_operator = on_operator
-        self.review = review  # publishes surfaces for review, returns the rejected ids once decided
+        self.review = review  # publishes surfaces for review, returns the decision (rejected, crops)
         self.on_alignment = on_alignment  # told the input frame -> gravity-aligned frame once known
         self.alignment = Alignment(options.frame_id, np.eye(3), "none", 0.0)
         self.notes: list[str] = []  # warnings for the result message (e.g. an up axis from the file's convention)
@@ -148,7 +150,7 @@ class Mission:
             remove_boxes=boxes_to_aligned(goal.remove_boxes, self.alignment),
             target=target_to_aligned(goal.target, self.alignment)))
         segment = self._call("segment", srv.Segment.Request(mesh=crop.mesh))
-        surfaces = self._reviewed(list(segment.surfaces), goal.review_surfaces)
+        surfaces = self._reviewed(list(segment.surfaces), goal.review_surfaces, crop.mesh)
         filtered = self._call("filter", srv.Filter.Request(mesh=crop.mesh, surfaces=surfaces,
                                                            target=crop.target, up=vector_msg(self.options.up)))
         if not filtered.regions:
@@ -228,8 +230,10 @@ class Mission:
         return Alignment(mesh_msg.header.frame_id, choice.estimate.aligned_rotation(choice.up), choice.source,
                          choice.estimate.confidence)
 
-    def _reviewed(self, surfaces: list, count: int) -> list:
-        """With count > 0, the operator reviews the `count` largest surfaces; rejected ones are dropped."""
+    def _reviewed(self, surfaces: list, count: int, mesh_msg) -> list:
+        """With count > 0, the operator reviews the `count` largest surfaces; rejected ones are dropped,
+        cropped ones trimmed to their box (given in the input's frame) on `mesh_msg`, the mesh they were
+        segmented from."""
         if count <= 0 or not surfaces:
             return surfaces
         if self.review is None:
@@ -238,9 +242,14 @@ class Mission:
         largest = sorted(surfaces, key=lambda s: -s.area)[:count]
         self.feedback("review", self._fraction(), f"waiting for review of surfaces {[s.id for s in largest]} "
                       "(perch operator review ID [--reject ...])")
-        rejected = self.review([surface_to_input(s, self.alignment) for s in largest])  # the input's frame
+        decision = self.review([surface_to_input(s, self.alignment) for s in largest])  # the input's frame
+        if not isinstance(decision, ReviewDecision):   # a plain set: the rejected ids
+            decision = ReviewDecision(set(decision))
+        if decision.crops:
+            surfaces = cropped_surfaces(surfaces, decision.crops, mesh_from_request(mesh_msg, "segmented mesh"),
+                                        self.alignment.to_aligned())
         self._finish("review", time.monotonic() - started)
-        return [s for s in surfaces if s.id not in rejected]
+        return [s for s in surfaces if s.id not in decision.rejected]
 
     def _confirm(self, operator: Operator, placements) -> float:
         """Propose every placement and wait until each slot is accepted; returns the seconds spent."""

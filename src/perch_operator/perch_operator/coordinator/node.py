@@ -48,7 +48,7 @@ from perch_operator.coordinator.markers import camera_frame, current_picture, sc
 from perch_operator.coordinator.messages import box_from_ros, pose_array_msg, proposal_msg, waypoint_msg, waypoint_set_msg
 from perch_operator.coordinator.mission import Mission, MissionOptions, Operator, decide
 from perch_operator.coordinator.proposals import Decision, Proposal, ProposalError, Status
-from perch_operator.coordinator.review import ReviewDesk, ReviewError
+from perch_operator.coordinator.review import ReviewDecision, ReviewDesk, review_crops, review_outlines
 from perch_operator.coordinator.stages import MissionCancelled, StageCaller, StageError
 from perch_operator.coordinator.views import camera_info_msg, image_msg, render_proposal_view
 from perch_operator.outputs.mission_data import placement_config
@@ -219,10 +219,11 @@ class OperatorNode(Node):
         def cancelled() -> bool:
             return goal_handle.is_cancel_requested or watch.gone()
 
-        def review(surfaces: list) -> set[int]:
-            review_id = self.review_desk.open([s.id for s in surfaces])
+        def review(surfaces: list) -> ReviewDecision:
+            review_id = self.review_desk.open([s.id for s in surfaces], review_outlines(surfaces))
             self.review_pub.publish(pm.SurfaceReview(review_id=review_id, surfaces=surfaces))
-            return self.review_desk.wait(review_id, config.confirm_timeout, cancelled)
+            rejected = self.review_desk.wait(review_id, config.confirm_timeout, cancelled)
+            return ReviewDecision(rejected, self.review_desk.crops(review_id))
 
         def aligned(alignment) -> None:  # the input frame -> gravity-aligned frame, for tf users
             self.static_transforms.send(alignment_to_msg(alignment))
@@ -332,12 +333,14 @@ class OperatorNode(Node):
     def _review_decided(self, request: srv.ReviewSurfaces.Request,
                         response: srv.ReviewSurfaces.Response) -> srv.ReviewSurfaces.Response:
         try:
-            rejected = self.review_desk.decide(request.review_id, list(request.rejected_surface_ids))
+            crops = review_crops(request)
+            rejected = self.review_desk.decide(request.review_id, list(request.rejected_surface_ids), crops)
             response.success = True
             response.message = (f"surface review {request.review_id}: "
                                 + (f"rejected {sorted(rejected)}" if rejected else "all approved")
+                                + (f", cropped {sorted(crops)}" if crops else "")
                                 + (f" ({request.reason})" if request.reason else ""))
-        except ReviewError as exc:
+        except ValueError as exc:   # ReviewError, or a crop box that is no box
             response.success, response.message = False, str(exc)
         self.get_logger().info(response.message)
         return response
