@@ -32,6 +32,9 @@ def test_repeated_bench_reports_medians_and_exits_cleanly(graph_parts):
     assert median["wall_s"] > median["mission_s"] > median["stages"]["segment"] > 0 and median["startup_s"] > 0
     # Seeded: both runs plan the same cameras.
     fitness = [r["fitness"] for r in result["runs"]]
+    # Each run in a namespace of its own on the user's domain (never beside or inside another graph).
+    namespaces = [r["namespace"] for r in result["runs"]]
+    assert all(ns.startswith("/perch_bench_") for ns in namespaces) and namespaces[0] != namespaces[1]
     assert median["cameras"] == 2 and fitness[0] == fitness[1] and median["fitness"] == pytest.approx(fitness[0], abs=1e-3)
 
 

@@ -6,7 +6,9 @@
     perch bench mission --scene 7 --missions 20          # stability: RSS per mission on one graph
 
 One run starts its own graph (one process by default, `--graph-mode per-node` for node processes),
-runs the mission with auto-accept and writes waypoints.yaml. JSON fields:
+runs the mission with auto-accept and writes waypoints.yaml. The graph runs on your ROS_DOMAIN_ID in
+a namespace of its own (`<your namespace>/perch_bench_<pid>`, field `namespace`): it times a graph's
+start-up, so it never uses a graph already running there, and never meets one. JSON fields:
   wall_s       process start to waypoints written (interpreter, imports, scene, graph start-up);
   outputs_s    with --record (the first mission run as `perch plan` runs it: recorded, waypoints.yaml
                written as the result comes in): process start to run.mcap, run.rrd and report.html written;
@@ -136,6 +138,7 @@ def _one_run(args) -> dict:
     import psutil
     import rclpy
 
+    from perch_common import namespace
     from perch_common.bench import peak_rss_mb
     from perch_common.launch import use_perch_dds
     from perch_operator.api.client import run_mission
@@ -150,6 +153,9 @@ def _one_run(args) -> dict:
     from perch_operator.outputs.mission_data import waypoint_dict, write_waypoints_yaml
 
     process_start = psutil.Process().create_time()
+    # Its own namespace on the user's domain: a graph already running there is neither used nor disturbed.
+    own_namespace = namespace.current() + f"/perch_bench_{os.getpid()}"
+    os.environ[namespace.NAMESPACE_ENV] = own_namespace
     use_perch_dds(network=args.network or None)
     goal, source, faces = build_goal(args)
     out_dir = Path(tempfile.mkdtemp(prefix="perch_bench_mission_"))
@@ -190,6 +196,7 @@ def _one_run(args) -> dict:
             graph.stop()
     stages = {n: round(s, 3) for n, s in zip(first.stage_names, first.stage_seconds) if n != "total"}
     out = {"source": source, "faces": faces, "graph_mode": args.graph_mode, "domain": domain,
+           "namespace": own_namespace,
            "wall_s": round(wall, 3), "startup_s": round(graph.startup_seconds, 3), "mission_s": round(missions[0], 3),
            "stages": stages, "transport_s": round(missions[0] - sum(stages.values()), 3),
            "peak_rss_mb": round(max(sampler.peak_bytes / 2**20, peak_rss_mb()), 1),
