@@ -61,7 +61,7 @@ def clean_mesh_with_report(mesh: Mesh, gravity: np.ndarray | None, config: Recon
         if np.linalg.norm(gravity) < 1e-9:
             gravity = None
     report = CleanReport(faces_in=mesh.num_faces, faces_out=0)
-    cleaned = _decimated_clean(mesh, config, report)
+    cleaned = _decimated_clean(mesh, config, report).with_viewpoints_of(mesh)
     if cleaned.num_faces == 0:
         raise MeshError(f"mesh to clean: nothing left after removing pieces smaller than "
                         f"{config.min_piece_diameter} m; lower min_piece_diameter")

@@ -17,6 +17,7 @@ from perch_common.cancellation import checkpoint
 from perch_common.errors import PerchError
 from perch_common.frames import aligned_frame_name
 from perch_common.mesh import Mesh
+from perch_common.viewpoints import pinhole_half_angle, select_viewpoints, viewpoint_rows
 from perch_reconstruction.bag_write import BagTopics
 from perch_reconstruction.cleaning import CleanReport, clean_mesh, clean_mesh_with_report
 from perch_reconstruction.config import ReconstructionConfig
@@ -140,11 +141,22 @@ class Reconstructor:
             return None
         return np.mean([pose[:3, 1] for _, pose in self.stats.trajectory], axis=0)
 
+    def viewpoints(self) -> np.ndarray | None:
+        """The integrated cameras' distinct views (perch_common.viewpoints) in the volume's frame: what
+        the filter counts as observed free space. None before any frame."""
+        if not self.stats.trajectory or self.intrinsics is None:
+            return None
+        poses = np.array([pose for _, pose in self.stats.trajectory])   # world from camera
+        k = self.intrinsics
+        return select_viewpoints(viewpoint_rows(poses[:, :3, 3], poses[:, :3, 2], self.config.depth_max,
+                                                pinhole_half_angle(k.width, k.height, k.fx, k.fy)))
+
     def extract(self, frame_id: str = "map") -> Mesh:
         """The mesh of the integrated frames (PerchError when nothing was integrated)."""
         if self._volume is None or self.stats.frames_integrated == 0:
             raise PerchError("nothing integrated yet: no frame could be used (check topics, camera info and poses)")
         mesh = self._volume.extract(frame_id)
+        mesh.viewpoints = self.viewpoints()
         self.stats.faces_raw = mesh.num_faces
         if mesh.num_faces == 0:
             raise PerchError(f"the volume holds no surface after {self.stats.frames_integrated} frames "
