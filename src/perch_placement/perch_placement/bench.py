@@ -35,6 +35,11 @@ def register(sub) -> None:
                              "(fitness, expected, kview, worst_case): fitness, expected fitness under landing "
                              "error, k-view coverage, worst single-camera loss, certificate gap, seconds; "
                              "with it, --methods defaults to none")
+    parser.add_argument("--reference-grid", default="", metavar="SPACING,ANGLES",
+                        help="grid of the kview and worst_case references (default: the candidate set's)")
+    parser.add_argument("--expected-reference-grid", default="0.3,5", metavar="SPACING,ANGLES",
+                        help="grid of the expected objective's reference: it scores every candidate under "
+                             "landing.search_samples landings, that many times the work (default 0.3,5)")
     parser.add_argument("--json", action="store_true", help="print JSON (always on; kept for scripts)")
     parser.add_argument("--table", help="write the markdown table here (default: stderr)")
     parser.set_defaults(func=run)
@@ -78,9 +83,11 @@ def run(args: argparse.Namespace) -> int:
                   f"median {per_count[str(k)]['seconds_median']:.3f} s", file=sys.stderr)
         result["methods"][method] = per_count
     if objectives:
+        grids = {"expected": _grid(args.expected_reference_grid), "kview": _grid(args.reference_grid),
+                 "worst_case": _grid(args.reference_grid)}
         result["objectives"] = compare_objectives(problem, config, cache, objectives, args.cameras, args.seeds,
-                                                  args.reference)
-    if args.reference:
+                                                  args.reference, grids)
+    if args.reference and (methods or not objectives):  # with objectives only, each row has its own
         result["reference"] = _reference(problem, config, cache, args.cameras, dense)
     if args.bound_check:
         from perch_placement.optimality import bound_check_suite
@@ -99,12 +106,21 @@ def run(args: argparse.Namespace) -> int:
     return emit(result)
 
 
+def _grid(text: str) -> tuple[float | None, int | None]:
+    """'SPACING,ANGLES' as numbers; (None, None) when empty (the reference's default grid)."""
+    if not text.strip():
+        return None, None
+    spacing, angles = text.split(",")
+    return float(spacing), int(angles)
+
+
 def parser_default_methods() -> str:
     """The --methods default (an explicit --methods with --objectives still runs the methods)."""
     return "pso,random,grid,naive,celf"
 
 
-def compare_objectives(problem, config, cache, objectives: list, k: int, seeds: int, with_reference: bool = False) -> dict:
+def compare_objectives(problem, config, cache, objectives: list, k: int, seeds: int, with_reference: bool = False,
+                       grids: dict | None = None) -> dict:
     """Greedy PSO with each objective at k cameras over `seeds` seeds; every arrangement is assessed
     with the same landing samples (the configured model and seed: common random numbers). With
     `with_reference`, each objective's exhaustive greedy reference (perch_placement.core.reference) and
@@ -142,10 +158,15 @@ def compare_objectives(problem, config, cache, objectives: list, k: int, seeds: 
             "expected_fitness_per_seed": [x.expected_fitness for x in a],
             "objective_mean": float(np.mean([objective_value(x, cfg) for x in a]))}
         if with_reference:
-            ref = reference(problem.mesh, problem.regions, problem.target, k, cfg, cache)
+            spacing, angles = (grids or {}).get(objective, (None, None))
+            ref = reference(problem.mesh, problem.regions, problem.target, k, cfg, cache, spacing, angles)
             out[objective].update({
                 "reference_objective": ref.objective, "reference_fitness": ref.fitness[-1] if ref.fitness else 0.0,
                 "reference_candidates": ref.candidates, "reference_seconds": ref.seconds,
+                "reference_grid": [spacing or (config.reference_spacing if objective == "fitness" else
+                                               config.candidate_spacing),
+                                   angles or (config.reference_angles if objective == "fitness" else
+                                              config.candidate_angles)],
                 "objective_ratio_to_reference": out[objective]["objective_mean"] / max(ref.objective, 1e-12)})
         print(f"objective {objective}: fitness {out[objective]['fitness_mean']:.4f} expected "
               f"{out[objective]['expected_fitness_mean']:.4f} median {out[objective]['seconds_median']:.3f} s",

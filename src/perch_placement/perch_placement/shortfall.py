@@ -49,10 +49,18 @@ def _greedy_packing(cloud: np.ndarray, min_spacing: float) -> np.ndarray:
     (indices into cloud)."""
     centred = cloud - cloud.mean(axis=0)
     axis = np.linalg.svd(centred, full_matrices=False)[2][0]
+    order = np.argsort(centred @ axis, kind="stable")
+    ordered = cloud[order]
+    # A point is taken when no earlier taken point is closer than min_spacing: walk to the next point
+    # not yet blocked, take it, block its neighbours (one vectorised distance per drone, not per point).
+    blocked = np.zeros(len(order), bool)
     taken: list[int] = []
-    for i in np.argsort(centred @ axis, kind="stable"):
-        if not taken or np.min(np.linalg.norm(cloud[taken] - cloud[i], axis=1)) >= min_spacing - 1e-9:
-            taken.append(int(i))
+    at = 0
+    while at < len(order):
+        taken.append(int(order[at]))
+        blocked |= np.linalg.norm(ordered - ordered[at], axis=1) < min_spacing - 1e-9
+        free = np.flatnonzero(~blocked[at + 1:])
+        at = at + 1 + int(free[0]) if len(free) else len(order)
     return np.array(taken, np.int64)
 
 

@@ -166,7 +166,8 @@ def packed_greedy(ctx: SearchContext, k: int, base: tuple, placed: int = 0) -> l
     sit where each alone sees best and leave no spot min_spacing from all of them, although the
     region holds more. Starting from a packing keeps room for every camera. Leaves the evaluator
     holding the answer (plane encoding only; [] otherwise, and [] without touching the evaluator when
-    the packing holds no more than the `placed` cameras greedy found)."""
+    the packing holds no more than the `placed` cameras greedy found; [] with the evaluator holding the
+    base state as soon as it cannot place more than them: the caller keeps greedy's answer then)."""
     if ctx.perches.encoding != "plane":
         return []
     plane, cfg = ctx.perches, ctx.config
@@ -182,6 +183,8 @@ def packed_greedy(ctx: SearchContext, k: int, base: tuple, placed: int = 0) -> l
     encodings: list[np.ndarray] = []
     free = np.ones(len(positions), bool)
     while len(encodings) < k and free.any():
+        if len(encodings) + free.sum() <= placed:
+            break  # cannot place more than greedy did: the caller keeps greedy's answer
         spots = np.flatnonzero(free)
         x = np.column_stack([np.repeat(positions[spots], len(gimbal), axis=0), np.tile(gimbal, (len(spots), 1))])
         f = ctx.objective(x)
@@ -193,6 +196,9 @@ def packed_greedy(ctx: SearchContext, k: int, base: tuple, placed: int = 0) -> l
         commit(ctx, plane.decode(best))
         encodings.append(best)
         free[spots[j // len(gimbal)]] = False
+    if len(encodings) <= placed:  # no better than greedy's answer, which the caller keeps
+        _restore(ctx, base, [])
+        return []
     for i in range(len(encodings)):  # each camera polished with the others fixed
         _restore(ctx, base, [plane.decode(e) for n, e in enumerate(encodings) if n != i])
         f0 = float(ctx.objective(encodings[i][None])[0])
