@@ -121,3 +121,19 @@ def test_the_review_desk_checks_crops():
     request.crop_boxes[0].pose.orientation.w = 1.0
     with pytest.raises(ValueError, match="crop box for surface 3: crop box size must be positive"):
         review_crops(request)
+
+
+def test_the_command_line_crop_spec():
+    from perch_common.errors import PerchError
+    from perch_common.ros.conversions import box_from_msg
+    from perch_operator.cli.commands import parse_crop
+
+    surface_id, box = parse_crop("3:1.0,0.5,1.2,2.0,0.3,1.5,90")
+    center, size, rotation = box_from_msg(box)
+    assert surface_id == 3
+    np.testing.assert_allclose(center, [1.0, 0.5, 1.2], atol=1e-6)
+    np.testing.assert_allclose(size, [2.0, 0.3, 1.5], atol=1e-6)
+    np.testing.assert_allclose(rotation @ [1.0, 0, 0], [0, 1.0, 0], atol=1e-6)   # yaw 90 deg: box x = world y
+    for bad in ("x:1,2,3,4,5,6", "3:1,2,3", "3:1,2,3,4,0,6", "3:1,2,3,4,nan,6"):
+        with pytest.raises(PerchError, match="--crop"):
+            parse_crop(bad)

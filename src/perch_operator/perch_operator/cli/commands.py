@@ -30,6 +30,9 @@ def register(sub) -> None:
     review.add_argument("id", type=int, help="review id (published on /perch/surface_review)")
     review.add_argument("--reject", default="", help="comma-separated surface ids to reject; none: approve all")
     review.add_argument("--reason", default="")
+    review.add_argument("--crop", action="append", default=[], metavar="ID:CX,CY,CZ,SX,SY,SZ[,YAW_DEG]",
+                        help="approve surface ID trimmed to the part inside this box (input frame, metres; "
+                             "faces with their centroid inside are kept); repeat for several surfaces")
     review.set_defaults(func=_review)
     cancel = actions.add_parser("cancel", help="cancel the running mission (e.g. one whose client is stuck)")
     cancel.add_argument("--timeout", type=float, default=10.0, help="seconds to wait for the coordinator")
@@ -72,15 +75,50 @@ def _review(args) -> int:
         rejected = [int(t) for t in args.reject.replace(" ", "").split(",") if t]
     except ValueError:
         raise PerchError(f"--reject '{args.reject}': give surface ids like 3,5") from None
-    _call_and_report(ReviewSurfaces, "perch/review_surfaces",
-                     ReviewSurfaces.Request(review_id=args.id, rejected_surface_ids=rejected, reason=args.reason),
-                     timeout=30)
+    request = ReviewSurfaces.Request(review_id=args.id, rejected_surface_ids=rejected, reason=args.reason)
+    for spec in args.crop:
+        surface_id, box = parse_crop(spec)
+        request.cropped_surface_ids.append(surface_id)
+        request.crop_boxes.append(box)
+    _call_and_report(ReviewSurfaces, "perch/review_surfaces", request, timeout=30)
     return 0
 
 
+def parse_crop(spec: str):
+    """(surface id, OrientedBox) of a `--crop ID:CX,CY,CZ,SX,SY,SZ[,YAW_DEG]` (yaw about z, degrees)."""
+    import math
+
+    import numpy as np
+
+    from perch_common.ros.conversions import pose_msg, vector_msg
+    from perch_interfaces import msg as pm
+
+    head, _, numbers = spec.partition(":")
+    try:
+        surface_id = int(head)
+        values = [float(v) for v in numbers.split(",")]
+    except ValueError:
+        raise PerchError(f"--crop '{spec}': give ID:CX,CY,CZ,SX,SY,SZ[,YAW_DEG], e.g. 3:1.0,0.0,1.2,2.0,0.3,1.5") \
+            from None
+    if len(values) not in (6, 7) or min(values[3:6]) <= 0 or not all(map(math.isfinite, values)):
+        raise PerchError(f"--crop '{spec}': give the centre, three positive sizes and optionally a yaw "
+                         "(ID:CX,CY,CZ,SX,SY,SZ[,YAW_DEG])")
+    yaw = math.radians(values[6]) if len(values) == 7 else 0.0
+    pose = np.eye(4)
+    pose[:3, :3] = [[math.cos(yaw), -math.sin(yaw), 0], [math.sin(yaw), math.cos(yaw), 0], [0, 0, 1]]
+    pose[:3, 3] = values[:3]
+    return surface_id, pm.OrientedBox(pose=pose_msg(pose), size=vector_msg(values[3:6]))
+
+
 def _cancel(args) -> int:
-    """Cancel every running mission through the action's standard cancel service (zero goal id: all)."""
+    """Cancel every running mission through the action's standard cancel service (zero goal id: all);
+    under --network (PERCH_NETWORK=1) with the signed cancel of each mission the coordinator lists."""
     from action_msgs.srv import CancelGoal
+
+    from perch_common.network_auth import networked
+
+    if networked():   # the coordinator refuses the standard cancel: it carries no token
+        return _with_node("perch_operator_cancel", lambda node: _cancel_signed(node, args.timeout))
 
     from perch_common.ros.testing import call_service
     from perch_operator.api.client import ACTION
@@ -101,6 +139,47 @@ def _cancel(args) -> int:
         raise PerchError(f"the coordinator refused to cancel (return code {reply.return_code})")
 
     return _with_node("perch_operator_cancel", body)
+
+
+STATUS_SETTLE = 2.0   # s after the coordinator is listed for its latched goal list to arrive (none: no goal yet)
+
+
+def _cancel_signed(node, timeout: float) -> int:
+    """The networked graph's cancel: the coordinator's goal list (latched) names the running missions,
+    and each gets the signed cancel (perch_operator.api.client.MissionCanceller)."""
+    import rclpy
+    from action_msgs.msg import GoalStatus
+    from unique_identifier_msgs.msg import UUID
+
+    from perch_operator.api.client import GoalStatusWatch, MissionCanceller
+
+    statuses, signed = GoalStatusWatch(node), MissionCanceller(node)
+    try:
+        deadline, listed = time.monotonic() + timeout, None
+        while not statuses.status and (listed is None or time.monotonic() - listed < STATUS_SETTLE):
+            if time.monotonic() > deadline:
+                raise PerchError(f"no mission coordinator answered within {timeout:g} s; is the graph running "
+                                 "(`perch launch --network`), and is this host on its network?")
+            if listed is None and GoalStatusWatch.writers_of(node):
+                listed = time.monotonic()
+            rclpy.spin_once(node, timeout_sec=0.1)
+        running = [goal for goal, status in statuses.status.items()
+                   if status in (GoalStatus.STATUS_ACCEPTED, GoalStatus.STATUS_EXECUTING)]
+        if not running:
+            print("no mission is running")
+            return 0
+        for goal in running:
+            if not signed.cancel(UUID(uuid=list(goal)), "perch operator cancel", lambda g=goal: statuses.status[g],
+                                 wait=timeout):
+                raise PerchError(f"the coordinator did not take the signed cancel of mission {goal.hex()} within "
+                                 f"{timeout:g} s: its log says why (another key than PERCH_KEY_FILE's, clocks "
+                                 "further apart than the token window)")
+        print(f"cancelling {len(running)} mission(s) (signed); the coordinator stops the stage work in "
+              "progress and is free for the next goal")
+        return 0
+    finally:
+        signed.destroy()
+        statuses.destroy()
 
 
 def _call_and_report(srv_type, name: str, request, timeout: float):
