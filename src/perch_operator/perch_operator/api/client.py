@@ -35,6 +35,7 @@ class CoordinatorGone(PerchError):
 
 
 CANCEL_WAIT = 5.0   # s for the coordinator to answer a cancel
+CANCEL_RESEND = 1.0   # s between signed cancels until the coordinator lists the goal as cancelling (a fresh token each)
 
 
 def _spin_until(node, future, deadline: float, what: str, gone: Callable[[], str] | None = None) -> None:
@@ -47,9 +48,66 @@ def _spin_until(node, future, deadline: float, what: str, gone: Callable[[], str
         rclpy.spin_until_future_complete(node, future, timeout_sec=0.1)
 
 
-def _cancel_or_say_why_not(node, handle) -> None:
-    """Ask the coordinator to cancel the goal; when it refuses (a networked graph takes no unsigned
-    cancel) or does not answer, say so, and let the caller's own error (Ctrl-C, time limit) stand."""
+class MissionCanceller:
+    """The signed mission cancel of a networked graph (PERCH_NETWORK=1), whose coordinator refuses the
+    action's standard cancel (it has no room for a token).
+
+    It travels on the stage-cancel topic (perch_interfaces/StageCancel, signed and checked as for stage
+    calls): `service` the mission action, `request_id` the mission's goal id (32 hex digits), `auth` an
+    HMAC token over both and the reason. The coordinator takes it once (a replayed token is refused) and
+    only for the mission it runs, and then lists the goal as cancelling. Make it with the action client,
+    so that it has matched the coordinator by the time it is needed."""
+
+    def __init__(self, node, callback_group=None):
+        from perch_common.ros.service import CANCEL_TOPIC
+        from perch_interfaces.msg import StageCancel
+
+        self.node = node
+        self._msg = StageCancel
+        self.publisher = node.create_publisher(StageCancel, CANCEL_TOPIC, 10, callback_group=callback_group)
+
+    def send(self, goal_id: UUID, reason: str) -> None:
+        """Publish one signed cancel of the mission `goal_id` (a new token each second)."""
+        from perch_common.network_auth import sign_if_networked
+
+        mission = bytes(bytearray(goal_id.uuid)).hex()
+        self.publisher.publish(self._msg(service=MISSION_ACTION, request_id=mission, reason=reason,
+                                         auth=sign_if_networked("stage_cancel", MISSION_ACTION, mission, reason)))
+
+    def cancel(self, goal_id: UUID, reason: str, status: Callable[[], int], wait: float = CANCEL_WAIT,
+               step: Callable[[], None] | None = None) -> bool:
+        """Send the cancel (again every CANCEL_RESEND s, each with a fresh token, while unanswered) until
+        `status()` (the goal's status as the coordinator lists it) is cancelling or ended; whether it was
+        within `wait` s. `step` waits a moment (default: spin the node 0.1 s)."""
+        from action_msgs.msg import GoalStatus
+
+        running = (GoalStatus.STATUS_UNKNOWN, GoalStatus.STATUS_ACCEPTED, GoalStatus.STATUS_EXECUTING)
+        deadline, sent = time.monotonic() + wait, None
+        while status() in running:
+            now = time.monotonic()
+            if now > deadline:
+                return False
+            if sent is None or now - sent >= CANCEL_RESEND:
+                self.send(goal_id, reason)
+                sent = now
+            (step or (lambda: rclpy.spin_once(self.node, timeout_sec=0.1)))()
+        return True
+
+    def destroy(self) -> None:
+        """Stop publishing."""
+        self.node.destroy_publisher(self.publisher)
+
+
+def _cancel_or_say_why_not(node, handle, signed: MissionCanceller | None = None, reason: str = "") -> None:
+    """Ask the coordinator to cancel the goal (signed when `signed` is given: a networked graph); when
+    it refuses or does not answer, say so, and let the caller's own error (Ctrl-C, time limit) stand."""
+    if signed is not None:
+        if not signed.cancel(handle.goal_id, reason, lambda: handle.status):
+            node.get_logger().warning(
+                f"the coordinator did not take the signed cancel within {CANCEL_WAIT:.0f} s (its log says why: "
+                "another key, clocks further apart than the token window, or the link is down); the mission ends "
+                "when it notices its client has left (parameter client_grace)")
+        return
     cancel = handle.cancel_goal_async()
     try:
         _spin_until(node, cancel, time.monotonic() + CANCEL_WAIT, "cancelling the mission")
@@ -65,8 +123,11 @@ def _cancel_or_say_why_not(node, handle) -> None:
 def run_mission(node, goal: PlanPerches.Goal, timeout: float = 600.0, server_wait: float = 30.0,
                 on_feedback: Callable[[PlanPerches.Feedback], None] | None = None) -> PlanPerches.Result:
     """Run one mission on the live graph and return its result (success or not)."""
+    from perch_common.network_auth import networked
+
     client = ActionClient(node, PlanPerches, ACTION)
     statuses = GoalStatusWatch(node)
+    signed = MissionCanceller(node) if networked() else None   # a networked graph takes signed cancels only
     try:
         if not client.wait_for_server(timeout_sec=server_wait):
             raise PerchError(f"no mission coordinator: action {ACTION} did not appear within {server_wait:.0f} s; "
@@ -87,11 +148,14 @@ def run_mission(node, goal: PlanPerches.Goal, timeout: float = 600.0, server_wai
         except CoordinatorGone as exc:
             node.get_logger().error(str(exc))
             return PlanPerches.Result(success=False, message=str(exc))
-        except (TimeoutError, KeyboardInterrupt):
-            _cancel_or_say_why_not(node, handle)
+        except (TimeoutError, KeyboardInterrupt) as exc:
+            why = "interrupted (Ctrl-C)" if isinstance(exc, KeyboardInterrupt) else f"client time limit ({timeout:.0f} s)"
+            _cancel_or_say_why_not(node, handle, signed, f"perch plan: {why}")
             raise
         return result.result().result
     finally:
+        if signed is not None:
+            signed.destroy()
         statuses.destroy()
         client.destroy()
 
@@ -105,6 +169,7 @@ class GoalStatusWatch:
 
         self.node = node
         self.accepted: dict[bytes, object] = {}   # goal id -> the time the coordinator accepted it
+        self.status: dict[bytes, int] = {}        # goal id -> its latest status (action_msgs/GoalStatus)
         self.topic = node.resolve_topic_name(MISSION_STATUS_TOPIC)
         self.servers: dict[bytes, str] = {}       # the accepting coordinator's status writer GIDs -> node
         self._current: dict[bytes, str] = {}
@@ -155,6 +220,7 @@ class GoalStatusWatch:
     def _on_status(self, msg) -> None:
         for status in msg.status_list:
             self.accepted.setdefault(bytes(status.goal_info.goal_id.uuid), status.goal_info.stamp)
+            self.status[bytes(status.goal_info.goal_id.uuid)] = status.status
 
     def destroy(self) -> None:
         """Stop listening."""

@@ -59,6 +59,11 @@ class PerchCommander:
         self._lock = threading.Lock()
         self._action = ActionClient(self.node, PlanPerches, MISSION_ACTION, callback_group=self._group)
         self._confirm = self.node.create_client(srv.Confirm, CONFIRM_SERVICE, callback_group=self._group)
+        from perch_common.network_auth import networked
+        from perch_operator.api.client import MissionCanceller
+
+        # a networked graph refuses the action's unsigned cancel: cancelMission() sends the signed one
+        self._signed = MissionCanceller(self.node, callback_group=self._group) if networked() else None
         latched = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self._proposal_sub = self.node.create_subscription(pm.Proposal, "perch/proposals", self._on_proposal,
@@ -117,10 +122,18 @@ class PerchCommander:
             return self._feedback
 
     def cancelMission(self) -> None:
-        """Ask the coordinator to cancel the running mission (it ends as CANCELED)."""
+        """Ask the coordinator to cancel the running mission (it ends as CANCELED). Under --network
+        (PERCH_NETWORK=1) the cancel is signed with the graph's key; an own node spins until the
+        coordinator lists the mission as cancelling (10 s at most), with spin=False it is sent once."""
         with self._lock:
             handle = self._goal_handle
-        if handle is not None and self._status == MissionResult.UNKNOWN:
+        if handle is not None and self._status == MissionResult.UNKNOWN and self._signed is not None:
+            reason = "PerchCommander.cancelMission()"
+            if self.spin:
+                self._signed.cancel(handle.goal_id, reason, lambda: handle.status, wait=10.0, step=self._spin_or_sleep)
+            else:
+                self._signed.send(handle.goal_id, reason)
+        elif handle is not None and self._status == MissionResult.UNKNOWN:
             future = handle.cancel_goal_async()
             if self.spin:
                 rclpy.spin_until_future_complete(self.node, future, timeout_sec=10.0)
@@ -153,6 +166,8 @@ class PerchCommander:
     def destroy(self) -> None:
         """Release the commander's clients (and its node when it made one)."""
         self._action.destroy()
+        if self._signed is not None:
+            self._signed.destroy()
         self.node.destroy_client(self._confirm)
         self.node.destroy_subscription(self._proposal_sub)
         if self._owns_node:

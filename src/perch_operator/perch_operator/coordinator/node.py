@@ -14,6 +14,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 from geometry_msgs.msg import PoseArray
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.action.server import GoalEvent, RCLError
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -107,6 +108,13 @@ class OperatorNode(Node):
         self._view_worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="perch-views")
         self.action = ActionServer(self, PlanPerches, MISSION_ACTION, self._execute, callback_group=group,
                                    goal_callback=self._on_goal, cancel_callback=self._on_cancel)
+        # A networked graph's mission cancel: signed, on the stage-cancel topic (see _on_mission_cancel).
+        from perch_common.network_auth import ReplayGuard
+        from perch_common.ros.service import CANCEL_TOPIC
+
+        self._running_goal = None   # the running mission's goal handle
+        self._cancels_taken = ReplayGuard()
+        self.create_subscription(pm.StageCancel, CANCEL_TOPIC, self._on_mission_cancel, 10, callback_group=group)
         self.operator: Operator | None = None
         # Progress inside a long stage: the reconstruction's frame counters become mission feedback.
         self._running_mission: Mission | None = None
@@ -158,15 +166,43 @@ class OperatorNode(Node):
 
     def _on_cancel(self, goal_handle) -> CancelResponse:
         """Cancel requests are accepted on a host-only graph. A networked graph cannot authenticate the
-        action's standard cancel (it has no room for a token): it refuses it, and a mission ends when its
-        client leaves (Ctrl-C of `perch plan`: client_grace) or fails."""
+        action's standard cancel (it has no room for a token): it refuses it and takes the signed cancel
+        (_on_mission_cancel) that `perch plan`'s Ctrl-C, `perch operator cancel` and
+        PerchCommander.cancelMission send under --network."""
         from perch_common.network_auth import networked
 
         if networked():
-            self.get_logger().error("refused a mission cancel: a networked graph takes no unauthenticated cancel; "
-                                    "stop the mission's client instead (the mission then ends after client_grace)")
+            self.get_logger().error("refused an unsigned mission cancel: a networked graph takes signed cancels only "
+                                    "(`perch operator cancel` with the graph's key, PERCH_NETWORK=1)")
             return CancelResponse.REJECT
         return CancelResponse.ACCEPT
+
+    def _on_mission_cancel(self, msg: pm.StageCancel) -> str:
+        """The signed mission cancel: a StageCancel naming the mission action and the mission's goal id
+        (request_id, hex), with an HMAC token over both and the reason (perch_common.network_auth, as
+        for stage calls). Taken once (a replayed token is refused) and only for the mission running now;
+        unsigned ones only on a host-only graph. Stage cancels on the same topic are StageWork's.
+        Returns why it was refused ('' when taken)."""
+        from perch_common.network_auth import networked, refusal_if_networked
+
+        if msg.service.strip("/") != MISSION_ACTION:
+            return "not a mission cancel"
+        refused = refusal_if_networked(msg.auth, "stage_cancel", msg.service, msg.request_id, msg.reason)
+        handle = self._running_goal
+        if not refused and networked():
+            refused = self._cancels_taken.refusal(msg.auth)
+        if not refused and (handle is None or self._mission_text() != msg.request_id):
+            refused = (f"mission {msg.request_id or '(none named)'} is not running"
+                       + (f" (mission {self._mission_text()} is)" if handle is not None else ""))
+        if refused:
+            self.get_logger().error(f"refused a mission cancel: {refused}")
+            return refused
+        try:   # what the action server does with a cancel it accepts: the goal is now CANCELING
+            handle._update_state(GoalEvent.CANCEL_GOAL)
+        except RCLError:
+            return "the mission ended meanwhile"
+        self.get_logger().warning(f"mission {msg.request_id}: cancel taken ({msg.reason or 'no reason given'})")
+        return ""
 
     def _signed(self, msg: pm.PerchWaypointSet) -> pm.PerchWaypointSet:
         """The set with the coordinator's token when the graph is networked (the dispatcher checks it)."""
@@ -234,7 +270,7 @@ class OperatorNode(Node):
 
         mission = Mission(self.stages, options, self._next_proposal_id, feedback, cancelled,
                           self._publish_proposal, adopt, review, aligned)
-        self._running_mission = mission
+        self._running_mission, self._running_goal = mission, goal_handle
         try:
             result = mission.run(goal_handle.request)
             result.waypoints = [self._waypoint(p) for p in self.operator.book.accepted()]
@@ -257,7 +293,7 @@ class OperatorNode(Node):
             self.get_logger().error(f"mission failed: {exc}")
             return self._failed(mission, str(exc))
         finally:
-            self._running_mission = None
+            self._running_mission = self._running_goal = None
             if self._mission_state == "running":
                 self._mission_state = "cancelled" if goal_handle.is_cancel_requested else "failed"
             if self.operator is not None:
