@@ -18,7 +18,11 @@ MAIN_SERVICES = {"perch_operator": "/perch/crop", "perch_reconstruction": "/perc
 
 
 def missing_nodes() -> list[str]:
-    return [n for n in STAGE_NODES if importlib.util.find_spec(n) is None or importlib.util.find_spec(f"{n}.node") is None]
+    """Stage nodes with no installed `perch.nodes` entry point (or whose module cannot be found)."""
+    from importlib.metadata import entry_points
+
+    installed = {e.name: e.value.split(":")[0] for e in entry_points(group="perch.nodes")}
+    return [n for n in STAGE_NODES if n not in installed or importlib.util.find_spec(installed[n]) is None]
 
 
 def write_config(path: Path, changes: dict[str, dict] | None = None) -> Path:
@@ -130,3 +134,38 @@ def wait_gone_and_back(node, service: str, timeout: float = 60.0) -> None:
     """Wait until `service` is offered again, plus a moment for the graph to settle."""
     wait_service(node, service, timeout)
     time.sleep(0.5)
+
+
+@pytest.fixture
+def client_node(request):
+    """An rclpy node on an isolated domain for a test that starts its own graph ("<module>_client",
+    e.g. faults_client for test_faults); rclpy is shut down afterwards."""
+    from perch_common.ros import testing
+
+    testing.use_isolated_ros_env()
+    import rclpy
+
+    rclpy.init()
+    node = rclpy.create_node(f"{request.module.__name__.rsplit('.', 1)[-1].removeprefix('test_')}_client")
+    try:
+        yield node
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def poll_until(condition, timeout: float, what: str):
+    """The first truthy value of `condition()`, polled every 50 ms; AssertionError "{what} within N s" after `timeout`."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = condition()
+        if value:
+            return value
+        time.sleep(0.05)
+    raise AssertionError(f"{what} within {timeout:.0f} s")
+
+
+@pytest.fixture
+def wait_for():
+    """`wait_for(condition, timeout, what)`: conftest.poll_until, for tests that wait on the graph."""
+    return poll_until
