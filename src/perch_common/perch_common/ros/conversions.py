@@ -21,6 +21,7 @@ from perch_common.types import (
     Surface,
     SurfaceClass,
 )
+from perch_common.viewpoints import VIEWPOINT_COLUMNS, viewpoint_problem
 from perch_interfaces import msg as pm
 
 _TYPECODES = {np.float32: "f", np.float64: "d", np.uint32: "I", np.uint8: "B", np.int32: "i"}
@@ -81,6 +82,8 @@ def mesh_to_msg(mesh: Mesh, stamp=None) -> pm.TriangleMesh:
         msg.vertex_colors = to_array(mesh.vertex_colors, np.uint8)
     if mesh.vertex_normals is not None:
         msg.vertex_normals = to_array(mesh.vertex_normals, np.float32)
+    if mesh.viewpoints is not None:
+        msg.viewpoints = to_array(mesh.viewpoints, np.float64)
     return msg
 
 
@@ -95,8 +98,15 @@ def mesh_from_msg(msg: pm.TriangleMesh, what: str = "mesh") -> Mesh:
     for name, arr in (("vertex_colors", colors), ("vertex_normals", normals)):
         if arr is not None and len(arr) != len(vertices):
             raise MeshError(f"{what}: {name} has {len(arr)} entries for {len(vertices)} vertices")
+    views = None
+    if len(msg.viewpoints):
+        problem = viewpoint_problem(from_array(msg.viewpoints, np.float64))
+        if problem:
+            raise MeshError(f"{what}: {problem}")
+        views = from_array(msg.viewpoints, np.float64, VIEWPOINT_COLUMNS)
     return Mesh(vertices, from_array(msg.triangles, np.uint32, 3).astype(np.int64),
-                None if colors is None else colors.copy(), normals, frame_id=msg.header.frame_id or "map")
+                None if colors is None else colors.copy(), normals, frame_id=msg.header.frame_id or "map",
+                viewpoints=views)
 
 
 def msg_content_id(msg: pm.TriangleMesh) -> str:
@@ -104,7 +114,8 @@ def msg_content_id(msg: pm.TriangleMesh) -> str:
     from perch_common.mesh_cache import content_id
 
     return content_id(from_array(msg.vertices, np.float32), from_array(msg.triangles, np.uint32),
-                      from_array(msg.vertex_colors, np.uint8), from_array(msg.vertex_normals, np.float32))
+                      from_array(msg.vertex_colors, np.uint8), from_array(msg.vertex_normals, np.float32),
+                      from_array(msg.viewpoints, np.float64))
 
 
 def is_id_only(msg: pm.TriangleMesh) -> bool:
@@ -122,7 +133,7 @@ def _keep(msg: pm.TriangleMesh, what: str) -> Mesh:
     from perch_common.mesh_cache import PROCESS_CACHE
 
     mesh = mesh_from_msg(msg, what)
-    for values in (mesh.vertices, mesh.faces, mesh.vertex_colors, mesh.vertex_normals):
+    for values in (mesh.vertices, mesh.faces, mesh.vertex_colors, mesh.vertex_normals, mesh.viewpoints):
         if values is not None:
             values.flags.writeable = False   # shared by every request naming it: never changed in place
     PROCESS_CACHE.put(msg.content_id, mesh)
