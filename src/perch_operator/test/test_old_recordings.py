@@ -26,7 +26,8 @@ def old_event_bytes(vertices: np.ndarray, triangles: np.ndarray) -> bytes:
     stamp = t["builtin_interfaces/msg/Time"](sec=7, nanosec=9)
     mesh = t["perch_interfaces/msg/TriangleMesh"](
         header=t["std_msgs/msg/Header"](stamp=stamp, frame_id="map"), vertices=vertices, triangles=triangles,
-        vertex_colors=np.zeros(0, np.uint8), vertex_normals=np.zeros(0, np.float32), content_id="abc")
+        vertex_colors=np.zeros(0, np.uint8), vertex_normals=np.zeros(0, np.float32), content_id="abc",
+        viewpoints=np.zeros(0, np.float64))
     info = t["service_msgs/msg/ServiceEventInfo"](event_type=1, stamp=stamp, client_gid=np.arange(16, dtype=np.uint8),
                                                   sequence_number=42)
     event = t["perch_interfaces/srv/msg/Segment_Event"](
