@@ -8,17 +8,13 @@ launch --network`). Host A runs `perch launch --nodes perch_operator` and a miss
 file run as a script: a JSON-lines driver); host B runs the four stage nodes in one process.
 
 Missions across the link: a one-host baseline first (every node on host A), then a normal mission
-(same waypoints as the baseline), one whose stage host dies mid-mission (it must fail clearly
-within the 3 s lease + the coordinator's gone_grace), and one after the stage host came back with
-an empty mesh cache (the coordinator's id-only request is answered `mesh not cached` and the
-arrays are sent again). Timings go to the test's output (`-s`) and to `two_hosts_timings.json` in
-the test's temporary folder.
-
-Not here: a cancelled mission. A networked coordinator refuses the action's unauthenticated
-cancel, so a networked mission ends when its client leaves (client_grace); with the client on
-the other host that abort came in 2 of 4 runs on a loaded machine and never in the other two
-(no feedback reader left, as host A saw it): the coordinator's client watch (goal_watch.py)
-needs a look before a test can rely on it.
+(same waypoints as the baseline), one cancelled with the networked graph's signed cancel (the
+coordinator refuses the action's unsigned one), one whose client on host B is SIGKILLed mid-mission
+(the coordinator aborts it once the client's participant is gone: lease 3 s + client_grace), one
+whose stage host dies mid-mission (it must fail clearly within the 3 s lease + the coordinator's
+gone_grace), and one after the stage host came back with an empty mesh cache (the coordinator's
+id-only request is answered `mesh not cached` and the arrays are sent again). Timings go to the
+test's output (`-s`) and to `two_hosts_timings.json` in the test's temporary folder.
 
 Skips with the reason when network namespaces cannot be created (not root, no `ip`, no
 CAP_NET_ADMIN, as in most containers and CI runners).
@@ -48,7 +44,9 @@ STAGE_SERVICES = ["/perch/clean_mesh", "/perch/segment", "/perch/filter", "/perc
 COORDINATOR_SERVICES = ["/perch/crop"]
 SCENE_SEED, SCENE_KIND, CAMERAS = 3, "room", 3
 GONE_GRACE = 1.0      # s: the coordinator's gone_grace in this test (config default 2 s)
+CLIENT_GRACE = 2.0    # s: the coordinator's client_grace in this test (config default 5 s)
 LEASE = 3.0           # s: config/fastdds_network.xml's leaseDuration
+GOAL_CANCELED = 5     # action_msgs/GoalStatus.STATUS_CANCELED
 STEP_LIMIT = 180.0    # s: generous bound on any one step (a loaded 2-core machine), never a pass criterion
 
 
@@ -75,6 +73,7 @@ def _driver() -> int:
     from perch_common.ros.conversions import mesh_to_msg, target_to_msg
     from perch_common.scene_generator import generate_scene
     from perch_interfaces.action import PlanPerches
+    from perch_operator.api.client import MissionCanceller
     from perch_operator.coordinator.stages import STAGES
 
     def say(**event) -> None:
@@ -99,6 +98,7 @@ def _driver() -> int:
     rclpy.init()
     node = rclpy.create_node("two_hosts_driver")
     client = ActionClient(node, PlanPerches, MISSION_ACTION)
+    canceller = MissionCanceller(node)   # the signed cancel a networked coordinator takes
     # Whether a service is there: its server matched (the graph's name listing can keep a host's
     # services long after the host vanished: Fast DDS drops the participant, its endpoints linger).
     # The coordinator's own (crop) counts as there when its action server is: a crop client here
@@ -158,7 +158,16 @@ def _driver() -> int:
                 continue
             handle = sent.result()
             answer = handle.get_result_async()
-            done = spin_until(answer, deadline)
+            cancelled: list[float] = []
+            while not answer.done() and time.monotonic() < deadline:
+                rclpy.spin_once(node, timeout_sec=0.05)
+                if command.get("cancel") and announced and not cancelled:
+                    cancelled.append(time.monotonic())
+                    taken = canceller.cancel(handle.goal_id, "two-host test", lambda: handle.status,
+                                             wait=max(0.0, deadline - time.monotonic()),
+                                             step=lambda: rclpy.spin_once(node, timeout_sec=0.05))
+                    say(event="cancel", taken=taken, t=cancelled[0], seconds=time.monotonic() - cancelled[0])
+            done = answer.done()
             end = time.monotonic()
             if not done:
                 say(event="result", success=False, message="no result in time", seconds=end - start, t_end=end,
@@ -166,12 +175,13 @@ def _driver() -> int:
                 continue
             result = answer.result().result
             say(event="result", success=bool(result.success), message=result.message, seconds=end - start,
-                t_end=end,
+                t_end=end, status=int(answer.result().status),
                 waypoints=[[w.pose.pose.position.x, w.pose.pose.position.y, w.pose.pose.position.z,
                             w.pan, w.tilt] for w in result.waypoints],
                 stages=dict(zip(result.stage_names, result.stage_seconds)))
         elif command["cmd"] == "quit":
             break
+    canceller.destroy()
     client.destroy()
     node.destroy_node()
     rclpy.try_shutdown()
@@ -363,7 +373,7 @@ def test_missions_across_two_hosts(tmp_path, graph_parts):
         pytest.skip(f"two-host test needs network namespaces: {reason}")
     domain = int(os.environ.get("PERCH_TEST_DOMAIN") or 100 + os.getpid() % 100)
     graph_parts.write_config(tmp_path / "perch.yaml", {"perch_operator": {
-        "gone_grace": GONE_GRACE, "service_wait": 10.0}})
+        "gone_grace": GONE_GRACE, "client_grace": CLIENT_GRACE, "service_wait": 10.0}})
     timings: dict[str, float] = {}
     with TwoHosts(tmp_path, domain) as hosts:
         # One host: every node on host A (the same network profile), the baseline.
@@ -389,6 +399,39 @@ def test_missions_across_two_hosts(tmp_path, graph_parts):
         timings["two_host_clean_s"] = normal["stages"]["clean"]
         timings["added_s"] = normal["seconds"] - baseline["seconds"]
 
+        # Cancelled: the networked coordinator refuses the action's unsigned cancel; the driver sends
+        # the signed one (as `perch plan`'s Ctrl-C does) while segmentation runs on host B.
+        cancel: dict = {}
+        stopped = driver.mission(announce_at="segment", cancel=True,
+                                 on_event=lambda e: cancel.update(e) if e["event"] == "cancel" else None)
+        assert cancel.get("taken"), f"the coordinator never listed the mission as cancelling: {cancel}"
+        assert stopped["status"] == GOAL_CANCELED and "cancelled" in stopped["message"], stopped
+        timings["cancel_taken_s"] = cancel["seconds"]
+        timings["cancel_to_end_s"] = stopped["t_end"] - cancel["t"]
+
+        # The client dies: a client on host B is SIGKILLed while segmentation runs; the coordinator
+        # aborts the mission once the client's participant is gone (its lease) plus client_grace. Host
+        # A's client leaves first: any live action client of the mission action counts as the goal's
+        # (rclpy does not tell which client sent a goal), so it would keep the mission alive.
+        driver.send(cmd="quit")
+        assert driver.proc.wait(STEP_LIMIT) == 0
+        remote = Driver(hosts, log="driver_b", host="b")
+        remote.wait_services(COORDINATOR_SERVICES + STAGE_SERVICES)
+        coordinator_log = next((tmp_path / "coordinator_nodes").glob("*.log"))
+        offset = coordinator_log.stat().st_size
+        remote.send(cmd="mission", timeout=STEP_LIMIT, announce_at="segment")
+        remote.read("at_stage", STEP_LIMIT)
+        client_killed = time.monotonic()
+        hosts.kill(remote.proc)
+        aborted = _wait_for_line(coordinator_log, offset, ("mission aborted: the mission's client left",), STEP_LIMIT)
+        timings["client_loss_to_abort_s"] = aborted - client_killed
+        # the lease, the grace, a lease period of the lease check and the machine's load (the timing is reported)
+        assert aborted - client_killed <= LEASE + CLIENT_GRACE + LEASE + 30.0, aborted - client_killed
+        driver = Driver(hosts)
+        driver.wait_services(COORDINATOR_SERVICES + STAGE_SERVICES)
+        after = driver.mission()   # the coordinator is free again
+        assert after["success"], after["message"]
+        _same_waypoints(after["waypoints"], baseline["waypoints"])
 
         # The stage host drops dead while the filter runs: its link goes silent, no goodbye. (Its
         # processes live on behind the dead link until the mission failed: that the mission fails
