@@ -84,16 +84,28 @@ def compare(base: dict, new: dict) -> list[str]:
     return out
 
 
-def generated_case(name: str):
-    """(mesh, surfaces, target, up) of 'kind-seed[:holes]' on its ground-truth surfaces (as bench filter)."""
+def generated_case(name: str, cache: str | None = None):
+    """(mesh, surfaces, target, up) of 'kind-seed[:holes]' on its ground-truth surfaces (as bench filter);
+    kept in `cache` (a folder) when given: a building takes minutes to generate on a loaded machine."""
+    import pickle
+    from pathlib import Path
+
     from filtering_accuracy import filter_input_surfaces
 
+    from perch_common.mesh import Mesh
     from perch_common.scene_generator import generate_scene
 
+    path = Path(cache) / f"{name.replace(':', '_')}.pkl" if cache else None
+    if path is not None and path.is_file():
+        vertices, faces, surfaces, target, up = pickle.loads(path.read_bytes())
+        return Mesh(vertices, faces), surfaces, target, up
     spec, _, extra = name.partition(":")
     kind, _, seed = spec.rpartition("-")
     scene = generate_scene(int(seed), kind, holes=3 if extra == "holes" else 0)
-    return scene.mesh, filter_input_surfaces(scene), scene.target, scene.up
+    case = scene.mesh, filter_input_surfaces(scene), scene.target, scene.up
+    if path is not None:
+        path.write_bytes(pickle.dumps((scene.mesh.vertices, scene.mesh.faces, *case[1:])))
+    return case
 
 
 def real_case(name: str):
@@ -127,11 +139,11 @@ def real_case(name: str):
     return mesh, surfaces, target, np.array([0.0, 0.0, 1.0])
 
 
-def run_case(name: str, config=None) -> dict | None:
+def run_case(name: str, config=None, cache: str | None = None) -> dict | None:
     """The summary of one case (None when its data is absent)."""
     from perch_filtering.core import FilterConfig, filter_surfaces
 
-    case = real_case(name) if "." in name.partition(":")[0] else generated_case(name)
+    case = real_case(name) if "." in name.partition(":")[0] else generated_case(name, cache)
     if case is None:
         return None
     mesh, surfaces, target, up = case
@@ -149,6 +161,7 @@ def main(argv=None) -> int:
     rec = sub.add_parser("record")
     rec.add_argument("out")
     rec.add_argument("--cases", default=",".join(GENERATED + REAL))
+    rec.add_argument("--cache", help="folder keeping the generated scenes between runs")
     cmp_ = sub.add_parser("compare")
     cmp_.add_argument("base")
     cmp_.add_argument("new")
@@ -156,15 +169,15 @@ def main(argv=None) -> int:
     if args.cmd == "record":
         out = {}
         for name in args.cases.split(","):
-            summary = run_case(name)
+            summary = run_case(name, cache=args.cache)
             if summary is None:
                 print(f"{name}: data absent, skipped", file=sys.stderr)
                 continue
             out[name] = summary
             print(f"{name}: {len(summary['regions'])} regions, {summary['area']:.3f} m2, "
                   f"{summary['seconds']:.2f} s", file=sys.stderr)
-        with open(args.out, "w") as fh:
-            json.dump(out, fh, indent=1)
+            with open(args.out, "w") as fh:  # after every case: a long run keeps what it measured
+                json.dump(out, fh, indent=1)
         return 0
     base, new = json.load(open(args.base)), json.load(open(args.new))
     bad = 0
