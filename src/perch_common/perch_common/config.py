@@ -103,7 +103,7 @@ class StageNodeConfig(Generic[T]):
     # multi_storey), a triangle soup ~2 s: the default refuses a soup in under a minute and leaves a
     # normal scan 10-20x headroom for a loaded machine.
     work_budget_base: float = param(30.0, "work budget: seconds any call may take whatever its input", "s",
-                                    low=1.0, high=86400.0)
+                                    low=0.001, high=86400.0)
     work_budget_rate: float = param(0.2, "work budget: seconds added per 1000 faces of the call's input mesh "
                                     "(reconstruct: per bag frame, see work_budget_per_frame)", "s",
                                     low=0.0, high=3600.0)

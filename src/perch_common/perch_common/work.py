@@ -67,7 +67,8 @@ class WorkContext(CancelToken):
     def set_budget(self, seconds: float, size: str, hint: str = "") -> None:
         """Allow `seconds` from the call's start for an input described by `size` ('122,000 faces')."""
         self.deadline = self.started + float(seconds)
-        self.budget_reason = (f"{self.name} exceeded its work budget of {seconds:.0f} s for {size}"
+        shown = f"{seconds:.0f}" if seconds >= 10 else f"{seconds:.2g}"
+        self.budget_reason = (f"{self.name} exceeded its work budget of {shown} s for {size}"
                               + (f": {hint}" if hint else ""))
 
     def check(self, step: str = "") -> None:

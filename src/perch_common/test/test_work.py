@@ -63,7 +63,7 @@ def test_a_call_past_its_budget_stops_at_the_next_report_with_the_reason():
             clock.now += 1.0
             done.append(surface)
     assert done == [0, 1, 2, 3]   # stopped at the first step after 3.22 s
-    assert str(caught.value) == ("perch/filter exceeded its work budget of 3 s for 122,000 faces: "
+    assert str(caught.value) == ("perch/filter exceeded its work budget of 3.2 s for 122,000 faces: "
                                  "the mesh is likely a triangle soup; run `perch mesh info`")
 
 

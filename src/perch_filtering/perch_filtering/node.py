@@ -21,7 +21,7 @@ from perch_common.ros.conversions import (
 )
 from perch_common.ros.node_main import run_node
 from perch_common.ros.params import declare_config, read_config
-from perch_common.ros.service import answering, create_stage_service
+from perch_common.ros.service import answering, create_stage_service, set_work_budget
 from perch_common.transforms import parse_up_axis
 from perch_filtering.config import FilterConfig, FilterNodeConfig
 from perch_filtering.core import filter_surfaces
@@ -77,7 +77,9 @@ class FilterNode(Node):
         if not np.any(up):
             up = parse_up_axis(node_config.up_axis)
         surfaces = [surface_from_msg(s) for s in request.surfaces]
-        result = filter_surfaces(mesh_from_request(request.mesh, "environment mesh"), surfaces, target, up, config)
+        mesh = mesh_from_request(request.mesh, "environment mesh")
+        set_work_budget(self, node_config, mesh.num_faces)
+        result = filter_surfaces(mesh, surfaces, target, up, config)
         response.regions = [region_to_msg(r) for r in result.regions]
         classes = {s.id: int(s.surface_class) for s in result.surfaces}
         response.removals = [removal_to_msg(r) for r in result.removals]

@@ -18,7 +18,7 @@ from perch_common.ros.conversions import (
 )
 from perch_common.ros.node_main import run_node
 from perch_common.ros.params import declare_config, read_config
-from perch_common.ros.service import answering, create_stage_service
+from perch_common.ros.service import answering, create_stage_service, set_work_budget
 from perch_interfaces import srv
 from perch_placement.config import CameraSpec, DroneSpec, PlacementConfig, PlacementNodeConfig
 from perch_placement.core import PlacementCache, optimise
@@ -72,8 +72,11 @@ class PlacementNode(Node):
         if not request.regions:
             raise ValueError("no perch regions given: nothing to place cameras on")
         count = int(request.num_cameras) if request.num_cameras > 0 else config.num_cameras
+        mesh = mesh_from_request(request.mesh, "environment mesh")
+        set_work_budget(self, read_config(self, PlacementNodeConfig), mesh.num_faces,
+                        hint=f"placing {count} cameras on {len(request.regions)} perch regions took too long")
         result = optimise(
-            mesh_from_request(request.mesh, "environment mesh"),
+            mesh,
             [region_from_msg(r) for r in request.regions], target, count, config,
             fixed=[placement_from_msg(p) for p in request.fixed],
             exclusions=[exclusion_from_msg(z) for z in request.exclusions],

@@ -80,6 +80,9 @@ class ReconstructionNodeConfig(ReconstructionConfig, StageNodeConfig[Reconstruct
                                       "(no frame lost); false: best effort, matching camera drivers and "
                                       "`ros2 bag play`", read_only=True)
     compressed_images: bool = param(False, "colour and depth arrive as sensor_msgs/CompressedImage", read_only=True)
+    work_budget_per_frame: float = param(5.0, "work budget of a bag reconstruction: seconds per colour+depth "
+                                         "frame of the bag, on top of work_budget_base (cleaning a mesh uses "
+                                         "work_budget_rate per 1000 faces)", "s", low=0.0, high=3600.0)
     use_poses: bool = param(True, "live input: integrate the poses from pose_topic (false: RGB-D odometry)")
     gravity: list = param([0.0, 0.0, 0.0], "live input: gravity in the pose frame; zeros = estimate from floor/ceiling")
     queue_size: int = param(4, "frames waiting for integration; when full the OLDEST waiting frame is dropped "

@@ -23,8 +23,9 @@ from perch_common.frames import Alignment, aligned_frame_name
 from perch_common.ros.conversions import cached_mesh_to_msg, mesh_from_request, xyz
 from perch_common.ros.node_main import run_node
 from perch_common.ros.params import declare_config, read_config
-from perch_common.ros.service import answering, create_stage_service
+from perch_common.ros.service import answering, create_stage_service, set_work_budget
 from perch_common.ros.static_transforms import StaticTransformPublisher, alignment_to_msg
+from perch_common.work import report
 from perch_interfaces import msg as pm
 from perch_interfaces import srv
 from perch_reconstruction import images
@@ -224,10 +225,14 @@ class ReconstructionNode(Node):
         topics = BagTopics(c.color_topic, c.depth_topic, c.camera_info_topic, c.pose_topic)
 
         total = bag_frame_count(request.bag_path, topics)   # for the fraction within the stage
+        set_work_budget(self, c, total, "frames", per=1.0, rate=c.work_budget_per_frame,
+                        hint="the bag's frames are unusually slow to integrate (image size, voxel_size?)")
 
         def progress(stats) -> None:
             self._offline_status = bag_progress(request.bag_path, stats, total)
             self._publish_status()   # each checkpoint at once, not only on the timer: a fast bag shows its progress too
+            if total:
+                report(stats.frames_received / total, "frames")   # perch/stage_progress (perch_common.work)
 
         self._offline_status = bag_progress(request.bag_path, None, total)  # reading: counters at zero, frame unknown
 
@@ -255,6 +260,7 @@ class ReconstructionNode(Node):
             config = dataclasses.replace(config, target_faces=int(request.target_faces))
         gravity = xyz(request.gravity)
         given = mesh_from_request(request.mesh, "mesh to clean")
+        set_work_budget(self, current, given.num_faces)
         given.frame_id = request.mesh.header.frame_id or current.frame_id
         mesh, report = clean_mesh_with_report(given, gravity if np.any(gravity) else None, config)
         mesh.frame_id = aligned_frame_name(given.frame_id)

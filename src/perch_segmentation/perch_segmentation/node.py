@@ -11,7 +11,7 @@ from perch_common.conventions import STAGE_SERVICES
 from perch_common.ros.conversions import mesh_from_request, surface_to_msg, to_array
 from perch_common.ros.node_main import run_node
 from perch_common.ros.params import declare_config, read_config
-from perch_common.ros.service import answering, create_stage_service
+from perch_common.ros.service import answering, create_stage_service, set_work_budget
 from perch_interfaces import srv
 from perch_segmentation.config import SegmentationNodeConfig
 from perch_segmentation.core import segment_mesh
@@ -36,8 +36,10 @@ class SegmentationNode(Node):
 
     @answering
     def _segment(self, request: srv.Segment.Request, response: srv.Segment.Response) -> srv.Segment.Response:
-        config = read_config(self, SegmentationNodeConfig).stage_config()  # valid: checked when set
+        node_config = read_config(self, SegmentationNodeConfig)
+        config = node_config.stage_config()  # valid: checked when set
         mesh = mesh_from_request(request.mesh, "request mesh")
+        set_work_budget(self, node_config, mesh.num_faces)
         result = segment_mesh(mesh, config)
         response.surfaces = [surface_to_msg(s) for s in result.surfaces]
         response.face_labels = face_labels_array(result.face_labels)

@@ -175,14 +175,22 @@ class StageWork:
         release_memory()
 
 
-def set_work_budget(config, size: int, unit: str = "faces", hint: str = "", per: float = 1000.0) -> float:
-    """Give the current call its work budget: `config.work_budget_base + config.work_budget_rate x size / per`
-    seconds from its start (a StageNodeConfig's parameters); returns it (0: no budget, outside a call)."""
+SOUP_HINT = "the mesh is likely a triangle soup; run `perch mesh info`"
+
+
+def set_work_budget(node, config, size: int, unit: str = "faces", hint: str = SOUP_HINT, per: float = 1000.0,
+                    rate: float | None = None) -> float:
+    """Give the current call its work budget: `config.work_budget_base + rate x size / per` seconds from its
+    start (rate: `config.work_budget_rate` unless given); returns it (0 outside a call). The refusal names
+    the node's parameters to raise when the input is sound."""
     context = current()
     if context is None:
         return 0.0
-    seconds = work_budget(size, config.work_budget_base, config.work_budget_rate, per)
-    context.set_budget(seconds, f"{size:,} {unit}", hint)
+    rate = config.work_budget_rate if rate is None else rate
+    seconds = work_budget(size, config.work_budget_base, rate, per)
+    raise_it = (f"if the input is sound, raise {node.get_name()}'s work_budget_base or work_budget_rate "
+                f"(perch plan -p {node.get_name()}:work_budget_base:={max(2 * seconds, 60):.0f})")
+    context.set_budget(seconds, f"{size:,} {unit}", f"{hint}; {raise_it}" if hint else raise_it)
     return seconds
 
 
