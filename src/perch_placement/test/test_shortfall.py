@@ -61,3 +61,21 @@ def test_greedy_that_strands_room_is_completed_on_a_packing():
     one_more = optimise(mesh, [strip], target, 4)
     assert len(one_more.placements) == 3
     assert one_more.message.startswith("3 of 4 cameras: the only perch region, 0.66 m^2, holds 3 drone(s) 1 m apart")
+
+
+def test_principal_axis_packing_is_the_sequential_greedy_one():
+    """The vectorised packing takes exactly the points the one-point-at-a-time greedy along the
+    principal axis takes: each at least min_spacing from those taken before, every other point closer."""
+    from perch_placement.shortfall import _greedy_packing
+
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        cloud = np.round(rng.random((int(rng.integers(1, 600)), 3)) * [3.0, 1.0, 0.2] / 0.05) * 0.05
+        for spacing in (0.05, 0.4, 1.0):
+            centred = cloud - cloud.mean(axis=0)
+            order = np.argsort(centred @ np.linalg.svd(centred, full_matrices=False)[2][0], kind="stable")
+            expected: list[int] = []
+            for i in order:
+                if not expected or np.linalg.norm(cloud[expected] - cloud[i], axis=1).min() >= spacing - 1e-9:
+                    expected.append(int(i))
+            assert _greedy_packing(cloud, spacing).tolist() == expected
