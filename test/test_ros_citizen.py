@@ -301,3 +301,38 @@ def test_files_written_atomically_get_the_umasks_mode(tmp_path):
         assert (tmp_path / "private.yaml").stat().st_mode & 0o777 == 0o600
     finally:
         os.umask(previous)
+
+
+def test_mission_feedback_moves_inside_every_long_stage(graph, mission):
+    """Segmentation phases, filter surfaces and placement cameras reach the mission feedback as
+    stage_fraction (perch/stage_progress of the coordinator's own calls), and the bar moves with them."""
+    from perch_common.ros.conversions import mesh_to_msg, target_to_msg
+    from perch_common.scene_generator import generate_scene
+    from perch_interfaces.action import PlanPerches
+    from perch_operator.api.client import ProgressPrinter, run_mission
+
+    scene = generate_scene(3, "room")
+    received = []
+    printed = io.StringIO()
+    printer = ProgressPrinter(printed, tty=True)
+
+    def on_feedback(feedback):
+        received.append(feedback)
+        printer(feedback)
+
+    goal = PlanPerches.Goal(mesh=mesh_to_msg(scene.mesh), target=target_to_msg(scene.target),
+                            num_cameras=CAMERAS, auto_accept=True, seed=-1)
+    result = run_mission(graph.node, goal, timeout=300, on_feedback=on_feedback)
+    printer.close()
+    assert result.success, result.message
+    print("perch plan's progress bar, one line per update:\n" + "\n".join(
+        "  " + line.strip() for line in printed.getvalue().replace("\n", "\r").split("\r") if line.strip()))
+    for stage in ("segment", "filter", "optimise"):
+        inside = [f for f in received if f.stage == stage and 0.0 < f.stage_fraction < 1.0]
+        assert inside, (stage, [(f.stage, f.stage_fraction, f.message) for f in received])
+        within = [f.stage_fraction for f in inside]
+        assert within == sorted(within)
+    fractions = [f.fraction for f in received]
+    assert fractions == sorted(fractions) and fractions[-1] <= 1.0
+    optimise = [f.message for f in received if f.stage == "optimise" and f.stage_fraction > 0]
+    assert any(m.startswith("camera ") for m in optimise), optimise

@@ -100,7 +100,8 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
     validate_mesh(mesh, "environment mesh")
     up = validate_inputs(mesh, surfaces, target, up)
     clock = Laps()
-    # Progress (perch_common.work): shares of the call by phase, from a cProfile of a large scene.
+    # Progress (perch_common.work): shares of the call by phase, between a cProfile of a large scene and a
+    # generated room's mission (grid 15 %, raster 13 %, line of sight 32 %, reachability 16 %, observed 20 %).
     report(0.0, "flight grid")
     samples = mesh_samples(mesh, config.voxel_size)
     wall = is_wall([s.frame.normal for s in surfaces], up, config.class_angle_deg)
@@ -115,7 +116,7 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
     scene = ray_scene if ray_scene is not None else shared_ray_scene(mesh)
     centre = target.centroid()
     clock.lap("ray_scene")
-    report(0.2, "orientation")
+    report(0.15, "orientation")
     orientations = orient(winding_votes(mesh, surfaces),
                           visibility_scores(mesh, surfaces, grid, scene, centre, config.seed,
                                             config.los_offset))
@@ -125,21 +126,21 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
 
     kernel = window_kernel(config.window_width, config.window_height, config.cell, config.window_ellipse)
     work = [_raster_filters(s, mesh, samples, index, scene, up, floor_height, kernel, config)
-            for s in steps(oriented, "raster filters: surface", 0.25, 0.6)]
+            for s in steps(oriented, "raster filters: surface", 0.2, 0.45)]
     clock.lap("raster_filters")
-    for w in steps(work, "support: surface", 0.6, 0.65):
+    for w in steps(work, "support: surface", 0.45, 0.5):
         if w.raster is not None:
             _support(w, scene, kernel, config)
     clock.lap("support")
-    report(0.65, "line of sight")
+    report(0.5, "line of sight")
     patches = hole_patches(oriented, config.drone_radius)
     _visibility(work, scene, RayScene(patches) if patches is not None else None,
                 target.sample(config.visibility_points, seed=config.seed), config)
     clock.lap("line_of_sight")
-    report(0.8, "reachability")
+    report(0.7, "reachability")
     reached = _reachability([w for w in work if w.raster is not None], grid, scene.mesh, config)
     clock.lap("reachability")
-    for w, kept in steps(reached, "observed space: surface", 0.95, 0.99):
+    for w, kept in steps(reached, "observed space: surface", 0.85, 0.99):
         _observed(w, kept, scene, up, config, mesh.viewpoints)
     clock.lap("observed")
     regions: list[PerchRegion] = []
