@@ -36,13 +36,16 @@ class FilterConfig:
     max_support_rms: float = param(0.02, "largest RMS distance of the scanned surface under the window to the "
                                    "perch plane", "m", low=0.0, high=1.0)
     min_visible_share: float = param(0.2, "share of the target's sample points a perch must see", low=0.0, high=1.0)
+    visibility_per_volume: bool = param(True, "with a target of several volumes, min_visible_share is asked of "
+                                        "the volume a perch sees best (a building's volumes lie in different "
+                                        "rooms and storeys), not of all the target's points")
     visibility_points: int = param(64, "target sample points for the visibility share (seeded by seed)", low=1, high=100000)
     visibility_spacing: float = param(0.06, "grid on which visibility shares are ray cast and then "
                                       "interpolated bilinearly", "m", low=0.001, high=10.0)
     los_offset: float = param(0.02, "line-of-sight rays start this far in front of the surface", "m", low=0.0, high=1.0)
     plane_tolerance: float = param(0.03, "scanned surface within this of a window's perch plane supports it", "m",
                                    low=0.0, high=1.0)
-    surface_depth: float = param(0.06, "most depth in front of a surface's plane that counts as the scanned surface "
+    surface_depth: float = param(0.04, "most depth in front of a surface's plane that counts as the scanned surface "
                                  "itself (plane_tolerance plus 3 sigma of the surface's scan noise, capped here; support "
                                  "judges it under the window); farther geometry is an obstacle to the approach "
                                  "prism and the fall corridor", "m", low=0.0, high=1.0)

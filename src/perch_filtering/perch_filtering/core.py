@@ -134,8 +134,9 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
     clock.lap("support")
     report(0.5, "line of sight")
     patches = hole_patches(oriented, config.drone_radius)
-    _visibility(work, scene, RayScene(patches) if patches is not None else None,
-                target.sample(config.visibility_points, seed=config.seed), config)
+    target_points = target.sample(config.visibility_points, seed=config.seed)
+    _visibility(work, scene, RayScene(patches) if patches is not None else None, target_points,
+                _volume_groups(target, target_points, config), config)
     clock.lap("line_of_sight")
     report(0.7, "reachability")
     reached = _reachability([w for w in work if w.raster is not None], grid, scene.mesh, config)
@@ -332,16 +333,27 @@ def _roughness(surface: Surface, mesh: Mesh) -> float:
     return max(float(surface.rms_distance), float(np.sqrt(np.mean(depth ** 2))))
 
 
+def _volume_groups(target: TargetVolume, points: np.ndarray, config: FilterConfig) -> np.ndarray | None:
+    """(T, G) which target points lie in each of the target's G volumes; None for one volume (or when
+    visibility_per_volume is off): the share is then of all points."""
+    volumes = target.volumes()
+    if len(volumes) == 1 or not config.visibility_per_volume:
+        return None
+    return np.column_stack([v.contains(points) for v in volumes])
+
+
 def _visibility(work: list[_Work], scene: RayScene, patches: RayScene | None, target_points: np.ndarray,
-                config: FilterConfig) -> None:
-    """Filter 'line_of_sight': keep cells that see at least min_visible_share of the target points."""
+                groups: np.ndarray | None, config: FilterConfig) -> None:
+    """Filter 'line_of_sight': keep cells that see at least min_visible_share of the target points (of a
+    target of several volumes, of the volume they see best: a building's volumes lie in different rooms
+    and storeys, and no perch sees more than a few of them)."""
     live = [w for w in work if w.raster is not None and w.alive.any()]
     if not live:
         return
     # Start in front of the surface's own bumps: the configured offset plus three RMS deviations.
     shares = visible_shares([w.raster for w in live], [w.alive for w in live],
                             [config.los_offset + 3.0 * w.roughness for w in live], target_points, scene, patches,
-                            config.visibility_spacing)
+                            config.visibility_spacing, groups)
     for w, share in zip(live, shares):
         seen = w.alive & (share >= config.min_visible_share - 1e-6)
         w.removal.line_of_sight = float((w.alive & ~seen).sum() * w.raster.cell_area)

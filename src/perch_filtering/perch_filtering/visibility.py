@@ -17,9 +17,11 @@ from perch_filtering.raster import SurfaceRaster
 
 def visible_shares(rasters: list[SurfaceRaster], masks: list[np.ndarray], offsets: list[float],
                    target_points: np.ndarray, scene: RayScene, patches: RayScene | None,
-                   spacing: float) -> list[np.ndarray]:
+                   spacing: float, groups: np.ndarray | None = None) -> list[np.ndarray]:
     """Per raster, a float32 map of the share of `target_points` seen from each cell in its mask
-    (rays start `offset` in front of the plane; points behind the plane are not seen); 0 elsewhere."""
+    (rays start `offset` in front of the plane; points behind the plane are not seen); 0 elsewhere.
+    With `groups` ((T, G) bool: which points belong to each of G target volumes), the share of the
+    volume seen best."""
     nodes = []
     for k, (raster, mask) in enumerate(zip(rasters, masks)):
         step = max(1, int(round(spacing / raster.cell)))
@@ -35,7 +37,7 @@ def visible_shares(rasters: list[SurfaceRaster], masks: list[np.ndarray], offset
         uv = np.column_stack([raster.u0 + nc * step * raster.cell, raster.v0 + nr * step * raster.cell])
         origins.append(raster.frame.to_world(uv) + offset * raster.frame.normal)
         normals.append(np.repeat(raster.frame.normal[None], len(uv), axis=0))
-    share = _shares(np.concatenate(origins), np.concatenate(normals), target_points, scene, patches)
+    share = _shares(np.concatenate(origins), np.concatenate(normals), target_points, scene, patches, groups)
     out, first = [], 0
     for raster, mask, (step, need) in zip(rasters, masks, nodes):
         grid = np.zeros(need.shape, np.float32)
@@ -47,15 +49,19 @@ def visible_shares(rasters: list[SurfaceRaster], masks: list[np.ndarray], offset
 
 
 def _shares(origins: np.ndarray, normals: np.ndarray, targets: np.ndarray, scene: RayScene,
-            patches: RayScene | None) -> np.ndarray:
-    """Share of `targets` in front of each origin's plane with a free segment to it."""
+            patches: RayScene | None, groups: np.ndarray | None = None) -> np.ndarray:
+    """Share of `targets` in front of each origin's plane with a free segment to it (with `groups`:
+    the largest share of one group's targets)."""
     if len(origins) == 0:
         return np.zeros(0, np.float32)
     facing = np.einsum("tk,ok->ot", targets, normals) > np.einsum("ok,ok->o", origins, normals)[:, None]
     o_idx, t_idx = np.nonzero(facing)
     seen = np.zeros(facing.shape, bool)
     seen[o_idx, t_idx] = ~patched_occlusion(scene, patches, origins[o_idx], targets[t_idx])
-    return (seen.sum(axis=1) / len(targets)).astype(np.float32)
+    if groups is None:
+        return (seen.sum(axis=1) / len(targets)).astype(np.float32)
+    counts = seen.astype(np.float64) @ groups.astype(np.float64)
+    return (counts / np.maximum(groups.sum(axis=0), 1)).max(axis=1).astype(np.float32)
 
 
 def _bilinear(grid: np.ndarray, step: int, shape: tuple[int, int], mask: np.ndarray) -> np.ndarray:
