@@ -99,12 +99,13 @@ class StageNodeConfig(Generic[T]):
     introspection: bool = param(True, "publish service introspection events (requests and replies) for the recorder",
                                 read_only=True)
     # Work budget (perch_common.work): a call may work base + rate x (input faces / 1000) seconds, then it is
-    # refused naming the budget; measured rates are ~0.01-0.02 s per 1000 faces (filter, apartment and
-    # multi_storey), a triangle soup ~2 s: the default refuses a soup in under a minute and leaves a
-    # normal scan 10-20x headroom for a loaded machine.
-    work_budget_base: float = param(30.0, "work budget: seconds any call may take whatever its input", "s",
+    # refused naming the budget. Time is not proportional to faces alone (the filter: 0.01-0.02 s per 1000
+    # faces on the apartment and multi_storey, 0.4 s on a 38k-face generated room, which took over 38 s
+    # on the loaded test machine): the defaults guard against runaway input with several times a loaded
+    # normal run's time; a triangle soup (~2 s per 1000 faces) of 122k faces is refused at 181 s.
+    work_budget_base: float = param(120.0, "work budget: seconds any call may take whatever its input", "s",
                                     low=0.001, high=86400.0)
-    work_budget_rate: float = param(0.2, "work budget: seconds added per 1000 faces of the call's input mesh "
+    work_budget_rate: float = param(0.5, "work budget: seconds added per 1000 faces of the call's input mesh "
                                     "(reconstruct: per bag frame, see work_budget_per_frame)", "s",
                                     low=0.0, high=3600.0)
 

@@ -109,6 +109,36 @@ def span(low: float, high: float) -> Iterator[None]:
         context._spans.pop()
 
 
+CLI_BUDGET_ENV = "PERCH_WORK_BUDGET"   # seconds for a command-line stage run (perch segment/filter/optimise); 0: none
+
+
+@contextlib.contextmanager
+def command_budget(name: str, faces: int, hint: str = "the mesh is likely a triangle soup; run `perch mesh info`",
+                   on_progress: Callable[[float, str], None] | None = None) -> Iterator[WorkContext]:
+    """Run a command-line stage (`perch filter ...`) under the stage nodes' default work budget for `faces`
+    (StageNodeConfig's work_budget_base and work_budget_rate), or PERCH_WORK_BUDGET seconds when set."""
+    import dataclasses
+    import os
+
+    from perch_common.cancellation import cancellable
+    from perch_common.config import StageNodeConfig
+
+    defaults = {f.name: f.default for f in dataclasses.fields(StageNodeConfig)}
+    given = os.environ.get(CLI_BUDGET_ENV, "").strip()
+    try:
+        seconds = float(given) if given else work_budget(faces, defaults["work_budget_base"],
+                                                         defaults["work_budget_rate"])
+    except ValueError:
+        raise PerchError(f"{CLI_BUDGET_ENV}={given!r}: give the seconds a run may take (0: no budget)") from None
+    context = WorkContext(name, on_progress)
+    if seconds > 0:
+        context.set_budget(seconds, f"{faces:,} faces",
+                           f"{hint}; if the input is sound, run again with {CLI_BUDGET_ENV}={max(2 * seconds, 60):.0f} "
+                           f"(0: no budget)")
+    with cancellable(context):
+        yield context
+
+
 def current() -> WorkContext | None:
     """This thread's work context, None outside one (or under a bare CancelToken)."""
     token = current_token()
@@ -137,4 +167,5 @@ def steps(items: Iterable[T], phase: str, low: float = 0.0, high: float = 1.0) -
         context.report(high, phase, f"{total}/{total}")
 
 
-__all__ = ["BudgetExceeded", "Cancelled", "WorkContext", "current", "report", "span", "steps", "work_budget"]
+__all__ = ["BudgetExceeded", "Cancelled", "WorkContext", "command_budget", "current", "report", "span", "steps",
+           "work_budget"]

@@ -105,3 +105,19 @@ def test_a_span_maps_a_helpers_own_share_into_its_callers_phase():
     assert sent == [(0.2, "merge round 1/2"), (0.4, "merge round 2/2"), (0.6, "merge round 2/2"), (0.7, "surfaces")]
     with span(0.1, 0.2):   # outside a call: nothing to map
         report(0.5)
+
+
+def test_a_command_runs_under_the_nodes_default_budget_or_the_one_given(monkeypatch):
+    from perch_common.work import command_budget
+
+    monkeypatch.delenv("PERCH_WORK_BUDGET", raising=False)
+    with command_budget("perch filter", 122_000) as context:
+        assert context.deadline - context.started == pytest.approx(120.0 + 0.5 * 122)
+        checkpoint("the work")   # well within it
+    monkeypatch.setenv("PERCH_WORK_BUDGET", "0")
+    with command_budget("perch filter", 122_000) as context:
+        assert context.deadline == float("inf")
+    monkeypatch.setenv("PERCH_WORK_BUDGET", "soon")
+    with pytest.raises(Exception, match="PERCH_WORK_BUDGET='soon': give the seconds"):
+        with command_budget("perch filter", 10):
+            pass

@@ -82,6 +82,7 @@ def run(args) -> int:
     """Run `perch filter`; writes regions.json, surfaces.json and regions.ply."""
     from perch_common.outputs import refuse_overwriting_inputs
     from perch_common.surfaces_file import read_surfaces
+    from perch_common.work import command_budget
     from perch_filtering.core import filter_surfaces
     from perch_filtering.files import write_result
 
@@ -91,10 +92,11 @@ def run(args) -> int:
                                args.config])
     config, _ = load_config(args.config, args.param)
     mesh = load_mesh(args.mesh)
-    surfaces = segment_surfaces(mesh) if args.surfaces == "segment" else read_surfaces(args.surfaces)
-    target = target_from_args(args)
-    up = up_for_file(args.up, mesh, args.mesh).up  # filtering takes any up: outputs stay in the mesh's frame
-    result = filter_surfaces(mesh, surfaces, target, up, config)
+    with command_budget("perch filter", mesh.num_faces):   # a soup is refused in under a minute, not after minutes
+        surfaces = segment_surfaces(mesh) if args.surfaces == "segment" else read_surfaces(args.surfaces)
+        target = target_from_args(args)
+        up = up_for_file(args.up, mesh, args.mesh).up  # filtering takes any up: outputs stay in the mesh's frame
+        result = filter_surfaces(mesh, surfaces, target, up, config)
     paths = write_result(Path(args.output), result)
     print(result.message)
     for name, path in paths.items():

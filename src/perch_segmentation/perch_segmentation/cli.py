@@ -67,6 +67,7 @@ def run(args: argparse.Namespace) -> int:
     from perch_common.errors import PerchError
     from perch_common.outputs import refuse_overwriting_inputs
     from perch_common.surfaces_file import write_surfaces
+    from perch_common.work import command_budget
     from perch_segmentation.core import segment_mesh
     from perch_segmentation.io import output_paths, write_colored_mesh
 
@@ -85,7 +86,8 @@ def run(args: argparse.Namespace) -> int:
         up = up_for_file(args.up, mesh, args.mesh).up
         config = replace(config, up_axis=" ".join(f"{c:.9f}" for c in up))
     started = time.perf_counter()
-    result = segment_mesh(mesh, config)
+    with command_budget("perch segment", mesh.num_faces):   # a soup is refused in under a minute, not after minutes
+        result = segment_mesh(mesh, config)
     seconds = time.perf_counter() - started
     write_surfaces(surfaces_path, result.surfaces, source=str(args.mesh), frame_id=mesh.frame_id)
     write_colored_mesh(mesh_path, mesh, result.face_labels)

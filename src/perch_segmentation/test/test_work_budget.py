@@ -89,8 +89,8 @@ def test_a_call_over_its_work_budget_is_refused_with_the_reason_and_the_node_kee
     try:
         refused = _segment(node, mesh, "budget/1")
     finally:
-        _set(node, "work_budget_base", 30.0)
-        _set(node, "work_budget_rate", 0.2)
+        _set(node, "work_budget_base", 120.0)
+        _set(node, "work_budget_rate", 0.5)
     assert not refused.success
     assert refused.message.startswith(f"perch/segment exceeded its work budget of 0.001 s for {mesh.num_faces:,} "
                                       "faces: the mesh is likely a triangle soup; run `perch mesh info`; if the "
