@@ -108,9 +108,11 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
     walls = [s for s, is_a_wall in zip(surfaces, wall) if is_a_wall]
     rotation = grid_rotation(up, np.array([s.frame.normal for s in walls]) if walls else None,
                              np.array([s.area for s in walls]))
+    local = project(samples.points, rotation)  # one projection for the flight grid and the sample index
     grid = build_flight_grid(samples.points, rotation, target, config.voxel_size, config.drone_radius,
-                             config.max_voxels, config.seed)
-    index = SampleIndex(samples, rotation)
+                             config.max_voxels, config.seed, local)
+    index = SampleIndex(samples, rotation, local=local)
+    del local
     clock.lap("grid")
     report(0.12, "ray scene")
     scene = ray_scene if ray_scene is not None else shared_ray_scene(mesh)

@@ -24,8 +24,10 @@ def project(points: np.ndarray, axes: np.ndarray, origin: np.ndarray | None = No
 class SampleIndex:
     """Samples bucketed on a coarse grid (in a rotated frame) to fetch those near a box quickly."""
 
-    def __init__(self, samples: MeshSamples, rotation: np.ndarray, bucket: float = 0.5):
-        local = project(samples.points, rotation)
+    def __init__(self, samples: MeshSamples, rotation: np.ndarray, bucket: float = 0.5,
+                 local: np.ndarray | None = None):
+        """`local`: the samples already projected onto the rows of `rotation` (the flight grid's)."""
+        local = project(samples.points, rotation) if local is None else local
         self.rotation, self.bucket = rotation, bucket
         self.lo = local.min(axis=0)
         cells = np.floor((local - self.lo) / bucket).astype(np.int64)

@@ -72,9 +72,10 @@ def grid_rotation(up: np.ndarray, wall_normals: np.ndarray | None = None,
 
 
 def build_flight_grid(points: np.ndarray, rotation: np.ndarray, target: TargetVolume, voxel: float,
-                      drone_radius: float, max_voxels: int, seed: int = 0) -> FlightGrid:
-    """Occupancy from surface samples (spacing <= voxel), padded by one blocked layer."""
-    local = project(points, rotation)
+                      drone_radius: float, max_voxels: int, seed: int = 0, local: np.ndarray | None = None) -> FlightGrid:
+    """Occupancy from surface samples (spacing <= voxel), padded by one blocked layer. `local`: the
+    points already projected onto the rows of `rotation` (shared with the sample index)."""
+    local = project(points, rotation) if local is None else local
     lo = local.min(axis=0) - voxel  # one voxel of blocked shell around the mesh bounds
     shape = np.floor((local.max(axis=0) - lo) / voxel).astype(np.int64) + 2
     if int(np.prod(shape)) > max_voxels:
