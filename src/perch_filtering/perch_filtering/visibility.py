@@ -14,6 +14,8 @@ from perch_common.raycast import RayScene
 from perch_filtering.holes import patched_occlusion
 from perch_filtering.raster import SurfaceRaster
 
+CHUNK_PAIRS = 1 << 22  # origin-target pairs cast at once (~100 MB of float32 segments and temporaries)
+
 
 def visible_shares(rasters: list[SurfaceRaster], masks: list[np.ndarray], offsets: list[float],
                    target_points: np.ndarray, scene: RayScene, patches: RayScene | None,
@@ -55,9 +57,15 @@ def _shares(origins: np.ndarray, normals: np.ndarray, targets: np.ndarray, scene
     if len(origins) == 0:
         return np.zeros(0, np.float32)
     facing = np.einsum("tk,ok->ot", targets, normals) > np.einsum("ok,ok->o", origins, normals)[:, None]
-    o_idx, t_idx = np.nonzero(facing)
     seen = np.zeros(facing.shape, bool)
-    seen[o_idx, t_idx] = ~patched_occlusion(scene, patches, origins[o_idx], targets[t_idx])
+    # The rays go to Embree in float32: gathered in float32 (what the ray scene converts them to) and
+    # CHUNK_PAIRS at a time, a building's millions of sight lines cost a bounded few hundred MB.
+    origins32, targets32 = origins.astype(np.float32), targets.astype(np.float32)
+    step = max(1, CHUNK_PAIRS // max(len(targets), 1))
+    for first in range(0, len(origins), step):
+        o_idx, t_idx = np.nonzero(facing[first:first + step])
+        o_idx += first
+        seen[o_idx, t_idx] = ~patched_occlusion(scene, patches, origins32[o_idx], targets32[t_idx])
     if groups is None:
         return (seen.sum(axis=1) / len(targets)).astype(np.float32)
     counts = seen.astype(np.float64) @ groups.astype(np.float64)

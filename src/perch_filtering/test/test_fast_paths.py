@@ -104,3 +104,26 @@ def test_geometry_in_front_equals_the_simple_selection(room):
         np.testing.assert_array_equal(fast.height, height)
         checked += len(depth)
     assert checked > 10_000
+
+
+def test_sight_shares_in_chunks_equal_one_batch_of_float64_rays(room, monkeypatch):
+    """Chunked float32 sight lines give the shares of all pairs cast at once from float64 arrays."""
+    from perch_common.raycast import ray_scene
+    from perch_filtering import visibility
+
+    rng = np.random.default_rng(5)
+    scene = ray_scene(room.mesh)
+    lo, hi = room.mesh.vertices.min(axis=0), room.mesh.vertices.max(axis=0)
+    origins = lo + rng.random((3000, 3)) * (hi - lo)
+    normals = rng.normal(size=(3000, 3))
+    normals /= np.linalg.norm(normals, axis=1)[:, None]
+    targets = room.target.sample(64, seed=0)
+    facing = np.einsum("tk,ok->ot", targets, normals) > np.einsum("ok,ok->o", origins, normals)[:, None]
+    o_idx, t_idx = np.nonzero(facing)
+    seen = np.zeros(facing.shape, bool)
+    seen[o_idx, t_idx] = ~scene.occluded(origins[o_idx], targets[t_idx])
+    simple = (seen.sum(axis=1) / len(targets)).astype(np.float32)
+    monkeypatch.setattr(visibility, "CHUNK_PAIRS", 1000)
+    chunked = visibility._shares(origins, normals, targets, scene, None)
+    np.testing.assert_array_equal(chunked, simple)
+    assert 0.05 < (simple > 0).mean() < 0.95
