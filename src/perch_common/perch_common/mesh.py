@@ -276,7 +276,11 @@ def load_mesh(path: str | Path, validate: bool = True, scale: float = 1.0) -> Me
         colors = np.asarray(visual.vertex_colors)[:, :3]
     elif visual is not None and getattr(visual, "kind", None) == "texture":
         colors = np.asarray(visual.to_color().vertex_colors)[:, :3]
-    mesh = Mesh(np.asarray(loaded.vertices) * scale, np.asarray(loaded.faces), colors)
+    from perch_common.viewpoints import read_viewpoints_beside, scaled_viewpoints
+
+    views = read_viewpoints_beside(path, np.asarray(loaded.vertices), np.asarray(loaded.faces))
+    mesh = Mesh(np.asarray(loaded.vertices) * scale, np.asarray(loaded.faces), colors,
+                viewpoints=None if views is None else scaled_viewpoints(views, scale))
     return validate_mesh(mesh, str(path)) if validate else mesh
 
 

@@ -9,11 +9,13 @@ A reconstructed mesh (RGB-D frames with poses) carries the camera views it was b
 A point p is observed free when some view sees through it: p lies in the view's cone within its
 range, the ray from the camera towards p meets no surface before p, and it meets one beyond p within
 the range (the camera measured something behind p, so the space up to it was seen empty). A bare
-mesh (a file) has no viewpoints; mesh files cannot hold them (`perch mesh` writes PLY/OBJ/GLB/STL), so
-they are lost when a reconstructed mesh is saved.
+mesh (a file) has no viewpoints; mesh formats cannot hold them, so `perch reconstruct -o room.ply` writes
+them beside the file (room.ply.viewpoints.json, below) and load_mesh reads them back for that geometry.
 """
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 
@@ -73,6 +75,14 @@ def transform_viewpoints(rows: np.ndarray, matrix: np.ndarray) -> np.ndarray:
     return out
 
 
+def scaled_viewpoints(rows: np.ndarray, scale: float) -> np.ndarray:
+    """Views of a mesh whose coordinates were multiplied by `scale` (centres and ranges scale)."""
+    out = np.array(rows, np.float64).reshape(-1, VIEWPOINT_COLUMNS)
+    out[:, CENTRE] *= scale
+    out[:, RANGE] *= scale
+    return out
+
+
 def viewpoint_problem(rows: np.ndarray) -> str | None:
     """What is wrong with views as they travel (flat), or None."""
     flat = np.asarray(rows, np.float64).reshape(-1)
@@ -124,3 +134,63 @@ def seen_free(scene, rows: np.ndarray, points: np.ndarray, views_per_point: int 
         seen[pi[through]] = True
         out[start:start + chunk] = seen
     return out
+
+
+# --- beside a mesh file ------------------------------------------------------------------------
+# Mesh formats cannot hold viewpoints: `perch reconstruct -o room.ply` writes them beside the file
+# (room.ply.viewpoints.json) with a fingerprint of the geometry they belong to; load_mesh attaches them
+# only to that geometry (a file edited or replaced since is loaded bare: judged by the escape rule).
+
+SIDECAR_SUFFIX = ".viewpoints.json"
+FINGERPRINT_TOLERANCE = 1e-4   # m per vertex, mean: a text format (OBJ) rounds coordinates
+
+
+def sidecar_path(mesh_path) -> Path:
+    """Where the viewpoints of a mesh file live."""
+    mesh_path = Path(mesh_path)
+    return mesh_path.with_name(mesh_path.name + SIDECAR_SUFFIX)
+
+
+def _fingerprint(vertices: np.ndarray, faces: np.ndarray) -> dict:
+    import hashlib
+
+    return {"vertices": int(len(vertices)), "faces_blake2b": hashlib.blake2b(
+                np.ascontiguousarray(faces, np.int64).tobytes(), digest_size=16).hexdigest(),
+            "vertex_mean": np.asarray(vertices, np.float64).mean(axis=0).tolist() if len(vertices) else [0, 0, 0],
+            "vertex_abs_mean": float(np.abs(np.asarray(vertices, np.float64)).mean()) if len(vertices) else 0.0}
+
+
+def write_viewpoints_beside(mesh_path, vertices: np.ndarray, faces: np.ndarray, rows: np.ndarray) -> Path:
+    """Write the viewpoints of the mesh saved at mesh_path (atomically) with its geometry's fingerprint."""
+    import json
+
+    from perch_common.outputs import atomic_path
+
+    path = sidecar_path(mesh_path)
+    text = json.dumps({"format": "perch viewpoints 1", "columns": "centre x y z, axis x y z, range m, half angle deg",
+                       "geometry": _fingerprint(vertices, faces),
+                       "viewpoints": np.asarray(rows, np.float64).reshape(-1, VIEWPOINT_COLUMNS).tolist()})
+    with atomic_path(path) as temporary:
+        temporary.write_text(text)
+    return path
+
+
+def read_viewpoints_beside(mesh_path, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray | None:
+    """The viewpoints written beside mesh_path for this geometry (vertices as in the file), else None."""
+    import json
+
+    path = sidecar_path(mesh_path)
+    if not path.is_file():
+        return None
+    try:
+        data = json.loads(path.read_text())
+        stored, rows = data["geometry"], np.asarray(data["viewpoints"], np.float64)
+    except (ValueError, KeyError, TypeError, OSError):
+        return None   # not ours or damaged: the mesh is judged bare
+    now = _fingerprint(vertices, faces)
+    same = (stored.get("vertices") == now["vertices"] and stored.get("faces_blake2b") == now["faces_blake2b"]
+            and np.allclose(stored.get("vertex_mean"), now["vertex_mean"], atol=FINGERPRINT_TOLERANCE)
+            and abs(stored.get("vertex_abs_mean", -1) - now["vertex_abs_mean"]) <= FINGERPRINT_TOLERANCE)
+    if not same or viewpoint_problem(rows) is not None:
+        return None
+    return rows.reshape(-1, VIEWPOINT_COLUMNS)

@@ -89,3 +89,24 @@ def test_bad_viewpoints_are_refused_with_the_problem(flat, words):
     msg.viewpoints = flat.astype(np.float64).tolist()
     with pytest.raises(MeshError, match=words):
         mesh_from_msg(msg, "environment mesh")
+
+
+@pytest.mark.parametrize("suffix", [".ply", ".obj"])
+def test_viewpoints_beside_a_mesh_file_load_with_that_geometry_only(tmp_path, suffix):
+    from perch_common.mesh import load_mesh, save_mesh
+    from perch_common.viewpoints import sidecar_path, write_viewpoints_beside
+
+    mesh = _room_with_views()
+    path = save_mesh(tmp_path / f"room{suffix}", mesh)
+    assert load_mesh(path).viewpoints is None          # a mesh file alone holds none
+    write_viewpoints_beside(path, mesh.vertices, mesh.faces, mesh.viewpoints)
+    assert sidecar_path(path).name == f"room{suffix}.viewpoints.json"
+    np.testing.assert_allclose(load_mesh(path).viewpoints, mesh.viewpoints)
+    in_mm = load_mesh(path, scale=1000.0).viewpoints   # centres and ranges scale with the coordinates
+    np.testing.assert_allclose(in_mm[:, CENTRE], 1000.0 * mesh.viewpoints[:, CENTRE])
+    np.testing.assert_allclose(in_mm[:, AXIS], mesh.viewpoints[:, AXIS])
+    # The file replaced by other geometry (the sidecar left behind): loaded bare, not with stale cameras.
+    save_mesh(path, Mesh(mesh.vertices + [0.5, 0, 0], mesh.faces))
+    assert load_mesh(path).viewpoints is None
+    save_mesh(path, mesh.submesh(np.arange(mesh.num_faces // 2)))
+    assert load_mesh(path).viewpoints is None

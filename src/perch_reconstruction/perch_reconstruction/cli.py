@@ -215,6 +215,7 @@ def register_reconstruct(sub) -> None:
 
 def _reconstruct(args) -> int:
     from perch_common.mesh import save_mesh
+    from perch_common.viewpoints import write_viewpoints_beside
     from perch_reconstruction.core import reconstruct_bag, reconstruct_frames
 
     refuse_overwriting_inputs([args.output, args.raw], [args.bag, args.frames, args.config])
@@ -238,5 +239,7 @@ def _reconstruct(args) -> int:
             save_mesh(partial, stats.raw_mesh)
     with atomic_path(args.output) as partial:
         save_mesh(partial, mesh)
+    if mesh.viewpoints is not None:   # mesh formats cannot hold them: beside the file, for planning from it
+        write_viewpoints_beside(args.output, mesh.vertices, mesh.faces, mesh.viewpoints)
     print(json.dumps({"output": str(Path(args.output)), **stats.summary(), "faces": mesh.num_faces}, indent=2))
     return 0

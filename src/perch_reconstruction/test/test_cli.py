@@ -43,6 +43,8 @@ def test_bag_from_frames_info_and_reconstruct(frame_folder, tmp_path, capsys):
     mesh = load_mesh(mesh_path)
     assert mesh.num_faces == summary["faces"] > 1000 and mesh.vertex_colors is not None
     assert load_mesh(raw_path).num_faces == summary["faces_raw"]
+    # The cameras' viewpoints, which a PLY cannot hold, were written beside it and load with it.
+    assert (tmp_path / "m.ply.viewpoints.json").is_file() and len(mesh.viewpoints) >= 1
 
 
 def test_clean_command(synthetic, tmp_path, capsys):
