@@ -25,7 +25,8 @@ GAP = 0.25  # share of the sample spacing (points of a face lie within ~0.5 spac
 
 @dataclass
 class NearbyGeometry:
-    """Mesh samples in front of one surface: depth along its normal, plane coords, height along up."""
+    """Mesh samples in front of one surface (in no particular order): depth along its normal, plane
+    coords, height along up."""
 
     depth: np.ndarray
     uv: np.ndarray

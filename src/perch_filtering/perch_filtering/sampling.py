@@ -21,10 +21,15 @@ def project(points: np.ndarray, axes: np.ndarray, origin: np.ndarray | None = No
     return out
 
 
+# m: a box's candidates overshoot it by up to a bucket on every side (at 0.5 m a wall's 1 m deep box
+# fetched the samples of the wall itself and of the room behind it as well).
+BUCKET = 0.25
+
+
 class SampleIndex:
     """Samples bucketed on a coarse grid (in a rotated frame) to fetch those near a box quickly."""
 
-    def __init__(self, samples: MeshSamples, rotation: np.ndarray, bucket: float = 0.5,
+    def __init__(self, samples: MeshSamples, rotation: np.ndarray, bucket: float = BUCKET,
                  local: np.ndarray | None = None):
         """`local`: the samples already projected onto the rows of `rotation` (the flight grid's)."""
         local = project(samples.points, rotation) if local is None else local

@@ -91,6 +91,7 @@ def test_geometry_in_front_equals_the_simple_selection(room):
     rng = np.random.default_rng(11)
     samples = mesh_samples(room.mesh, 0.05)
     index = SampleIndex(samples, grid_rotation(room.up))
+    coarse_index = SampleIndex(samples, grid_rotation(room.up), bucket=0.5)
     checked = 0
     for s in room.ground_truth_surfaces():
         raster = rasterise(s.frame, s.boundary, 0.02, 20, 4_000_000)
@@ -103,6 +104,12 @@ def test_geometry_in_front_equals_the_simple_selection(room):
         np.testing.assert_array_equal(fast.uv, uv)
         np.testing.assert_array_equal(fast.height, height)
         checked += len(depth)
+        coarse = geometry_in_front(samples, coarse_index, raster, s.face_indices, room.up, min_depth, max_depth,
+                                   margin, own_min)
+        # Another bucket size fetches the same samples in another order (the measures take maxima and minima).
+        rows = np.column_stack([fast.depth, fast.uv, fast.height])
+        other = np.column_stack([coarse.depth, coarse.uv, coarse.height])
+        np.testing.assert_array_equal(rows[np.lexsort(rows.T)], other[np.lexsort(other.T)])
     assert checked > 10_000
 
 
