@@ -26,8 +26,7 @@ NORMAL_TOL = 1e-4
 EVIDENCE_TOL = 1e-3
 
 GENERATED = ["room-1", "l_shaped-2", "two_rooms-3", "apartment-4", "apartment-5:holes", "building-1"]
-REAL = ["apartment.ply:+z", "icl_livingroom_kt2.obj:-y", "icl_office_kt2.obj:-y", "scans/holo2_vrlab.obj:+y",
-        "scans/quest_phanto_room.obj:+z"]
+REAL = ["apartment.ply:+z", "icl_livingroom_kt2.obj:-y", "icl_office_kt2.obj:-y", "scans/quest_phanto_room.obj:+z"]
 
 
 def summarise(result) -> dict:
@@ -154,6 +153,15 @@ def run_case(name: str, config=None, cache: str | None = None) -> dict | None:
     return summary
 
 
+def _setting(text: str) -> tuple[str, object]:
+    """'name=value' with the value as JSON (numbers, true/false), else the string."""
+    name, _, value = text.partition("=")
+    try:
+        return name, json.loads(value)
+    except ValueError:
+        return name, value
+
+
 def main(argv=None) -> int:
     """record OUT [--cases A,B] | compare BASE NEW."""
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -162,14 +170,20 @@ def main(argv=None) -> int:
     rec.add_argument("out")
     rec.add_argument("--cases", default=",".join(GENERATED + REAL))
     rec.add_argument("--cache", help="folder keeping the generated scenes between runs")
+    rec.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="a FilterConfig setting")
     cmp_ = sub.add_parser("compare")
     cmp_.add_argument("base")
     cmp_.add_argument("new")
     args = p.parse_args(argv)
+    from perch_filtering.core import FilterConfig
     if args.cmd == "record":
         out = {}
         for name in args.cases.split(","):
-            summary = run_case(name, cache=args.cache)
+            try:
+                summary = run_case(name, FilterConfig(**dict(_setting(kv) for kv in args.set)), args.cache)
+            except Exception as exc:  # one case's failure (a scan segmentation refuses) is reported, not fatal
+                print(f"{name}: failed: {exc}", file=sys.stderr)
+                continue
             if summary is None:
                 print(f"{name}: data absent, skipped", file=sys.stderr)
                 continue
