@@ -222,10 +222,14 @@ class ConsoleGraph:
                                                              reason=reason))
         return reply.success, reply.message
 
-    def call_review(self, review_id: int, rejected: list[int], reason: str) -> tuple[bool, str]:
-        """/perch/review_surfaces: the review decided (surfaces not rejected are approved)."""
-        reply = self._call(self.review, srv.ReviewSurfaces.Request(review_id=review_id, rejected_surface_ids=rejected,
-                                                                   reason=reason))
+    def call_review(self, review_id: int, rejected: list[int], reason: str,
+                    crops: dict[int, pm.OrientedBox] | None = None) -> tuple[bool, str]:
+        """/perch/review_surfaces: the review decided (surfaces not rejected are approved, those in
+        `crops` trimmed to their box, input frame)."""
+        crops = crops or {}
+        reply = self._call(self.review, srv.ReviewSurfaces.Request(
+            review_id=review_id, rejected_surface_ids=rejected, reason=reason,
+            cropped_surface_ids=list(crops), crop_boxes=list(crops.values())))
         if reply.success:
             with self.lock:
                 self.picture.reviewed.add(review_id)

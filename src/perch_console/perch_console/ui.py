@@ -23,11 +23,15 @@ from perch_common.transforms import pose_to_matrix
 from perch_console.scene import draw_markers, triangle_mesh, wxyz_of
 from perch_console.state import (
     DECISIONS,
+    FACES,
     STATUS_NAMES,
     DecisionDesk,
     EditBox,
     evidence_lines,
+    floor_hit,
+    footprint_triangles,
     removal_table,
+    surface_box,
     waypoint_rows,
 )
 
@@ -52,6 +56,7 @@ class Console:
         self._marker_handles: list = []
         self._drone_handles: list = []
         self._review_handles: list = []
+        self._crop_editors: dict[int, dict] = {}
         self._shown_proposals = None
         self._scan_handle = None
         self._scan_from_graph = False
@@ -70,6 +75,13 @@ class Console:
         with gui.add_folder("Mission"):
             self.target_center = gui.add_vector3("Target centre", (0.0, 0.0, 1.0), step=0.05)
             self.target_size = gui.add_vector3("Target size", (2.0, 2.0, 1.5), min=(0.05, 0.05, 0.05), step=0.05)
+            self.target_shape = gui.add_dropdown("Target shape", ("box", "floor footprint"), initial_value="box",
+                                                 hint="a box with handles, or points clicked on the floor")
+            self.pick_floor = gui.add_button("Pick floor points", visible=False)
+            self.clear_floor = gui.add_button("Clear floor points", visible=False)
+            self.footprint_height = gui.add_number("Footprint height", 1.5, min=0.1, max=10.0, step=0.1,
+                                                   visible=False)
+            self.footprint_md = gui.add_markdown("", visible=False)
             self.crop_on = gui.add_checkbox("Crop to a keep box", False)
             self.crop_center = gui.add_vector3("Keep-box centre", (0.0, 0.0, 1.0), step=0.05, visible=False)
             self.crop_size = gui.add_vector3("Keep-box size", (6.0, 6.0, 3.0), min=(0.05, 0.05, 0.05), step=0.05,
@@ -95,9 +107,17 @@ class Console:
             self.log_md = gui.add_markdown("_none yet_")
         self.start.on_click(self._on_start)
         self.crop_on.on_update(lambda _: self._crop_visible())
-        self.target = self._box_editor("target", self.target_center, self.target_size, (40, 210, 210))
-        self.crop = self._box_editor("crop", self.crop_center, self.crop_size, (240, 150, 30))
+        self.target = self._box_editor("target", self.target_center, self.target_size, (40, 210, 210),
+                                       lambda: self.target_shape.value == "box")
+        self.crop = self._box_editor("crop", self.crop_center, self.crop_size, (240, 150, 30),
+                                     lambda: bool(self.crop_on.value))
         self._crop_visible()
+        self.picking, self.footprint_points, self._footprint_handle = False, [], None
+        self.up, self.floor_height = np.array([0.0, 0.0, 1.0]), 0.0
+        self.target_shape.on_update(lambda _: self._target_kind())
+        self.pick_floor.on_click(self._on_pick)
+        self.clear_floor.on_click(self._clear_footprint)
+        self._show_footprint()
 
     def _on_connect(self, client) -> None:
         with client.gui.add_folder("You", order=-1):
@@ -110,33 +130,42 @@ class Console:
 
     # --- boxes with 3D handles ----------------------------------------------------------------
 
-    def _box_editor(self, name: str, center_field, size_field, rgb) -> dict:
+    def _box_editor(self, name: str, center_field, size_field, rgb, visible=lambda: True) -> dict:
+        """A box with 3D handles: the centre gizmo moves and turns it, a handle on each of its six faces
+        drags that face (the opposite one stays); the fields follow and can be typed."""
         scene = self.server.scene
         editor = {"name": name, "center": center_field, "size": size_field, "rgb": rgb, "busy": False,
-                  "wxyz": np.array([1.0, 0.0, 0.0, 0.0])}
+                  "wxyz": np.array([1.0, 0.0, 0.0, 0.0]), "visible": visible, "box": None}
         editor["move"] = scene.add_transform_controls(f"/{name}/move", scale=0.6, depth_test=False)
-        editor["corner"] = scene.add_transform_controls(f"/{name}/corner", scale=0.35, disable_rotations=True,
-                                                        depth_test=False)
-        editor["box"] = None
+        editor["faces"] = [
+            scene.add_transform_controls(f"/{name}/face_{'xyz'[axis]}{'+' if sign > 0 else '-'}", scale=0.3,
+                                         active_axes=tuple(k == axis for k in range(3)), disable_rotations=True,
+                                         disable_sliders=True, depth_test=False, line_width=3.5)
+            for axis, sign in FACES]
 
         def from_fields(_=None) -> None:
             self._apply_box(editor, self.box_of(editor))
 
-        def from_move(handle) -> None:
+        def from_move(event) -> None:
+            handle = event.target
             if editor["busy"]:
                 return
             editor["wxyz"] = np.asarray(handle.wxyz, np.float64)
-            self._apply_box(editor, EditBox(handle.position, editor["size"].value, editor["wxyz"]))
+            box = EditBox(handle.position, editor["size"].value, editor["wxyz"])
+            # while dragging, the gizmo in the hand is the browser's: setting it back would fight the drag
+            self._apply_box(editor, box, held=None if event.phase == "end" else handle)
 
-        def from_corner(handle) -> None:
+        def from_face(event, axis: int, sign: float) -> None:
             if editor["busy"]:
                 return
-            self._apply_box(editor, self.box_of(editor).resized_to(handle.position))
+            box = self.box_of(editor).face_moved(axis, sign, event.target.position)
+            self._apply_box(editor, box, held=None if event.phase == "end" else event.target)
 
         center_field.on_update(from_fields)
         size_field.on_update(from_fields)
         editor["move"].on_update(from_move)
-        editor["corner"].on_update(from_corner)
+        for handle, (axis, sign) in zip(editor["faces"], FACES):
+            handle.on_update(lambda event, a=axis, s=sign: from_face(event, a, s))
         from_fields()
         return editor
 
@@ -144,29 +173,96 @@ class Console:
         """The box an editor shows now."""
         return EditBox(editor["center"].value, editor["size"].value, editor["wxyz"])
 
-    def _apply_box(self, editor: dict, box: EditBox) -> None:
-        """Show `box` everywhere at once: fields, gizmos and the translucent box."""
+    def _apply_box(self, editor: dict, box: EditBox, held=None) -> None:
+        """Show `box` everywhere at once: fields, gizmos (but `held`, the one being dragged) and the
+        translucent box."""
         editor["busy"] = True
         try:
             editor["center"].value = tuple(float(v) for v in box.center)
             editor["size"].value = tuple(float(v) for v in box.size)
             editor["wxyz"] = box.wxyz
-            editor["move"].position, editor["move"].wxyz = tuple(box.center), tuple(box.wxyz)
-            editor["corner"].position = tuple(box.corner())
-            visible = editor["name"] == "target" or self.crop_on.value
-            editor["box"] = self.server.scene.add_box(
-                f"/{editor['name']}/box", color=editor["rgb"], dimensions=tuple(box.size), opacity=0.22,
-                position=tuple(box.center), wxyz=tuple(box.wxyz), visible=visible, cast_shadow=False,
-                receive_shadow=False)
+            if editor["move"] is not held:
+                editor["move"].position, editor["move"].wxyz = tuple(box.center), tuple(box.wxyz)
+            for handle, (axis, sign) in zip(editor["faces"], FACES):
+                if handle is not held:
+                    handle.position, handle.wxyz = tuple(box.face(axis, sign)), tuple(box.wxyz)
+            if editor["box"] is None:
+                editor["box"] = self.server.scene.add_box(
+                    f"/{editor['name']}/box", color=editor["rgb"], dimensions=tuple(box.size), opacity=0.22,
+                    position=tuple(box.center), wxyz=tuple(box.wxyz), visible=bool(editor["visible"]()),
+                    cast_shadow=False, receive_shadow=False)
+            else:   # updated in place: one small message per drag step, not a new scene node
+                shown = editor["box"]
+                shown.dimensions, shown.position, shown.wxyz = tuple(box.size), tuple(box.center), tuple(box.wxyz)
         finally:
             editor["busy"] = False
 
-    def _crop_visible(self) -> None:
-        on = bool(self.crop_on.value)
-        for handle in (self.crop_center, self.crop_size, self.crop["move"], self.crop["corner"]):
+    def _show_editor(self, editor: dict, on: bool) -> None:
+        for handle in (editor["center"], editor["size"], editor["move"], *editor["faces"]):
             handle.visible = on
-        if self.crop["box"] is not None:
-            self.crop["box"].visible = on
+        if editor["box"] is not None:
+            editor["box"].visible = on
+
+    def _remove_editor(self, editor: dict) -> None:
+        for handle in (editor["center"], editor["size"], editor["move"], *editor["faces"]):
+            handle.remove()
+        if editor["box"] is not None:
+            editor["box"].remove()
+
+    def _crop_visible(self) -> None:
+        self._show_editor(self.crop, bool(self.crop_on.value))
+
+    def _target_kind(self) -> None:
+        footprint = self.target_shape.value == "floor footprint"
+        self._show_editor(self.target, not footprint)
+        for handle in (self.pick_floor, self.clear_floor, self.footprint_height, self.footprint_md):
+            handle.visible = footprint
+        if not footprint:
+            self._picking(False)
+
+    # --- a floor footprint: clicked points on the floor, extruded ----------------------------------
+
+    def _on_pick(self, _event) -> None:
+        self._picking(not self.picking)
+
+    def _picking(self, on: bool) -> None:
+        """Clicks in the scene add floor points only while picking (a scene click listener also
+        changes how the browser reads a click, so it is there only then)."""
+        if on and not self.picking:
+            self._click_listener = self.server.scene.on_click()(self._on_scene_click)
+        elif self.picking and not on:
+            self.server.scene.remove_click_callback(self._click_listener)
+        self.picking = on
+        self.pick_floor.label = "Done picking" if on else "Pick floor points"
+
+    def _on_scene_click(self, event) -> None:
+        if not self.picking:
+            return
+        hit = floor_hit(event.ray_origin, event.ray_direction, self.up, self.floor_height)
+        if hit is None:
+            return
+        with self._ui_lock:
+            self.footprint_points.append(hit)
+            self._show_footprint()
+
+    def _clear_footprint(self, _event=None) -> None:
+        with self._ui_lock:
+            self.footprint_points = []
+            self._show_footprint()
+
+    def _show_footprint(self) -> None:
+        points = np.array(self.footprint_points).reshape(-1, 3)
+        if self._footprint_handle is not None:
+            self._footprint_handle.remove()
+            self._footprint_handle = None
+        if len(points):
+            closed = np.vstack([points, points[:1]]) if len(points) >= 3 else points
+            segments = np.stack([closed[:-1], closed[1:]], axis=1) if len(closed) > 1 else np.stack([points, points], 1)
+            self._footprint_handle = self.server.scene.add_line_segments(
+                "/target/footprint", points=segments.astype(np.float32), colors=(40, 210, 210), line_width=4.0)
+        self.footprint_md.content = (f"{len(points)} floor point(s)" + ("" if len(points) >= 3 else
+                                     ": click at least 3 on the floor") if len(points) else
+                                     "_press Pick floor points, then click on the floor around the area_")
 
     def place_boxes(self, vertices: np.ndarray, up: np.ndarray | None = None) -> None:
         """Start the target and keep boxes on the room (the target in its middle, the keep box around it)
@@ -174,6 +270,8 @@ class Console:
         self._apply_box(self.target, EditBox.around(vertices, 0.35))
         self._apply_box(self.crop, EditBox.around(vertices, 1.02))
         up = np.array([0.0, 0.0, 1.0]) if up is None else np.asarray(up, np.float64) / np.linalg.norm(up)
+        # the floor clicks land on: the scan's lowest level along up (1st percentile: stray points below)
+        self.up, self.floor_height = up, float(np.percentile(np.asarray(vertices) @ up, 1.0))
         low, high = np.min(vertices, axis=0), np.max(vertices, axis=0)
         center, span = (low + high) / 2, float(np.linalg.norm(high - low))
         side = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
@@ -254,7 +352,6 @@ class Console:
 
     def goal(self):
         """The PlanPerches goal the form describes (the scan file's mesh, target box, keep box)."""
-        from perch_common.ros.conversions import pose_msg, vector_msg
         from perch_interfaces import msg as pm
         from perch_interfaces.action import PlanPerches
 
@@ -262,16 +359,20 @@ class Console:
             raise ValueError("no scan to plan on: start the console with --mesh FILE")
         mesh_msg, convention = self.goal_source
 
-        def oriented(box: EditBox) -> pm.OrientedBox:
-            pose = np.eye(4)
-            pose[:3, :3], pose[:3, 3] = box.rotation, box.center
-            return pm.OrientedBox(pose=pose_msg(pose), size=vector_msg(box.size))
-
         goal = PlanPerches.Goal(mesh=mesh_msg, num_cameras=int(self.cameras.value), seed=-1, up_axis="auto",
                                 up_convention=convention, review_surfaces=int(self.review_count.value))
-        goal.target = pm.TargetVolume(kind=pm.TargetVolume.KIND_BOX, box=oriented(self.box_of(self.target)))
+        if self.target_shape.value == "floor footprint":
+            from perch_common.mesh import Mesh
+            from perch_common.ros.conversions import mesh_to_msg
+
+            vertices, triangles = footprint_triangles(np.array(self.footprint_points), self.up)
+            goal.target = pm.TargetVolume(kind=pm.TargetVolume.KIND_EXTRUDED_FOOTPRINT,
+                                          footprint=mesh_to_msg(Mesh(vertices, triangles)),
+                                          height=float(self.footprint_height.value))
+        else:
+            goal.target = pm.TargetVolume(kind=pm.TargetVolume.KIND_BOX, box=oriented_box(self.box_of(self.target)))
         if self.crop_on.value:
-            goal.keep_boxes = [oriented(self.box_of(self.crop))]
+            goal.keep_boxes = [oriented_box(self.box_of(self.crop))]
         return goal
 
     def _on_start(self, event) -> None:
@@ -280,7 +381,9 @@ class Console:
         try:
             goal = self.goal()
             self._shown_proposals = None
-            decision = self.desk.decide(who, "started", "a mission", self.box_of(self.target).describe(),
+            target = (f"footprint of {len(self.footprint_points)} floor points, {self.footprint_height.value:g} m high"
+                      if self.target_shape.value == "floor footprint" else self.box_of(self.target).describe())
+            decision = self.desk.decide(who, "started", "a mission", target,
                                         lambda: _ok(self.graph.start_mission(goal)))
         except ValueError as exc:
             self.start_note.content = f"**Cannot start:** {exc}"
@@ -294,26 +397,41 @@ class Console:
     # --- (2) surface review -------------------------------------------------------------------
 
     def _show_review(self) -> None:
+        from perch_common.ros.conversions import frame_from_msg, polygons_from_msg
         from perch_operator.coordinator.markers import surface_outline
 
         for handle in self._review_handles:
             handle.remove()
-        self._review_handles = []
+        for editor in self._crop_editors.values():
+            self._remove_editor(editor)
+        self._review_handles, self._crop_editors = [], {}
         with self.graph.lock:
             review = self.graph.picture.review   # its surfaces come in the input's frame (the mission turns them)
         if review is None:
             self.review_note.content = "_no review open_"
             return
         self.review_note.content = (f"**Review {review.review_id}**: the {len(review.surfaces)} largest surfaces, "
-                                    "outlined in the room. Approve or reject each, then submit.")
+                                    "outlined in the room. Approve, reject or crop each (crop: drag the orange "
+                                    "box's face handles over the part that is good), then submit.")
         choices = {}
         gui = self.server.gui
         with self.review_folder:
             for surface in review.surfaces:
                 kind = CLASS_NAMES.get(surface.surface_class, "?")   # unknown before the filter orients it
                 label = f"S{surface.id} {'' if kind == 'unknown' else kind + ' '}{surface.area:.1f} m²"
-                choices[surface.id] = gui.add_dropdown(label, ("approve", "reject"), initial_value="approve")
+                choices[surface.id] = gui.add_dropdown(label, ("approve", "reject", "crop"), initial_value="approve")
                 self._review_handles.append(choices[surface.id])
+                start = surface_box(frame_from_msg(surface.frame), polygons_from_msg(surface.boundary))
+                center = gui.add_vector3(f"S{surface.id} crop centre", tuple(start.center), step=0.05, visible=False)
+                size = gui.add_vector3(f"S{surface.id} crop size", tuple(start.size), min=(0.05, 0.05, 0.05),
+                                       step=0.05, visible=False)
+                editor = self._box_editor(f"review/{surface.id}/crop", center, size, (240, 150, 30),
+                                          lambda sid=surface.id: choices[sid].value == "crop")
+                self._apply_box(editor, start)
+                self._show_editor(editor, False)
+                self._crop_editors[surface.id] = editor
+                choices[surface.id].on_update(
+                    lambda _, sid=surface.id: self._show_editor(self._crop_editors[sid], choices[sid].value == "crop"))
                 outline = surface_outline(surface, np.eye(4), "", None, (1.0, 1.0, 0.2), "review", 0.05)
                 if outline is not None:
                     self._review_handles += draw_markers(self.server.scene, f"/review/{surface.id}", [outline])
@@ -325,10 +443,14 @@ class Console:
 
         def on_submit(event) -> None:
             rejected = [sid for sid, field in choices.items() if field.value == "reject"]
+            crops = {sid: oriented_box(self.box_of(self._crop_editors[sid]))
+                     for sid, field in choices.items() if field.value == "crop"}
             reason = self.reason.value.strip()
-            subject = f"surface review {review.review_id}" + (f", rejecting {rejected}" if rejected else "")
+            subject = (f"surface review {review.review_id}" + (f", rejecting {rejected}" if rejected else "")
+                       + (f", cropping {sorted(crops)}" if crops else ""))
             self.desk.decide(self.who(event), "decided", subject, reason,
-                             lambda: self.graph.call_review(review.review_id, rejected, self._signed(reason, event)))
+                             lambda: self.graph.call_review(review.review_id, rejected, self._signed(reason, event),
+                                                            crops))
             with self._ui_lock:
                 self._show_log()
 
@@ -422,6 +544,16 @@ class Console:
     def _show_log(self) -> None:
         recent = self.desk.recent()
         self.log_md.content = "_none yet_" if not recent else "  \n".join(d.line() for d in recent)
+
+
+def oriented_box(box: EditBox):
+    """The perch_interfaces/OrientedBox of a box the operator edited (input frame)."""
+    from perch_common.ros.conversions import pose_msg, vector_msg
+    from perch_interfaces import msg as pm
+
+    pose = np.eye(4)
+    pose[:3, :3], pose[:3, 3] = box.rotation, box.center
+    return pm.OrientedBox(pose=pose_msg(pose), size=vector_msg(box.size))
 
 
 def _ok(error: str) -> tuple[bool, str]:
