@@ -8,6 +8,9 @@ The sign never relies on how complete the ceiling is. Votes, each in [-1, 1] alo
 - furniture tops face up: horizontal faces between floor and ceiling are seen from above by a
   scanner, so their normals point up (needs normals pointing into free space, as scans have);
 - furniture tops lie low: tables, seats and beds sit in the lower half of the room height;
+  in a building of stacked storeys (along the scan's thinnest axis, two or more floor levels and
+  ceiling levels spanning 4.4 m or more) both are judged storey by storey: faces clear of every
+  level, nearer the level below or above them (a single room keeps the band between its ends);
 - the floor is the more complete of the two extreme planes (weak: furniture hides floor);
 - the cameras' image-down axes point down (RGB-D input; a camera is rarely held upside down);
 - the file's header names an exporter whose world is y-up (perch_common.file_conventions): strong
@@ -52,6 +55,11 @@ AXIS_VOTES = ("furniture tops face up", "cameras' image-down axes point down", E
 INWARD_MIN = 0.3          # below this share of the room's end planes facing inward, the windings are inverted
 AXIS_SUPPORT_MIN = 0.3    # an axis with less planar area than this share of the best one's is their cross product
 CONTRARY = 0.5            # a vote this strong against a given --up refuses it (with no strong vote for it)
+LEVEL_BIN = 0.05          # m: height slices in which a building's floor and ceiling levels are found
+LEVEL_SHARE = 0.04        # of the horizontal area: a slice holding this much is a floor or ceiling level
+STOREY_LEVELS = 2         # levels facing each way that make a scan stacked storeys (a room has 1 and 1)
+LEVEL_CLEARANCE = 0.1     # m: faces this near a level are that floor or ceiling, not furniture
+STOREY_SPAN = 4.4         # m: levels spanning less are one room (two storeys are at least 2 x 2.2 m)
 
 
 @dataclass
@@ -169,8 +177,9 @@ def estimate_up(normals: np.ndarray, areas: np.ndarray, centroids: np.ndarray,
     exporter = convention if convention is not None and convention.from_exporter else None
     exporter_up = parse_up_axis(exporter.axis) if exporter else None
     candidates = []
+    thinnest = int(np.argmin(extents))  # only this axis may be a building's vertical (wider than tall)
     for i, axis in enumerate(axes):
-        votes = _sign_votes(axis, normals, areas, centroids, hint)
+        votes = _sign_votes(axis, normals, areas, centroids, hint, storeys=i == thinnest)
         thin = float(extents.min() / max(extents[i], 1e-9))
         # Rooms are wider than tall (the main cue); one-sided horizontal faces add to it. Position votes
         # say nothing about the axis: walls between rooms sit anywhere across the plan.
@@ -204,7 +213,7 @@ def estimate_up(normals: np.ndarray, areas: np.ndarray, centroids: np.ndarray,
                     f"extents along them {', '.join(f'{e:.2f}' for e in extents)} m")
     axis_margin = min(1.0, (score - runner_up) / 0.5)
     if agreement < 0:  # say the evidence along the chosen direction
-        votes = _sign_votes(up, normals, areas, centroids, hint) + [
+        votes = _sign_votes(up, normals, areas, centroids, hint, storeys=order[0] == thinnest) + [
             UpVote(v.name, -v.vote, v.weight, v.detail) for v in votes if v.name == EXPORTER_VOTE]
     strong = [v for v in votes if v.weight >= 0.5 and abs(v.vote) >= 0.3]
     if any(v.vote < 0 for v in strong):
@@ -334,24 +343,35 @@ def _refine(axis: np.ndarray, normals: np.ndarray, areas: np.ndarray) -> np.ndar
 
 
 def _sign_votes(axis: np.ndarray, normals: np.ndarray, areas: np.ndarray, centroids: np.ndarray,
-                hint: np.ndarray | None) -> list[UpVote]:
-    """Votes for +axis being up (see the module doc)."""
+                hint: np.ndarray | None, storeys: bool = False) -> list[UpVote]:
+    """Votes for +axis being up (see the module doc); `storeys`: the axis may be a building's vertical
+    (the scan's thinnest), so stacked storeys along it are judged storey by storey."""
     cos = normals @ axis
     height = centroids @ axis
     low, high = np.percentile(height, [1, 99])
     span = max(high - low, 1e-9)
     horizontal = np.abs(cos) > COS_10
-    band = horizontal & (height > low + BAND_MARGIN * span) & (height < high - BAND_MARGIN * span)
+    levels = _storey_levels(height[horizontal], areas[horizontal], cos[horizontal], low, high) if storeys else None
+    if levels is None:  # one storey: the band between floor and ceiling, halves of the room height
+        band = horizontal & (height > low + BAND_MARGIN * span) & (height < high - BAND_MARGIN * span)
+        lower_half = height < (low + high) / 2
+    else:  # stacked storeys: faces clear of every slab, nearer the level below or above them
+        gap = np.abs(height[:, None] - levels[None]).min(axis=1)
+        band = horizontal & (gap > LEVEL_CLEARANCE) & (height > low) & (height < high)
+        below = levels[np.clip(np.searchsorted(levels, height) - 1, 0, len(levels) - 1)]
+        above = levels[np.clip(np.searchsorted(levels, height), 0, len(levels) - 1)]
+        lower_half = height - below < above - height
     up_area, down_area = float(areas[band & (cos > 0)].sum()), float(areas[band & (cos < 0)].sum())
-    middle = (low + high) / 2
-    lower, upper = float(areas[band & (height < middle)].sum()), float(areas[band & (height >= middle)].sum())
+    lower, upper = float(areas[band & lower_half].sum()), float(areas[band & ~lower_half].sum())
     band_weight = min(1.0, (up_area + down_area) / FULL_WEIGHT_AREA)
     votes = [
         UpVote("furniture tops face up", _balance(up_area, down_area), band_weight,
-               f"{up_area:.2f} m^2 of horizontal faces between floor and ceiling face up, {down_area:.2f} m^2 down"),
+               f"{up_area:.2f} m^2 of horizontal faces between floor and ceiling face up, {down_area:.2f} m^2 down"
+               + (f" ({len(levels)} floor/ceiling levels: stacked storeys)" if levels is not None else "")),
         # Half weight: counters and wall cupboards sit high in kitchens and partial scans.
         UpVote("furniture tops lie low", _balance(lower, upper), 0.5 * band_weight,
-               f"{lower:.2f} m^2 of them in the lower half of the {span:.2f} m height, {upper:.2f} m^2 in the upper"),
+               f"{lower:.2f} m^2 of them in the lower half of the {span:.2f} m height, {upper:.2f} m^2 in the upper"
+               if levels is None else f"{lower:.2f} m^2 of them nearer the level below, {upper:.2f} m^2 the level above"),
     ]
     at_low = float(areas[horizontal & (height <= low + EXTREME_SHARE * span)].sum())
     at_high = float(areas[horizontal & (height >= high - EXTREME_SHARE * span)].sum())
@@ -363,6 +383,24 @@ def _sign_votes(axis: np.ndarray, normals: np.ndarray, areas: np.ndarray, centro
                             f"mean image-up axis is {np.degrees(np.arccos(np.clip(abs(along), 0, 1))):.0f} deg "
                             f"from the axis, on its {'+' if along >= 0 else '-'} side"))
     return votes
+
+
+def _storey_levels(height: np.ndarray, areas: np.ndarray, cos: np.ndarray, low: float, high: float) -> np.ndarray | None:
+    """Heights (sorted) of the large horizontal planes along an axis when they are stacked storeys: at
+    least STOREY_LEVELS levels facing up and as many facing down (each a LEVEL_BIN slice
+    of the height holding LEVEL_SHARE of the horizontal area, facing one way by 2:1) spanning at least
+    STOREY_SPAN. None otherwise: a room's floor and ceiling, with or without a table level, are one storey."""
+    if high - low < 2 * LEVEL_BIN or not areas.sum() > 0:
+        return None
+    edges = np.arange(low, high + LEVEL_BIN, LEVEL_BIN)
+    total, _ = np.histogram(height, edges, weights=areas)
+    facing_up, _ = np.histogram(height, edges, weights=areas * (cos > 0))
+    big = np.flatnonzero(total >= LEVEL_SHARE * areas.sum())
+    ups = big[facing_up[big] >= 2 / 3 * total[big]]
+    downs = big[facing_up[big] <= 1 / 3 * total[big]]
+    if min(len(ups), len(downs)) < STOREY_LEVELS or edges[big[-1]] - edges[big[0]] < STOREY_SPAN:
+        return None
+    return np.sort(0.5 * (edges[big] + edges[big + 1]))
 
 
 def _balance(a: float, b: float) -> float:
