@@ -21,32 +21,6 @@ import pytest
 pytestmark = pytest.mark.ros
 
 
-@pytest.fixture
-def client_node():
-    from perch_common.ros import testing
-
-    testing.use_isolated_ros_env()
-    import rclpy
-
-    rclpy.init()
-    node = rclpy.create_node("faults_client")
-    try:
-        yield node
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-
-
-def wait_for(condition, timeout: float, what: str):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = condition()
-        if value:
-            return value
-        time.sleep(0.05)
-    raise AssertionError(f"{what} within {timeout:.0f} s")
-
-
 def alive(pid: int) -> bool:
     import psutil
 
@@ -104,7 +78,7 @@ def shm_files_of(pid: int) -> set[str]:
     return locks | {p[:-3] for p in locks}
 
 
-def test_a_sigkilled_launcher_takes_its_nodes_and_a_second_launcher_refuses(client_node, tmp_path):
+def test_a_sigkilled_launcher_takes_its_nodes_and_a_second_launcher_refuses(client_node, tmp_path, wait_for):
     first = launcher(tmp_path)
     try:
         wait_for(lambda: {"/perch/segment", "/perch/filter"} <= {n for n, _ in client_node.get_service_names_and_types()},
@@ -132,7 +106,7 @@ def test_a_sigkilled_launcher_takes_its_nodes_and_a_second_launcher_refuses(clie
                 os.kill(pid, signal.SIGKILL)
 
 
-def test_shared_memory_of_a_killed_node_is_cleared_at_the_next_start(client_node, tmp_path, monkeypatch):
+def test_shared_memory_of_a_killed_node_is_cleared_at_the_next_start(client_node, tmp_path, monkeypatch, wait_for):
     from perch_common import processes
     from perch_common.launch import GraphProcesses
 
@@ -155,7 +129,7 @@ def test_shared_memory_of_a_killed_node_is_cleared_at_the_next_start(client_node
         graph.stop()
 
 
-def test_a_node_that_only_calls_perch_services_is_not_taken_for_a_running_graph(client_node, tmp_path):
+def test_a_node_that_only_calls_perch_services_is_not_taken_for_a_running_graph(client_node, tmp_path, wait_for):
     """A dispatcher, console or user node holding clients of /perch/... names those services too
     (its request writers), but serves nothing: launching beside it must start the graph."""
     from perch_common.config import default_config_path

@@ -8,22 +8,6 @@ import pytest
 pytestmark = pytest.mark.ros
 
 
-@pytest.fixture
-def client_node():
-    from perch_common.ros import testing
-
-    testing.use_isolated_ros_env()
-    import rclpy
-
-    rclpy.init()
-    node = rclpy.create_node("soak_client")
-    try:
-        yield node
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-
-
 def test_short_soak_with_a_kill_a_cancel_a_bad_goal_and_a_respawn(client_node, tmp_path):
     from perch_operator.bench.soak import Soak, launched
 
