@@ -19,13 +19,50 @@ BINS = (0.0, 0.25, 0.5, 0.75, 0.9, 1.0001)
 APARTMENT_TARGET = ("apartment.ply", "apartment_target.ply", 1.2)
 
 
-def cases(only=(), rotations: bool = True):
-    """(scan name, orientation, mesh, true up, file path or None, target) for every case of the corpus."""
+def manifest_scans(manifest) -> list[tuple[str, object, np.ndarray]]:
+    """(file name, path, true up) of every row of a MANIFEST.tsv in the shared format (tab-separated,
+    a header naming at least `file` and `up`; up '+y' or 'x,y,z'), files beside the manifest. A
+    missing file, column or malformed up raises ValueError naming the row and the fix."""
+    from pathlib import Path
+
+    from perch_common.scan_orientations import _NAMED_AXES
+
+    manifest = Path(manifest)
+    if not manifest.is_file():
+        raise ValueError(f"manifest {manifest}: not a file (give the path of a MANIFEST.tsv)")
+    rows = manifest.read_text().splitlines()
+    header = rows[0].split("\t") if rows else []
+    if "file" not in header or "up" not in header:
+        raise ValueError(f"manifest {manifest}: its first line must name the columns 'file' and 'up' "
+                         "(tab-separated, as ../shared/data/meshes/scans/MANIFEST.tsv)")
+    scans = []
+    for number, row in enumerate(rows[1:], start=2):
+        if not row.strip():
+            continue
+        cells = dict(zip(header, row.split("\t")))
+        path = manifest.parent / cells.get("file", "")
+        if not cells.get("file") or not path.is_file():
+            raise ValueError(f"manifest {manifest} line {number}: file {cells.get('file')!r} not found beside it")
+        text = cells.get("up", "").strip()
+        try:
+            up = np.array(_NAMED_AXES.get(text) or [float(c) for c in text.split(",")], np.float64)
+        except ValueError:
+            up = np.zeros(0)
+        if up.shape != (3,) or not np.linalg.norm(up) > 0:
+            raise ValueError(f"manifest {manifest} line {number}: up {text!r} is not '+x'..'-z' or 'x,y,z'")
+        scans.append((cells["file"], path, up / np.linalg.norm(up)))
+    return scans
+
+
+def cases(only=(), rotations: bool = True, manifests=()):
+    """(scan name, orientation, mesh, true up, file path or None, target) for every case of the corpus,
+    plus every row of the given extra MANIFEST.tsv files (manifest_scans)."""
     from perch_common.data import shared_file
     from perch_common.mesh import load_mesh
     from perch_common.scan_orientations import CORPUS_ORIENTATIONS, corpus_scans, oriented
 
-    for name, path, true_up in corpus_scans():
+    extra = [scan for manifest in manifests for scan in manifest_scans(manifest)]
+    for name, path, true_up in corpus_scans() + extra:
         if only and not any(text in name for text in only):
             continue
         mesh = load_mesh(path)

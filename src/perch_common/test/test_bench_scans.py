@@ -41,3 +41,26 @@ def test_the_corpus_reads_every_manifest_row_with_its_true_up():
         if up in ("+y", "+z"):
             assert scans[name]["xyz".index(up[1])] == 1.0
     assert scans["realsense_corner.ply"] @ [0, 1, 0] > 0.99   # 'x,y,z' components, normalised
+
+
+def test_an_extra_manifest_adds_its_scans_and_a_bad_one_is_refused_naming_the_row(tmp_path):
+    from perch_common.mesh import Mesh, save_mesh
+    from perch_common.scan_corpus import cases, manifest_scans
+
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], np.float64)
+    save_mesh(tmp_path / "tet.ply", Mesh(vertices, np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])))
+    manifest = tmp_path / "MANIFEST.tsv"
+    manifest.write_text("file\tup\tnote\ntet.ply\t0,2,0\tfour faces\n")
+    assert [(name, path.name, up.tolist()) for name, path, up in manifest_scans(manifest)] == [
+        ("tet.ply", "tet.ply", [0.0, 1.0, 0.0])]
+    added = [c for c in cases(only=["tet.ply"], rotations=True, manifests=[manifest])]
+    assert [c[1] for c in added] == ["own", "y-up", "y-down", "tilt-25", "tilt-35"]
+    assert np.allclose(added[0][3], [0.0, 1.0, 0.0]) and added[1][4] is None  # a rotated copy has no file
+    for text, says in (("file\tup\ntet.ply\tsideways\n", "line 2: up 'sideways'"),
+                       ("file\tup\nmissing.ply\t+z\n", "line 2: file 'missing.ply' not found"),
+                       ("name\taxis\ntet.ply\t+z\n", "must name the columns 'file' and 'up'")):
+        manifest.write_text(text)
+        with pytest.raises(ValueError, match=says):
+            manifest_scans(manifest)
+    with pytest.raises(ValueError, match="not a file"):
+        manifest_scans(tmp_path / "nowhere.tsv")

@@ -3,6 +3,7 @@
     perch bench scans --json                      # every scan, own frame + 4 rotations, 5 cameras
     perch bench scans --only holo2 --no-rotations # one scan family in its own frame
     perch bench scans --no-missions               # the up estimate alone (seconds, not minutes)
+    perch bench scans --manifest DIR/MANIFEST.tsv # add the scans of another folder to the corpus
 
 The corpus: the three older scans of ../shared/data/meshes and every row of meshes/scans/MANIFEST.tsv
 (its true up column), each in its own frame (the file's header and format convention count) and in
@@ -32,7 +33,16 @@ import time
 import numpy as np
 
 from perch_common.bench import emit, peak_rss_mb
-from perch_common.scan_corpus import APARTMENT_TARGET, CAMERAS, MAX_ANGLE_DEG, calibration, cases, estimate_case, up_error
+from perch_common.scan_corpus import (
+    APARTMENT_TARGET,
+    CAMERAS,
+    MAX_ANGLE_DEG,
+    calibration,
+    cases,
+    estimate_case,
+    manifest_scans,
+    up_error,
+)
 
 
 def register(sub) -> None:
@@ -42,6 +52,9 @@ def register(sub) -> None:
     p.add_argument("--only", action="append", default=[], metavar="TEXT",
                    help="only scans whose file name contains TEXT (repeatable)")
     p.add_argument("--no-rotations", action="store_true", help="each scan in its own frame only")
+    p.add_argument("--manifest", action="append", default=[], metavar="PATH",
+                   help="also every scan of this MANIFEST.tsv (the shared format: tab-separated columns 'file' "
+                        "and 'up', files beside it; repeatable)")
     p.add_argument("--no-missions", action="store_true", help="the up estimate only (no graph, no missions)")
     p.add_argument("--cameras", type=int, default=CAMERAS, help=f"cameras per mission (default {CAMERAS})")
     p.add_argument("--json", action="store_true", help="print JSON (the only output format)")
@@ -50,10 +63,16 @@ def register(sub) -> None:
 
 def _run(args) -> int:
     started = time.perf_counter()
+    for manifest in args.manifest:  # a bad manifest is refused before any work, naming the row
+        try:
+            manifest_scans(manifest)
+        except ValueError as error:
+            print(f"perch bench scans: error: {error}", file=sys.stderr)
+            return 2
     rows, missions = [], None
     runner = None if args.no_missions else _MissionRunner(args.cameras)
     try:
-        for name, orientation, mesh, true_up, path, target in cases(args.only, not args.no_rotations):
+        for name, orientation, mesh, true_up, path, target in cases(args.only, not args.no_rotations, args.manifest):
             row = {"scan": name, "orientation": orientation, "faces": mesh.num_faces}
             row.update(estimate_case(mesh, true_up, path))
             if runner is not None:
