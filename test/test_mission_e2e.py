@@ -368,6 +368,89 @@ def test_surface_review_rejection_keeps_perches_off_the_rejected_surface(graph, 
         assert not (on_plane and inside), f"perch at {p.round(2)} lies on the rejected ceiling"
 
 
+def test_surface_review_crop_keeps_perch_regions_inside_the_kept_part(graph, scene):
+    """The operator crops the largest wall of the review to 60 % of its length (its box in the input
+    frame, as the console and `perch operator review --crop` send it): the filter is given only that
+    part, and every perch region it finds on that wall lies inside the box."""
+    from rclpy.qos import qos_profile_services_default
+
+    from perch_common.polygons import to_shapely
+    from perch_common.ros.conversions import mesh_from_msg, pose_msg, surface_from_msg, vector_msg
+    from perch_common.ros.static_transforms import TF_STATIC_QOS, matrix_from_transform
+    from perch_interfaces.msg import OrientedBox, SurfaceReview
+    from perch_interfaces.srv import Filter, ReviewSurfaces
+    from perch_operator.coordinator.node import LATCHED_LAST
+    from tf2_msgs.msg import TFMessage
+
+    reviews: list = []
+    replies: list = []
+    frames: dict = {}
+    subs = [graph.node.create_subscription(SurfaceReview, "/perch/surface_review", reviews.append, LATCHED_LAST),
+            graph.node.create_subscription(Filter.Event, "/perch/filter/_service_event",
+                                           lambda e: replies.extend(e.response), qos_profile_services_default),
+            graph.node.create_subscription(TFMessage, "/tf_static", lambda m: frames.update(
+                {t.child_frame_id: matrix_from_transform(t) for t in m.transforms}), TF_STATIC_QOS)]
+    goal = make_goal(scene)
+    goal.review_surfaces = 4
+    mission = LiveMission(graph.node, goal)
+    client = graph.node.create_client(ReviewSurfaces, "/perch/review_surfaces")
+
+    def newest_after(decided: int):
+        """The newest review, if newer than `decided` (an earlier test's latched review may be the
+        first to arrive: deciding it is refused as already decided, then we wait for this mission's)."""
+        if not reviews:
+            return None
+        newest = max(reviews, key=lambda r: r.review_id)
+        return newest if newest.review_id > decided and newest.surfaces else None
+
+    with graph.spinner(graph.node):
+        mission.start()
+        decided = 0
+        while True:
+            review = wait_for(lambda: newest_after(decided), 300, "this mission's surface review")
+            surfaces = [surface_from_msg(s) for s in review.surfaces]   # the input frame
+            wall = max((s for s in surfaces if abs(s.frame.normal[2]) < 0.2), key=lambda s: s.area)
+            outline = to_shapely(wall.boundary)
+            u0, v0, u1, v1 = outline.bounds
+            # the box: 60 % of the wall along u from its low end, all its height, 0.6 m across the wall
+            pose = np.eye(4)
+            pose[:3, :3] = np.column_stack([wall.frame.axis_u, wall.frame.axis_v, wall.frame.normal])
+            pose[:3, 3] = wall.frame.to_world(np.array([[u0 + 0.3 * (u1 - u0), (v0 + v1) / 2]]))[0]
+            size = np.array([0.6 * (u1 - u0), (v1 - v0) + 0.2, 0.6])
+            missing = client.call_async(ReviewSurfaces.Request(review_id=review.review_id,
+                                                               cropped_surface_ids=[wall.id]))
+            refused = wait_for(lambda: missing.result() if missing.done() else None, 30, "a refused crop")
+            assert not refused.success and "1 cropped surface id(s) but 0 crop box(es)" in refused.message
+            ok = client.call_async(ReviewSurfaces.Request(
+                review_id=review.review_id, cropped_surface_ids=[wall.id],
+                crop_boxes=[OrientedBox(pose=pose_msg(pose), size=vector_msg(size))], reason="poster on the right"))
+            reply = wait_for(lambda: ok.result() if ok.done() else None, 30, "the review reply")
+            if reply.success:
+                break
+            assert "already decided" in reply.message, reply.message
+            decided = review.review_id
+        assert f"cropped [{wall.id}]" in reply.message, reply.message
+        result = mission.result()
+        filtered = wait_for(lambda: next((r for r in reversed(replies) if r.success), None), 30, "the filter reply")
+        to_input, = wait_for(lambda: next(([m] for f, m in frames.items() if f.endswith("_gravity_aligned")), None),
+                             30, "the input -> gravity-aligned transform")
+    for sub in subs:
+        graph.node.destroy_subscription(sub)
+    graph.node.destroy_client(client)
+    mission.close()
+    assert result.success, result.message
+    removal = next(r for r in filtered.removals if r.surface_id == wall.id)
+    kept_area = outline.area * 0.6
+    assert removal.area_total == pytest.approx(kept_area, rel=0.15), (removal.area_total, outline.area)
+    regions = [r for r in filtered.regions if r.source_surface == wall.id]
+    assert regions, "the kept part of the wall holds no perch region (the test needs one)"
+    for region in regions:
+        points = mesh_from_msg(region.mesh).vertices @ to_input[:3, :3].T + to_input[:3, 3]
+        local = (points - pose[:3, 3]) @ pose[:3, :3]
+        assert (np.abs(local) <= size / 2 + 0.03).all(), \
+            f"region {region.id} reaches {np.abs(local).max(axis=0).round(2)} m from the box centre (half {size / 2})"
+
+
 def test_killed_stage_ends_the_mission_with_its_name_and_the_next_one_succeeds(graph, scene, restart_with):
     from rclpy.qos import qos_profile_services_default
 
