@@ -107,6 +107,11 @@ class OperatorNode(Node):
         # Views are rendered in order on their own thread: a view is a picture for the operator, and
         # no decision (nor an auto-accepted mission's result) waits for it.
         self._view_worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="perch-views")
+        # The current mission's view work not yet done: a new mission drops what is still queued, which
+        # otherwise held every earlier mission's meshes while the views lagged behind the missions (the
+        # coordinator's RSS grew ~2 meshes a mission on a loaded machine).
+        self._view_work: list = []
+        self._view_lock = threading.Lock()
         self.action = ActionServer(self, PlanPerches, MISSION_ACTION, self._execute, callback_group=group,
                                    goal_callback=self._on_goal, cancel_callback=self._on_cancel)
         # A networked graph's mission cancel: signed, on the stage-cancel topic (see _on_mission_cancel).
@@ -228,8 +233,24 @@ class OperatorNode(Node):
                 # thread arena otherwise: the coordinator's RSS crept up for ~20 missions).
                 self._view_worker.submit(release_memory)
 
+    def _submit_view(self, work, *args) -> None:
+        """Queue view work (scan marker, a proposal's view) for the view thread, as this mission's."""
+        with self._view_lock:
+            self._view_work = [f for f in self._view_work if not f.done()] + [self._view_worker.submit(work, *args)]
+
+    def _drop_earlier_views(self) -> int:
+        """Cancel the view work of earlier missions still queued (a new mission's picture replaces theirs);
+        how many were dropped."""
+        with self._view_lock:
+            dropped = sum(f.cancel() for f in self._view_work)
+            self._view_work = []
+        return dropped
+
     def _run_mission(self, goal_handle) -> PlanPerches.Result:
         config = read_config(self, OperatorConfig)
+        dropped = self._drop_earlier_views()
+        if dropped:
+            self.get_logger().info(f"dropped {dropped} views of the previous mission not yet drawn")
         self._mission_id = UUID(uuid=goal_handle.goal_id.uuid)
         self.operator, self._mission_state = None, "running"   # decisions now bind to this mission only
         self._shown, self._camera, self._view_scene, self._scene_markers = {}, None, None, None
@@ -269,7 +290,7 @@ class OperatorNode(Node):
             given = goal_handle.request.mesh   # the scan for viewers, early: it is in the input frame already
             if len(given.triangles) and not self._scan_shown:
                 self._scan_shown = True
-                self._view_worker.submit(self._publish_scan, given, np.eye(4), alignment.input_frame)
+                self._submit_view(self._publish_scan, given, np.eye(4), alignment.input_frame)
 
         mission = Mission(self.stages, options, self._next_proposal_id, feedback, cancelled,
                           self._publish_proposal, adopt, review, aligned)
@@ -404,7 +425,7 @@ class OperatorNode(Node):
             published = proposal_msg(proposal, alignment, regions)
             self.proposals_pub.publish(published)
             if published.id not in self._shown:
-                self._view_worker.submit(self._publish_view, proposal, self.operator.optimise_request)
+                self._submit_view(self._publish_view, proposal, self.operator.optimise_request)
             self._shown[published.id] = published
             if proposal.status == Status.ACCEPTED:
                 # the accepted camera's optical frame (z forward, x right, y down) for tf users and viewers
@@ -431,7 +452,7 @@ class OperatorNode(Node):
         if self._scene_markers is None or any(a is not b for a, b in zip(self._scene_markers[0], shown)):
             if not self._scan_shown:   # a reconstructed scan: the mission's mesh (on the view thread)
                 self._scan_shown = True
-                self._view_worker.submit(self._publish_scan, request.mesh, operator.alignment.to_input(),
+                self._submit_view(self._publish_scan, request.mesh, operator.alignment.to_input(),
                                          operator.alignment.input_frame)
             self._scene_markers = shown, scene_markers(list(request.regions), request.target,
                                                        operator.alignment.to_input(), operator.alignment.input_frame,

@@ -1,0 +1,41 @@
+"""The coordinator's view thread never holds an earlier mission's work: when a mission starts, the
+views still queued from the one before are dropped (they held its meshes while the views lagged
+behind the missions on a loaded machine, and would have drawn an old picture into the new one)."""
+
+from __future__ import annotations
+
+import threading
+
+import pytest
+
+pytestmark = pytest.mark.ros
+
+
+def test_a_new_mission_drops_the_view_work_still_queued():
+    from perch_common.ros import testing
+
+    testing.use_isolated_ros_env()
+    import rclpy
+
+    from perch_operator.coordinator.node import OperatorNode
+
+    rclpy.init()
+    try:
+        node = OperatorNode()
+        busy, release, ran = threading.Event(), threading.Event(), []
+        try:
+            node._submit_view(lambda: (busy.set(), release.wait(60)))   # the view being drawn now
+            assert busy.wait(60)
+            for i in range(3):   # queued behind it, each holding its mission's request
+                node._submit_view(ran.append, i)
+            assert node._drop_earlier_views() == 3
+            release.set()
+            node._submit_view(ran.append, "next mission")
+            node._view_worker.submit(lambda: None).result(60)   # the thread has drained its queue
+            assert ran == ["next mission"]
+            assert node._drop_earlier_views() == 0   # nothing left queued
+        finally:
+            release.set()
+            node.destroy_node()
+    finally:
+        rclpy.try_shutdown()
