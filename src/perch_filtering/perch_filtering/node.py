@@ -21,12 +21,12 @@ from perch_common.ros.conversions import (
 )
 from perch_common.ros.node_main import run_node
 from perch_common.ros.params import declare_config, read_config
-from perch_common.ros.service import answering, create_stage_service, set_work_budget
+from perch_common.ros.service import answering, create_stage_action, create_stage_service, set_work_budget
 from perch_common.transforms import parse_up_axis
 from perch_filtering.config import FilterConfig, FilterNodeConfig
 from perch_filtering.core import filter_surfaces
+from perch_interfaces import action, srv
 from perch_interfaces import msg as pm
-from perch_interfaces import srv
 
 
 def config_from_spec(spec, base: FilterConfig) -> FilterConfig:
@@ -52,6 +52,7 @@ class FilterNode(Node):
         config = declare_config(self, FilterNodeConfig, check=FilterNodeConfig.validate)
         self._warm_up()
         self.service = create_stage_service(self, srv.Filter, STAGE_SERVICES["filter"], self._filter, config.introspection)
+        self.action = create_stage_action(self, action.Filter, srv.Filter, STAGE_SERVICES["filter"], self._filter)
         self.get_logger().info(f"ready: {STAGE_SERVICES['filter']}")
 
     @staticmethod

@@ -18,8 +18,8 @@ from perch_common.ros.conversions import (
 )
 from perch_common.ros.node_main import run_node
 from perch_common.ros.params import declare_config, read_config
-from perch_common.ros.service import answering, create_stage_service, set_work_budget
-from perch_interfaces import srv
+from perch_common.ros.service import answering, create_stage_action, create_stage_service, set_work_budget
+from perch_interfaces import action, srv
 from perch_placement.config import CameraSpec, DroneSpec, PlacementConfig, PlacementNodeConfig
 from perch_placement.core import PlacementCache, optimise
 
@@ -51,6 +51,7 @@ class PlacementNode(Node):
         self.cache = PlacementCache(max_scene_faces=config.scene_cache_faces)
         self.service = create_stage_service(self, srv.Optimise, STAGE_SERVICES["optimise"], self.optimise,
                                             config.introspection)
+        self.action = create_stage_action(self, action.Optimise, srv.Optimise, STAGE_SERVICES["optimise"], self.optimise)
         self.get_logger().info(f"ready: {STAGE_SERVICES['optimise']}")
 
     def _request_config(self, request) -> PlacementConfig:

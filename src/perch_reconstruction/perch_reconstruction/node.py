@@ -23,11 +23,11 @@ from perch_common.frames import Alignment, aligned_frame_name
 from perch_common.ros.conversions import cached_mesh_to_msg, mesh_from_request, xyz
 from perch_common.ros.node_main import run_node
 from perch_common.ros.params import declare_config, read_config
-from perch_common.ros.service import answering, create_stage_service, set_work_budget
+from perch_common.ros.service import answering, create_stage_action, create_stage_service, set_work_budget
 from perch_common.ros.static_transforms import StaticTransformPublisher, alignment_to_msg
 from perch_common.work import report
+from perch_interfaces import action, srv
 from perch_interfaces import msg as pm
-from perch_interfaces import srv
 from perch_reconstruction import images
 from perch_reconstruction.bag_write import BagTopics
 from perch_reconstruction.cleaning import CleanReport, clean_mesh_with_report
@@ -116,6 +116,8 @@ class ReconstructionNode(Node):
                                          (Trigger, "perch/reconstruct/reset", self._reset),
                                          (srv.CleanMesh, STAGE_SERVICES["clean"], self._clean)):
             create_stage_service(self, srv_type, name, callback, c.introspection, callback_group=services)
+        self.reconstruct_action = create_stage_action(self, action.Reconstruct, srv.Reconstruct,
+                                                      STAGE_SERVICES["reconstruct"], self._reconstruct)
         self.get_logger().info(f"ready: /perch/reconstruct, /perch/clean_mesh; listening on {c.color_topic}, "
                                f"{c.depth_topic}, {c.camera_info_topic}" + (", /tf" if c.pose_type == "tf" else
                                                                             f", {c.pose_topic}" if c.pose_topic else ""))

@@ -11,8 +11,8 @@ from perch_common.conventions import STAGE_SERVICES
 from perch_common.ros.conversions import mesh_from_request, surface_to_msg, to_array
 from perch_common.ros.node_main import run_node
 from perch_common.ros.params import declare_config, read_config
-from perch_common.ros.service import answering, create_stage_service, set_work_budget
-from perch_interfaces import srv
+from perch_common.ros.service import answering, create_stage_action, create_stage_service, set_work_budget
+from perch_interfaces import action, srv
 from perch_segmentation.config import SegmentationNodeConfig
 from perch_segmentation.core import segment_mesh
 
@@ -32,6 +32,7 @@ class SegmentationNode(Node):
         super().__init__("perch_segmentation")
         config = declare_config(self, SegmentationNodeConfig, check=lambda c: c.stage_config().validate())
         self.service = create_stage_service(self, srv.Segment, SERVICE, self._segment, config.introspection)
+        self.action = create_stage_action(self, action.Segment, srv.Segment, SERVICE, self._segment)
         self.get_logger().info(f"ready: {SERVICE}")
 
     @answering

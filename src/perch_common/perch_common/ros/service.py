@@ -13,6 +13,7 @@ the node sets the call's work budget once it knows its input (`set_work_budget`)
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import threading
 import time
@@ -83,6 +84,7 @@ class StageWork:
         self._running: dict[tuple[str, str], set[CancelToken]] = {}
         self._services: set[str] = set()   # what this node serves: cancels for other services are not its own
         self._early: OrderedDict[tuple[str, str], str] = OrderedDict()
+        self._serial = threading.Lock()   # one call at a time, whether it came as a service call or an action goal
         self._release_timer = None
         # Its own group: a cancel must get through while a service callback is busy.
         self.group = MutuallyExclusiveCallbackGroup()
@@ -132,21 +134,26 @@ class StageWork:
         elif msg.request_id:
             self.node.get_logger().info(f"{msg.service}: {call} cancelled before it started")
 
-    def serve(self, name: str, callback: Callable) -> Callable:
-        """Wrap a service callback: run it under its call's cancel token, then schedule a memory release."""
+    def serve(self, name: str, callback: Callable, serial: bool = True) -> Callable:
+        """Wrap a service callback: run it under its call's cancel token, then schedule a memory release.
+
+        serial: one such call at a time in this node (a service in the node's default, mutually exclusive
+        group is serial anyway; the lock also keeps an action goal from overlapping it)."""
         with self._lock:
             self._services.add(name)
 
-        def run(request, response):
+        def run(request, response, on_progress: Callable[[float, str], None] | None = None):
             key = (name, str(getattr(request, "request_id", "")))
-            token = WorkContext(name, functools.partial(self._publish_progress, name, key[1]))
+            publish = functools.partial(self._publish_progress, name, key[1])
+            token = WorkContext(name, publish if on_progress is None else
+                                lambda fraction, phase: (publish(fraction, phase), on_progress(fraction, phase)))
             with self._lock:
                 self._running.setdefault(key, set()).add(token)
                 early = self._early.pop(key, None)
             if early is not None:
                 token.cancel(early)
             try:
-                with cancellable(token):
+                with self._serial if serial else contextlib.nullcontext(), cancellable(token):
                     return callback(request, response)
             finally:
                 with self._lock:
@@ -201,8 +208,74 @@ def create_stage_service(node, srv_type, name: str, callback: Callable, introspe
     from rclpy.qos import qos_profile_services_default
     from rclpy.service_introspection import ServiceIntrospectionState
 
-    service = node.create_service(srv_type, name, StageWork.of(node).serve(name, callback), **kwargs)
+    # A service in its own (reentrant) group keeps its concurrency; in the node's default group it is serial.
+    serve = StageWork.of(node).serve(name, callback, serial="callback_group" not in kwargs)
+    service = node.create_service(srv_type, name, serve, **kwargs)
     if introspection:
         service.configure_introspection(node.get_clock(), qos_profile_services_default,
                                         ServiceIntrospectionState.CONTENTS)
     return service
+
+
+def create_stage_action(node, action_type, srv_type, name: str, callback: Callable):
+    """The long-running form of a stage service: action `name` (the service's own name) of `action_type`,
+    whose goal and result have the service's request and response fields. The goal runs the very callback
+    the service runs (validation, work budget, one call at a time with the service's calls); feedback
+    carries what the core reports (fraction, phase); the standard cancel stops it at its next checkpoint.
+    A networked graph refuses the standard cancel: it carries no token (perch_common.network_auth); the
+    signed StageCancel on CANCEL_TOPIC still stops a goal by its request_id."""
+    import uuid
+
+    from rclpy.action import ActionServer, CancelResponse, GoalResponse
+    from rclpy.callback_groups import ReentrantCallbackGroup
+
+    from perch_common.network_auth import networked
+
+    work = StageWork.of(node)
+    run = work.serve(name, callback)
+    goals: dict[bytes, str] = {}   # goal id -> the request_id its call runs under
+
+    def execute(goal_handle):
+        request = _copy_fields(goal_handle.request, srv_type.Request())
+        if not request.request_id:   # the standard cancel finds the call by the id given here
+            request.request_id = f"action/{uuid.UUID(bytes=bytes(goal_handle.goal_id.uuid)).hex}"
+        goals[bytes(goal_handle.goal_id.uuid)] = request.request_id
+        if goal_handle.is_cancel_requested:   # cancelled before it started: remembered, it stops at once
+            work.cancel(name, request.request_id, "action cancel")
+
+        def feedback(fraction: float, phase: str) -> None:
+            goal_handle.publish_feedback(action_type.Feedback(fraction=float(fraction), phase=phase))
+
+        try:
+            response = run(request, srv_type.Response(), feedback)
+        finally:
+            goals.pop(bytes(goal_handle.goal_id.uuid), None)
+        result = _copy_fields(response, action_type.Result())
+        if goal_handle.is_cancel_requested and not result.success:
+            goal_handle.canceled()
+        elif result.success:
+            goal_handle.succeed()
+        else:
+            goal_handle.abort()
+        return result
+
+    def on_cancel(goal_handle) -> CancelResponse:
+        if networked():
+            node.get_logger().error(f"{name}: refused an action cancel: a networked graph takes signed "
+                                    f"cancels only ({CANCEL_TOPIC})")
+            return CancelResponse.REJECT
+        request_id = goals.get(bytes(goal_handle.goal_id.uuid))
+        if request_id is not None:
+            work.cancel(name, request_id, "action cancel")
+        return CancelResponse.ACCEPT
+
+    # Reentrant: a cancel must get through while the goal runs (StageWork serialises the calls themselves).
+    return ActionServer(node, action_type, name, execute, callback_group=ReentrantCallbackGroup(),
+                        goal_callback=lambda goal: GoalResponse.ACCEPT, cancel_callback=on_cancel)
+
+
+def _copy_fields(source, target):
+    """Copy the fields `target` has from `source` (a goal into a request, a response into a result)."""
+    for field in target.get_fields_and_field_types():
+        setattr(target, field, getattr(source, field))
+    return target

@@ -1,0 +1,144 @@
+"""create_stage_action: a stage's long-running form. A goal runs the service's callback with feedback
+(fraction, phase) and the service's reply as its result; the standard cancel stops it at its next
+checkpoint; a networked graph refuses that cancel (it carries no token)."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+
+from perch_common.cancellation import checkpoint
+from perch_common.work import report
+
+pytestmark = pytest.mark.ros
+
+WAIT = 60.0   # s, generous deadline for anything that crosses the executor
+
+
+@pytest.fixture
+def graph():
+    """A node serving perch/segment (service and action) with a callback that works until cancelled or
+    released, and a client node; both spun by one multi-threaded executor."""
+    import rclpy
+    from rclpy.action import ActionClient
+    from rclpy.executors import MultiThreadedExecutor
+    from rclpy.node import Node
+
+    from perch_common.ros.service import answering, create_stage_action, create_stage_service
+    from perch_common.ros.testing import use_isolated_ros_env
+    from perch_interfaces import action, srv
+
+    use_isolated_ros_env()
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    release = threading.Event()
+
+    class Server(Node):
+        def __init__(self):
+            super().__init__("stage_action_test_server", context=context)
+            create_stage_service(self, srv.Segment, "perch/segment", self._segment, introspection=False)
+            create_stage_action(self, action.Segment, srv.Segment, "perch/segment", self._segment)
+
+        @answering
+        def _segment(self, request, response):
+            report(0.25, "waiting for the test")
+            deadline = time.monotonic() + WAIT
+            while not release.is_set() and time.monotonic() < deadline:
+                checkpoint("the next wait")
+                report(0.5, "waiting for the test")
+                time.sleep(0.01)
+            response.success, response.message = True, f"released {request.request_id}"
+            return response
+
+    server = Server()
+    client_node = rclpy.create_node("stage_action_test_client", context=context)
+    client = ActionClient(client_node, action.Segment, "perch/segment")
+    executor = MultiThreadedExecutor(num_threads=4, context=context)
+    executor.add_node(server)
+    executor.add_node(client_node)
+    spinner = threading.Thread(target=executor.spin, daemon=True)
+    spinner.start()
+    try:
+        assert client.wait_for_server(timeout_sec=WAIT)
+        yield client, release
+    finally:
+        release.set()
+        executor.shutdown()
+        server.destroy_node()
+        client_node.destroy_node()
+        rclpy.shutdown(context=context)
+        spinner.join(10)
+
+
+def _wait(future):
+    deadline = time.monotonic() + WAIT
+    while not future.done():
+        assert time.monotonic() < deadline, "no answer within the deadline"
+        time.sleep(0.01)
+    return future.result()
+
+
+def _start(client, feedback: list):
+    from perch_interfaces.action import Segment
+
+    handle = _wait(client.send_goal_async(Segment.Goal(request_id="goal/1"),
+                                          feedback_callback=lambda m: feedback.append(m.feedback)))
+    assert handle.accepted
+    deadline = time.monotonic() + WAIT
+    while not feedback:   # the goal runs (and the feedback subscription is matched)
+        assert time.monotonic() < deadline, "no feedback"
+        time.sleep(0.01)
+    return handle
+
+
+def test_a_goal_gives_feedback_and_the_services_reply_as_its_result(graph):
+    from action_msgs.msg import GoalStatus
+
+    client, release = graph
+    feedback = []
+    handle = _start(client, feedback)
+    release.set()
+    answer = _wait(handle.get_result_async())
+    assert answer.status == GoalStatus.STATUS_SUCCEEDED
+    assert answer.result.success and answer.result.message == "released goal/1"
+    assert feedback[0].phase == "waiting for the test" and 0.25 <= feedback[0].fraction <= 0.5
+
+
+def test_the_standard_cancel_stops_the_goal_at_its_next_checkpoint(graph):
+    from action_msgs.msg import GoalStatus
+
+    client, _ = graph
+    handle = _start(client, [])
+    cancel = _wait(handle.cancel_goal_async())
+    assert len(cancel.goals_canceling) == 1
+    answer = _wait(handle.get_result_async())
+    assert answer.status == GoalStatus.STATUS_CANCELED
+    assert not answer.result.success
+    assert answer.result.message.startswith("perch/segment: cancelled by its caller (action cancel)")
+
+
+def test_a_networked_graph_refuses_the_standard_cancel(graph, monkeypatch):
+    from action_msgs.msg import GoalStatus
+
+    client, release = graph
+    monkeypatch.setenv("PERCH_NETWORK", "1")
+    handle = _start(client, [])
+    cancel = _wait(handle.cancel_goal_async())
+    assert len(cancel.goals_canceling) == 0   # refused: the goal goes on
+    release.set()
+    answer = _wait(handle.get_result_async())
+    assert answer.status == GoalStatus.STATUS_SUCCEEDED and answer.result.success
+
+
+@pytest.mark.parametrize("name", ["Reconstruct", "Segment", "Filter", "Optimise"])
+def test_each_stage_action_has_its_services_fields(name):
+    """The .action files repeat their service's fields (rosidl cannot include one in the other)."""
+    import importlib
+
+    stage_action = getattr(importlib.import_module("perch_interfaces.action"), name)
+    service = getattr(importlib.import_module("perch_interfaces.srv"), name)
+    assert stage_action.Goal.get_fields_and_field_types() == service.Request.get_fields_and_field_types()
+    assert stage_action.Result.get_fields_and_field_types() == service.Response.get_fields_and_field_types()
+    assert stage_action.Feedback.get_fields_and_field_types() == {"fraction": "float", "phase": "string"}
