@@ -29,6 +29,10 @@ from perch_segmentation.merge_pass import PlaneRules, boundary_plane_groups, mer
 from perch_segmentation.surfaces import build_surfaces
 
 AREA_DECIMALS = 4  # m^2 digits at which surface areas are compared (see segment_mesh)
+# A face whose height is below this share of its longest edge is a sliver: its normal is float
+# rounding (of float32 message vertices too) and points elsewhere in every frame. It gets none, as
+# an exactly degenerate face has (a 0.02 deg turn changed up to 73 faces of holo1_room_window).
+SLIVER_HEIGHT_RATIO = 1e-4
 
 
 @dataclass
@@ -60,7 +64,8 @@ def segment_mesh(mesh: Mesh, config: SegmentationConfig | None = None) -> Segmen
     with ThreadPoolExecutor(max_workers=max(1, config.threads)) as pool:  # numpy releases the GIL
         adjacency_job = pool.submit(face_adjacency, mesh.faces, mesh.num_vertices)
         lab = rgb_to_lab(median_face_colors(mesh)) if colors is not None else None
-        faces_table = st.face_table(triangles, areas, mesh.face_normals(), lab, colors)
+        faces_table = st.face_table(triangles, areas, reliable_face_normals(triangles, mesh.face_normals()),
+                                    lab, colors)
         adjacency = adjacency_job.result()
     clock.lap("prepare")
 
@@ -108,6 +113,16 @@ def segment_mesh(mesh: Mesh, config: SegmentationConfig | None = None) -> Segmen
                               config.boundary_simplify, config.threads)
     clock.lap("step3_surfaces")
     return SegmentationResult(surfaces, face_labels, clusters_step1, clusters_step2, clock.laps)
+
+
+def reliable_face_normals(triangles: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """Unit face normals, zero for slivers (height under SLIVER_HEIGHT_RATIO of the longest edge)."""
+    edges = triangles - np.roll(triangles, 1, axis=1)
+    longest2 = np.einsum("fij,fij->fi", edges, edges).max(axis=1)
+    cross = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
+    twice_area = np.sqrt(np.einsum("ij,ij->i", cross, cross))  # = longest edge x height
+    sliver = twice_area <= SLIVER_HEIGHT_RATIO * longest2
+    return np.where(sliver[:, None], 0.0, normals)
 
 
 def median_face_colors(mesh: Mesh) -> np.ndarray:

@@ -13,7 +13,7 @@ from perch_common.data import shared_file
 from perch_common.mesh import Mesh
 from perch_common.scene_generator import generate_scene
 from perch_segmentation import stats as st
-from perch_segmentation.core import SegmentationConfig, segment_mesh
+from perch_segmentation.core import SegmentationConfig, reliable_face_normals, segment_mesh
 
 TURNS_DEG = (0.02, -0.02, 0.1, -0.1)
 
@@ -69,6 +69,16 @@ def test_cancelled_winding_is_zero_in_every_frame():
     np.testing.assert_array_equal(st.winding_normals(table), np.zeros((2, 3)))
     table[1, st.NORMAL] = (0.0, 0.0, 1e-3)  # a real, if lopsided, winding keeps its direction
     np.testing.assert_allclose(st.winding_normals(table)[1], (0.0, 0.0, 1.0))
+
+
+def test_sliver_faces_have_no_normal():
+    # A 10 cm triangle 1 um high (float rounding made it a triangle), and a 2 um high triangle of 1 cm.
+    triangles = np.array([[[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.05, 1e-6, 0.0]],
+                          [[0.0, 0.0, 0.0], [0.01, 0.0, 0.0], [0.005, 0.0, 2e-6]],
+                          [[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.0, 0.1, 0.0]]])
+    normals = np.array([[0.0, 0.0, 1.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0]])
+    np.testing.assert_array_equal(reliable_face_normals(triangles, normals),
+                                  [[0.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0]])
 
 
 def test_generated_room_with_double_sided_faces_keeps_its_surfaces_when_turned():
