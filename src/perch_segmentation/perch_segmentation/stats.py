@@ -22,6 +22,7 @@ RGB = slice(16, 19)
 NORMAL2 = slice(19, 25)
 STEP1_COLUMNS = 16  # area, moments, winding and colour: what step 1 reads
 _TINY_AREA = 1e-18
+_PLANE_DEFINED = 1e-9  # second/largest spread ratio (squared widths) below which a cluster is a line
 
 
 def face_table(triangles: np.ndarray, areas: np.ndarray, unit_normals: np.ndarray,
@@ -123,7 +124,11 @@ def plane_normals(table: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     rows = np.arange(len(c))
     length = lengths[rows, best]
     fallback = winding_normals(table)  # degenerate (collinear or empty) clusters
-    normals = np.where(length[:, None] > 1e-30, candidates[rows, best] / np.maximum(length, 1e-300)[:, None],
+    # Rows of a plane's C - lambda I cross to ~ lambda2 * lambda3; a line's (a leftover sliver) to
+    # float residue, whose direction differs in every frame: such a cluster takes its winding.
+    trace = c[:, 0] + c[:, 1] + c[:, 2]
+    defined = length > np.maximum(_PLANE_DEFINED * trace * trace, 1e-30)
+    normals = np.where(defined[:, None], candidates[rows, best] / np.maximum(length, 1e-300)[:, None],
                        fallback)
     flip = np.einsum("ij,ij->i", normals, table[:, NORMAL]) < 0
     normals[flip] *= -1.0

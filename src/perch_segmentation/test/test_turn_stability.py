@@ -103,3 +103,19 @@ def test_real_apartment_keeps_its_surfaces_when_turned():
     assert_same_surfaces(mesh, axes=((1.0, 0.0, 0.0),))
     # and face for face: the 0.6 m^2 low patch stays apart from the floor at +0.02 deg
     np.testing.assert_array_equal(surfaces_of(turned(mesh, 0.02, (1.0, 0.0, 0.0)))[2], labels)
+
+
+@pytest.mark.data
+def test_real_hololens_room_keeps_its_surfaces_when_turned():
+    # Its slivers (zero-area faces and the line-like clusters step 1 leaves of them) had normals of
+    # float residue: 8-73 faces and up to 0.05 m^2 moved between surfaces on these turns.
+    path = shared_file("meshes", "scans", "holo1_room_window.obj")
+    if path is None:
+        pytest.skip("../shared/data not found: meshes/scans/holo1_room_window.obj")
+    from perch_common.mesh import load_mesh
+
+    mesh = load_mesh(path)
+    _, _, labels = surfaces_of(mesh)
+    for degrees in TURNS_DEG:
+        np.testing.assert_array_equal(surfaces_of(turned(mesh, degrees, (1.0, 0.0, 0.0)))[2], labels,
+                                      err_msg=f"turned {degrees:+} deg")
