@@ -13,7 +13,8 @@ loop points:
 All three are no-ops outside a context (a core used from a script or a unit test). The context is
 per thread (a contextvar), like the cancel token it extends, so no core signature changes.
 
-Work budget (issue 22): a call may work at most `base + rate x size` seconds, `size` being its input
+Work budget (issue 22): a call may work at most `base + rate x size` CPU seconds of its process (a
+loaded machine slows a call without refusing it), `size` being its input
 (faces of the mesh; frames of a bag), set by the node once it knows the input (`set_budget`). Past
 it, the next checkpoint or report raises BudgetExceeded with the stage, the budget, the size and a
 hint: a pathological input (a triangle soup) is refused in seconds with its reason, not after minutes.
@@ -47,16 +48,21 @@ class WorkContext(CancelToken):
     """A cancel token that also carries the call's progress callback and its deadline.
 
     on_progress(fraction, phase) is called from the working thread: on every phase change and at most
-    every REPORT_INTERVAL s otherwise (a cheap loop may report every step). `clock` is injectable for tests.
+    every REPORT_INTERVAL s otherwise (a cheap loop may report every step). The budget is in CPU seconds
+    of the process (time.process_time), the pacing in wall seconds; a test passes one `clock` for both.
     """
 
     def __init__(self, name: str = "the stage", on_progress: Callable[[float, str], None] | None = None,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] | None = None) -> None:
         super().__init__()
         self.name = name
         self.on_progress = on_progress
-        self.clock = clock
-        self.started = clock()
+        # The budget counts the serving process's CPU seconds, not wall time: a loaded machine (a CI
+        # runner, a laptop compiling beside it) slows a call down without making it more work.
+        # Progress is paced in wall time. A test passes one clock for both.
+        self.clock = clock or time.monotonic
+        self.work_clock = clock or time.process_time
+        self.started = self.work_clock()
         self.deadline = math.inf
         self.budget_reason = ""
         self.fraction = 0.0
@@ -65,7 +71,7 @@ class WorkContext(CancelToken):
         self._spans: list[tuple[float, float]] = []   # nested (low, high) of the call a report maps into
 
     def set_budget(self, seconds: float, size: str, hint: str = "") -> None:
-        """Allow `seconds` from the call's start for an input described by `size` ('122,000 faces')."""
+        """Allow `seconds` of CPU from the call's start for an input described by `size` ('122,000 faces')."""
         self.deadline = self.started + float(seconds)
         shown = f"{seconds:.0f}" if seconds >= 10 else f"{seconds:.2g}"
         self.budget_reason = (f"{self.name} exceeded its work budget of {shown} s for {size}"
@@ -74,7 +80,7 @@ class WorkContext(CancelToken):
     def check(self, step: str = "") -> None:
         """Raise Cancelled when cancelled, BudgetExceeded when past the deadline."""
         super().check(step)
-        if self.clock() > self.deadline:
+        if self.work_clock() > self.deadline:
             raise BudgetExceeded(self.budget_reason)
 
     def report(self, fraction: float, phase: str = "", detail: str = "") -> None:
