@@ -1,7 +1,8 @@
 """The console in a real browser: Debian's chromium driven by Playwright against a running graph.
 
-Open the console, set a target box, start a mission (with a surface review) on a generated room,
-reject one surface, reject one proposal, accept the rest, and check that the waypoints published on
+Open the console, set a target box (typed, then one face dragged with the mouse), start a mission
+(with a surface review) on a generated room, reject one surface and crop another, reject one
+proposal, accept the rest, and check that the waypoints published on
 perch/mission_waypoints are the accepted perches the console showed. Every wait is on a page or
 graph condition (Playwright's auto-waiting locators, polled topics), never a fixed sleep. Screenshots
 of each step go to src/perch_console/doc/ (the README shows them).
@@ -14,6 +15,7 @@ import shutil
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
@@ -105,6 +107,60 @@ def shot(page, name: str) -> None:
     page.screenshot(path=str(DOC / name))
 
 
+def until(condition, what: str, timeout: float = WAIT_MS / 1000, page=None):
+    """Poll `condition` (a page's event loop kept running) until it holds; its value."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = condition()
+        if value:
+            return value
+        if page is not None:
+            page.wait_for_timeout(50)
+        else:
+            time.sleep(0.05)
+    raise TimeoutError(f"timed out waiting for {what}")
+
+
+def screen_point(page, camera, point) -> tuple[float, float]:
+    """Where a world point appears on the page: the browser's own camera (pose in OpenCV convention,
+    vertical field of view, canvas size, as it reports them to viser) projected onto the canvas."""
+    from perch_console.state import EditBox
+
+    rotation = EditBox(np.zeros(3), np.ones(3), camera.wxyz).rotation     # world from camera
+    x, y, z = rotation.T @ (np.asarray(point, np.float64) - camera.position)
+    focal = camera.image_height / 2 / np.tan(camera.fov / 2)
+    canvas = max((c.bounding_box() for c in page.locator("canvas").all()), key=lambda b: b["width"] * b["height"])
+    scale = canvas["width"] / camera.image_width
+    return (canvas["x"] + scale * (camera.image_width / 2 + focal * x / z),
+            canvas["y"] + scale * (camera.image_height / 2 + focal * y / z))
+
+
+def drag_face(page, console_obj, editor, axis: int, sign: float, pixels: float) -> None:
+    """Drag one face handle of a box along its arrow with the mouse, as an operator does: the view
+    is first turned to look at that face from above and in front, then the arrow is grabbed and
+    pulled `pixels` along its direction on the screen."""
+    client = until(lambda: next(iter(console_obj.server.get_clients().values()), None), "the browser's client")
+    box = console_obj.box_of(editor)
+    face, direction = box.face(axis, sign), box.rotation[:, axis]
+    eye = face + np.array([0.3, -2.4, 1.8])
+    client.camera.up_direction = (0.0, 0.0, 1.0)
+    client.camera.position = tuple(eye)
+    client.camera.look_at = tuple(face)
+    until(lambda: np.allclose(client.camera.position, eye, atol=1e-3) and np.allclose(client.camera.look_at, face,
+                                                                                      atol=1e-3),
+          "the browser's camera at the face", page=page)
+    page.evaluate("() => new Promise(r => requestAnimationFrame(() => requestAnimationFrame(r)))")   # drawn
+    camera = client.camera
+    grab = np.array(screen_point(page, camera, face + 0.12 * direction))   # on the arrow's shaft (0.3 m long)
+    tip = np.array(screen_point(page, camera, face + 0.3 * direction))
+    along = (tip - grab) / np.linalg.norm(tip - grab)
+    page.mouse.move(*grab)
+    page.mouse.down()
+    for step in range(1, 11):   # in steps, as a hand moves: the gizmo follows each pointer move
+        page.mouse.move(*(grab + along * pixels * step / 10))
+    page.mouse.up()
+
+
 def open_buttons(page) -> list[int]:
     """Proposal ids with an Accept button (open proposals), as the page shows them now."""
     return sorted(int(m) for m in re.findall(r"Accept #(\d+)", " ".join(
@@ -150,19 +206,39 @@ def test_first_time_operator_flow_in_chromium(graph, console):
             page.wait_for_timeout(50)
             box = console_obj.box_of(console_obj.target)
         assert abs(box.center[0] - center[0]) < 0.01 and abs(box.size[1] - size[1]) < 0.01
+        # then drag the box's +x face handle outwards: the box grows along x, its -x face stays
+        typed = console_obj.box_of(console_obj.target)
+        drag_face(page, console_obj, console_obj.target, 0, 1.0, 90)
+        dragged = until(lambda: (lambda b: b if b.size[0] > typed.size[0] + 0.05 else None)(
+            console_obj.box_of(console_obj.target)), "the dragged face to resize the target box", page=page)
+        np.testing.assert_allclose(dragged.face(0, -1.0), typed.face(0, -1.0), atol=1e-6)
+        np.testing.assert_allclose(dragged.size[1:], typed.size[1:], atol=1e-6)
+        until(lambda: abs(float(vector_inputs(page, "Target size").nth(0).input_value()) - dragged.size[0]) < 0.01,
+              "the size field to follow the handle", page=page)
         shot(page, "console_2_target.png")
         page.get_by_role("button", name="Start mission").click()
         page.get_by_text("mission started by alice").wait_for()
-        # 3. the surface review: reject the first (largest) surface, approve the rest
+        # 3. the surface review: reject the first (largest) surface, crop the second to 60 % of its
+        #    length (its crop box starts around it; the size is typed here), approve the rest
         page.get_by_role("button", name="Submit review").wait_for()
-        first = page.locator("xpath=//label[starts-with(normalize-space(), 'S')][contains(., 'm²')]").first
-        surface_label = first.inner_text()
+        labels = page.locator("xpath=//label[starts-with(normalize-space(), 'S')][contains(., 'm²')]")
+        surface_label, crop_label = labels.nth(0).inner_text(), labels.nth(1).inner_text()
         page.get_by_label(surface_label).click()
         page.get_by_role("option", name="reject").click()
+        page.get_by_label(crop_label).click()
+        page.get_by_role("option", name="crop").click()
+        cropped = int(re.match(r"S(\d+)", crop_label.strip()).group(1))
+        editor = until(lambda: console_obj._crop_editors.get(cropped), "the crop box of the second surface")
+        whole = console_obj.box_of(editor)
+        vector_inputs(page, f"S{cropped} crop size").nth(0).fill(f"{0.6 * whole.size[0]:.3f}")
+        vector_inputs(page, f"S{cropped} crop size").nth(0).press("Tab")
+        until(lambda: abs(console_obj.box_of(editor).size[0] - 0.6 * whole.size[0]) < 0.01,
+              "the crop size to reach the console", page=page)
         text_field(page, "Reason").fill("segmentation ran over the door")
         shot(page, "console_3_review.png")
         page.get_by_role("button", name="Submit review").click()
-        page.get_by_text(re.compile(r"decided surface review \d+, rejecting \[\d+\]")).wait_for()
+        page.get_by_text(re.compile(rf"decided surface review \d+, rejecting \[\d+\], cropping \[{cropped}\]"
+                                    r" \(segmentation ran over the door\): ok")).wait_for()
         # 4. proposals: reject the first with a reason, accept the rest (and any re-plan) until none is open
         page.get_by_role("button", name=re.compile(r"^Accept #\d+$")).first.wait_for()
         deadline = time.monotonic() + WAIT_MS / 1000
