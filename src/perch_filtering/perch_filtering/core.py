@@ -247,7 +247,7 @@ def _reachability(work: list[_Work], grid: FlightGrid, mesh: Mesh,
     asked = np.concatenate([stand[near] for stand, near in zip(stands, nears)]) if work else np.zeros((0, 3))
     if len(asked) >= LARGE_QUERY:
         clear = standoffs_clear(mesh, [(w.raster, w.alive, near) for w, near in zip(work, nears)], asked,
-                                config.standoff, config.drone_radius, config.voxel_size)
+                                config.standoff, config.drone_radius)
     else:  # the clearance test reuses the samples the filter drew (same spacing: kept with the mesh)
         clear = clear_of_mesh(mesh, asked, config.drone_radius, config.voxel_size)
     fits = np.split(clear, np.cumsum([n.sum() for n in nears])[:-1])
