@@ -154,18 +154,9 @@ def client_node(request):
         rclpy.try_shutdown()
 
 
-def poll_until(condition, timeout: float, what: str):
-    """The first truthy value of `condition()`, polled every 50 ms; AssertionError "{what} within N s" after `timeout`."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = condition()
-        if value:
-            return value
-        time.sleep(0.05)
-    raise AssertionError(f"{what} within {timeout:.0f} s")
-
-
 @pytest.fixture
 def wait_for():
-    """`wait_for(condition, timeout, what)`: conftest.poll_until, for tests that wait on the graph."""
+    """`wait_for(condition, timeout, what)`: testing.poll_until, for tests that wait on the graph."""
+    from perch_common.ros.testing import poll_until
+
     return poll_until

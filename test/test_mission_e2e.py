@@ -13,6 +13,8 @@ import numpy as np
 import pytest
 import yaml
 
+from perch_common.ros.testing import poll_until as wait_for
+
 pytestmark = pytest.mark.ros
 
 CAMERAS = 3
@@ -35,14 +37,6 @@ def make_goal(scene, auto_accept: bool = True, cameras: int = CAMERAS):
                             num_cameras=cameras, auto_accept=auto_accept, seed=-1)
 
 
-def wait_for(predicate, timeout: float, what: str):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = predicate()
-        if value:
-            return value
-        time.sleep(0.05)
-    raise TimeoutError(f"timed out waiting for {what}")
 
 
 @pytest.fixture(scope="module")

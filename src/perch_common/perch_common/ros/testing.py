@@ -78,3 +78,14 @@ def call_service(node: Node, srv_type, name: str, request, timeout: float = 30.0
         client.remove_pending_request(future)
         raise TimeoutError(f"service {name} did not answer within {timeout:.0f} s")
     return future.result()
+
+
+def poll_until(condition, timeout: float, what: str):
+    """The first truthy value of `condition()`, polled every 50 ms; AssertionError "{what} within N s" after `timeout`."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = condition()
+        if value:
+            return value
+        time.sleep(0.05)
+    raise AssertionError(f"{what} within {timeout:.0f} s")
