@@ -209,14 +209,51 @@ def parse_overrides(overrides: list[str] | tuple[str, ...]) -> dict[str, list[st
 
 
 def ros_arguments(config: Path, nodes: list[str], overrides: dict[str, list[str]], namespace: str = "") -> list[str]:
-    """`--ros-args --params-file CONFIG [-r __ns:=/N] -p node:param:=value ...` for the given nodes."""
+    """`--ros-args --params-file CONFIG [-r __ns:=/N] -p node:param:=value ...` for the given nodes.
+
+    In a namespace, rcl matches a file's bare `NAME:` key and `-p NAME:param:=v` to `/NAME` only, so
+    both would be ignored without a word; there the same parameters go in a second file under
+    `/**/NAME` (every namespace), the overrides in a third, which wins."""
     args = ["--ros-args", "--params-file", str(config), *ros_namespace.ros_arguments(namespace)]
+    if namespace:
+        return args + [a for path in namespaced_parameter_files(config, nodes, overrides)
+                       for a in ("--params-file", str(path))]
     # `-p param:=v` would apply to every node and lose to the node's own section of the
     # parameter file; `-p node:param:=v` is node-specific and wins.
     for name in nodes:
         for param in overrides.get("*", []) + overrides.get(name, []):
             args += ["-p", f"{name}:{param}"]
     return args
+
+
+def namespaced_parameter_files(config: Path, nodes: list[str], overrides: dict[str, list[str]]) -> list[Path]:
+    """The config's bare node sections re-keyed `/**/NAME`, then the -p overrides likewise: two
+    parameter files that apply in any namespace (written once per content, kept for respawns)."""
+    import hashlib
+    import tempfile
+
+    import yaml
+
+    from perch_common.config import load_yaml
+
+    sections = {f"/**/{key}": value for key, value in load_yaml(config).items() if "/" not in str(key)}
+    forced: dict[str, dict] = {}
+    for name in nodes:
+        for item in overrides.get("*", []) + overrides.get(name, []):
+            param, _, text = item.partition(":=")
+            forced.setdefault(f"/**/{name}", {"ros__parameters": {}})["ros__parameters"][param] = yaml.safe_load(text)
+    folder = Path(tempfile.gettempdir()) / f"perch-{os.getuid()}"
+    folder.mkdir(mode=0o700, exist_ok=True)
+    paths = []
+    for part in (sections, forced):
+        text = yaml.safe_dump(part, sort_keys=False)
+        path = folder / f"params-{hashlib.sha256(text.encode()).hexdigest()[:16]}.yaml"
+        if not path.exists():
+            tmp = path.with_suffix(f".{os.getpid()}.tmp")
+            tmp.write_text(text)
+            os.replace(tmp, path)
+        paths.append(path)
+    return paths
 
 
 @dataclass

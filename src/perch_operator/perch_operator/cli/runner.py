@@ -104,7 +104,7 @@ def graph_ros_args(config: Path | None, overrides, log_dir: Path | None) -> list
     if log_dir is not None:
         log_dir.mkdir(parents=True, exist_ok=True)
         os.environ["ROS_LOG_DIR"] = str(log_dir.resolve())   # read by rclpy.init
-    return [*ros_arguments(config, mission_nodes(), checked), "--disable-stdout-logs"]
+    return [*ros_arguments(config, mission_nodes(), checked, namespace.current()), "--disable-stdout-logs"]
 
 
 def mission_nodes() -> list[str]:
