@@ -116,8 +116,9 @@ class Mission:
         return reply
 
     def stage_progress(self, stage: str, within: float, message: str) -> None:
-        """Feedback from inside the running stage (reconstruction frames): the mission's fraction moves
-        by the stage's share, and `stage_fraction` says how far the stage is. Ignored for any other stage."""
+        """Feedback from inside the running stage (reconstruction frames; segment, filter and optimise
+        phases from perch/stage_progress): the mission's fraction moves by the stage's share, and
+        `stage_fraction` says how far the stage is. Ignored for any stage but the running one."""
         if stage != self.running_stage or (stage, message) == self._last_progress:
             return   # the progress topic repeats itself every period; feedback only says what changed
         self._last_progress = (stage, message)
