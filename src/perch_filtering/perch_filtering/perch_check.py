@@ -17,7 +17,7 @@ and tests triangles against boxes directly), so that the two can check each othe
             max_unobserved_share + OBSERVED_SLACK of each may be unobserved (module doc below);
   sight     (with a target) at least min_visible_share of the target's sample points seen;
   reach     the standoff point in front of the seated perch is at least a drone radius from the mesh.
-START (5 cm): geometry nearer the plane than surface_depth (4 cm) is the scanned surface itself
+START (7 cm): geometry nearer the plane than surface_depth (6 cm) is the scanned surface itself
 (support bounds what it may do), plus 1 cm for faces crossing a box's side between mesh samples.
 
 Observed space with camera viewpoints (a reconstruction from posed RGB-D frames, Mesh.viewpoints): a
@@ -72,7 +72,7 @@ class CheckSpec:
     drone_radius: float = 0.35
     standoff: float = 0.5
     plane_tolerance: float = 0.03
-    surface_depth: float = 0.04
+    surface_depth: float = 0.06
     min_support: float = 0.9
     max_support_rms: float = 0.02
     min_visible_share: float = 0.2
