@@ -98,8 +98,8 @@ class StageNodeConfig(Generic[T]):
 
     introspection: bool = param(True, "publish service introspection events (requests and replies) for the recorder",
                                 read_only=True)
-    # Work budget (perch_common.work): a call may work base + rate x (input faces / 1000) seconds, then it is
-    # refused naming the budget. Time is not proportional to faces alone (the filter: 0.01-0.02 s per 1000
+    # Work budget (perch_common.work): a call may work base + rate x (input faces / 1000) CPU seconds, then it
+    # is refused naming the budget. Time is not proportional to faces alone (the filter: 0.01-0.02 s per 1000
     # faces on the apartment and multi_storey, 0.4 s on a 38k-face generated room, which took over 38 s
     # on the loaded test machine): the defaults guard against runaway input with several times a loaded
     # normal run's time; a triangle soup (~2 s per 1000 faces) of 122k faces is refused at 181 s.
