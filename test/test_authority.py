@@ -13,6 +13,20 @@ from perch_common.config import ConfigError
 from perch_common.launch import dds_profile, use_perch_dds
 
 
+@pytest.fixture(autouse=True)
+def _own_environment():
+    """Each test here sets ROS and DDS variables (the isolated domain, the profiles that client_context and
+    use_perch_dds write into os.environ); they must not reach later modules' graphs and subprocesses
+    (ROS_AUTOMATIC_DISCOVERY_RANGE and the profile left behind kept test_lifecycle_e2e's killed client's
+    mission alive)."""
+    import os
+
+    saved = dict(os.environ)
+    yield
+    os.environ.clear()
+    os.environ.update(saved)
+
+
 def _spin(executors, condition, timeout: float, what: str):
     """Spin every executor until `condition()` is truthy (its value); AssertionError after `timeout` s."""
     deadline = time.monotonic() + timeout
@@ -242,122 +256,3 @@ def test_a_networked_graph_refuses_unsigned_and_forged_commands(tmp_path, monkey
             node.destroy_node()
         rclpy.try_shutdown()
         rclpy.try_shutdown(context=other)
-
-
-@pytest.mark.ros
-def test_a_networked_mission_ends_on_a_signed_cancel_taken_once(tmp_path, monkeypatch):
-    """--network: the action's unsigned cancel is refused, and so is a mission cancel that is unsigned,
-    signed with another key, changed after signing or for another mission (the mission runs on); the
-    signed one (`perch plan`'s Ctrl-C, `perch operator cancel`, PerchCommander: MissionCanceller) ends
-    it CANCELED, and the same token sent again is refused as a replay. The stage the mission waits on
-    is a stand-in that works until the test releases it."""
-    import os
-    import threading
-
-    from perch_common.ros import testing
-
-    testing.use_isolated_ros_env()
-    monkeypatch.setenv("PERCH_NETWORK", "1")   # commands signed and checked (transports stay loopback here)
-    monkeypatch.setenv("PERCH_KEY_FILE", str(tmp_path / "network.key"))
-    import perch_common.network_auth as auth
-
-    monkeypatch.setattr(auth, "_process_key", None)
-    import rclpy
-    from action_msgs.msg import GoalStatus
-    from rclpy.action import ActionClient
-    from rclpy.context import Context
-    from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
-
-    from perch_common.conventions import MISSION_ACTION
-    from perch_common.ros.conversions import mesh_to_msg, target_to_msg
-    from perch_common.scene_generator import generate_scene
-    from perch_interfaces import srv
-    from perch_interfaces.action import PlanPerches
-    from perch_interfaces.msg import StageCancel
-    from perch_operator.api.client import MissionCanceller
-    from perch_operator.coordinator.node import OperatorNode
-    from perch_operator.outputs.mission_data import mission_id_text
-
-    rclpy.init()   # the coordinator's (OperatorNode takes the default context)
-    contexts = [rclpy.get_default_context(), Context(), Context()]
-    for context in contexts[1:]:
-        rclpy.init(context=context)
-    # The coordinator and the stand-in stage in threads of their own (their callbacks block meanwhile).
-    background = [MultiThreadedExecutor(num_threads=4), MultiThreadedExecutor(num_threads=2, context=contexts[2])]
-    client_side = SingleThreadedExecutor(context=contexts[1])
-    release = threading.Event()
-
-    def stall(request, response):
-        release.wait(300)
-        response.success, response.message = False, "released by the test"
-        return response
-
-    nodes, threads = [], []
-    try:
-        coordinator = OperatorNode()
-        stages = rclpy.create_node("stalling_stages", context=contexts[2])
-        for name, srv_type in (("perch/clean_mesh", srv.CleanMesh), ("perch/segment", srv.Segment)):
-            stages.create_service(srv_type, name, stall)
-        caller = rclpy.create_node("remote_operator", context=contexts[1])
-        nodes = [coordinator, stages, caller]
-        background[0].add_node(coordinator)
-        background[1].add_node(stages)
-        client_side.add_node(caller)
-        threads = [threading.Thread(target=e.spin, daemon=True) for e in background]
-        for thread in threads:
-            thread.start()
-        actions = ActionClient(caller, PlanPerches, MISSION_ACTION)
-        canceller = MissionCanceller(caller)
-        sent: list[StageCancel] = []
-        publish = canceller.publisher.publish
-        canceller.publisher.publish = lambda msg: (sent.append(msg), publish(msg))
-        _spin([client_side], actions.server_is_ready, 120, "the coordinator's action did not appear")
-
-        scene = generate_scene(1, "room")
-        goal = PlanPerches.Goal(mesh=mesh_to_msg(scene.mesh), target=target_to_msg(scene.target), up_axis="+z",
-                                auto_accept=True)
-        answer = actions.send_goal_async(goal)
-        _spin([client_side], answer.done, 120, "the goal was not answered")
-        handle = answer.result()
-        assert handle.accepted
-        _spin([client_side], lambda: handle.status == GoalStatus.STATUS_EXECUTING, 120, "the mission did not run")
-        mission = mission_id_text(handle.goal_id)
-
-        unsigned = handle.cancel_goal_async()
-        _spin([client_side], unsigned.done, 120, "no answer to the standard cancel")
-        assert not unsigned.result().goals_canceling
-
-        def cancel(token: str, mission_id: str = mission, reason: str = "stop") -> str:
-            return coordinator._on_mission_cancel(StageCancel(service=MISSION_ACTION, request_id=mission_id,
-                                                              reason=reason, auth=token))
-
-        key = auth.process_key()
-        assert "no authentication token" in cancel("")
-        assert "does not match" in cancel(auth.sign(os.urandom(32), "stage_cancel", MISSION_ACTION, mission, "stop"))
-        assert "does not match" in cancel(auth.sign(key, "stage_cancel", MISSION_ACTION, mission, "stop"), reason="go")
-        assert "does not match" in cancel(auth.sign(key, "stage_cancel", "perch/segment", mission, "stop"))
-        other = "0" * 32
-        assert "is not running" in cancel(auth.sign(key, "stage_cancel", MISSION_ACTION, other, "stop"), other)
-        assert handle.status == GoalStatus.STATUS_EXECUTING
-
-        taken = canceller.cancel(handle.goal_id, "the test", lambda: handle.status, wait=120,
-                                 step=lambda: client_side.spin_once(timeout_sec=0.05))
-        assert taken and sent
-        result = handle.get_result_async()
-        _spin([client_side], result.done, 120, "the cancelled mission did not end")
-        assert result.result().status == GoalStatus.STATUS_CANCELED, result.result().result.message
-        assert "cancelled" in result.result().result.message
-        assert "used before" in coordinator._on_mission_cancel(sent[0])
-        canceller.destroy()
-        actions.destroy()
-    finally:
-        release.set()
-        for executor in background:
-            executor.shutdown()
-        for thread in threads:
-            thread.join(10)
-        for node in nodes:
-            node.destroy_node()
-        rclpy.try_shutdown()
-        for context in contexts[1:]:
-            rclpy.try_shutdown(context=context)

@@ -9,11 +9,10 @@ file run as a script: a JSON-lines driver); host B runs the four stage nodes in 
 
 Missions across the link: a one-host baseline first (every node on host A), then a normal mission
 (same waypoints as the baseline), one cancelled with the networked graph's signed cancel (the
-coordinator refuses the action's unsigned one), one whose client on host B is SIGKILLed mid-mission
-(the coordinator aborts it once the client's participant is gone: lease 3 s + client_grace), one
-whose stage host dies mid-mission (it must fail clearly within the 3 s lease + the coordinator's
-gone_grace), and one after the stage host came back with an empty mesh cache (the coordinator's
-id-only request is answered `mesh not cached` and the arrays are sent again). Timings go to the
+coordinator refuses the action's unsigned one), one whose stage host dies mid-mission (it must fail
+clearly within the 3 s lease + the coordinator's gone_grace), and one after the stage host came back
+with an empty mesh cache (the coordinator's id-only request is answered `mesh not cached` and the
+arrays are sent again). Timings go to the
 test's output (`-s`) and to `two_hosts_timings.json` in the test's temporary folder.
 
 Skips with the reason when network namespaces cannot be created (not root, no `ip`, no
@@ -408,30 +407,6 @@ def test_missions_across_two_hosts(tmp_path, graph_parts):
         assert stopped["status"] == GOAL_CANCELED and "cancelled" in stopped["message"], stopped
         timings["cancel_taken_s"] = cancel["seconds"]
         timings["cancel_to_end_s"] = stopped["t_end"] - cancel["t"]
-
-        # The client dies: a client on host B is SIGKILLed while segmentation runs; the coordinator
-        # aborts the mission once the client's participant is gone (its lease) plus client_grace. Host
-        # A's client leaves first: any live action client of the mission action counts as the goal's
-        # (rclpy does not tell which client sent a goal), so it would keep the mission alive.
-        driver.send(cmd="quit")
-        assert driver.proc.wait(STEP_LIMIT) == 0
-        remote = Driver(hosts, log="driver_b", host="b")
-        remote.wait_services(COORDINATOR_SERVICES + STAGE_SERVICES)
-        coordinator_log = next((tmp_path / "coordinator_nodes").glob("*.log"))
-        offset = coordinator_log.stat().st_size
-        remote.send(cmd="mission", timeout=STEP_LIMIT, announce_at="segment")
-        remote.read("at_stage", STEP_LIMIT)
-        client_killed = time.monotonic()
-        hosts.kill(remote.proc)
-        aborted = _wait_for_line(coordinator_log, offset, ("mission aborted: the mission's client left",), STEP_LIMIT)
-        timings["client_loss_to_abort_s"] = aborted - client_killed
-        # the lease, the grace, a lease period of the lease check and the machine's load (the timing is reported)
-        assert aborted - client_killed <= LEASE + CLIENT_GRACE + LEASE + 30.0, aborted - client_killed
-        driver = Driver(hosts)
-        driver.wait_services(COORDINATOR_SERVICES + STAGE_SERVICES)
-        after = driver.mission()   # the coordinator is free again
-        assert after["success"], after["message"]
-        _same_waypoints(after["waypoints"], baseline["waypoints"])
 
         # The stage host drops dead while the filter runs: its link goes silent, no goodbye. (Its
         # processes live on behind the dead link until the mission failed: that the mission fails
