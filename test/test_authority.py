@@ -13,20 +13,6 @@ from perch_common.config import ConfigError
 from perch_common.launch import dds_profile, use_perch_dds
 
 
-@pytest.fixture(autouse=True)
-def _own_environment():
-    """Each test here sets ROS and DDS variables (the isolated domain, the profiles that client_context and
-    use_perch_dds write into os.environ); they must not reach later modules' graphs and subprocesses
-    (ROS_AUTOMATIC_DISCOVERY_RANGE and the profile left behind kept test_lifecycle_e2e's killed client's
-    mission alive)."""
-    import os
-
-    saved = dict(os.environ)
-    yield
-    os.environ.clear()
-    os.environ.update(saved)
-
-
 def _spin(executors, condition, timeout: float, what: str):
     """Spin every executor until `condition()` is truthy (its value); AssertionError after `timeout` s."""
     deadline = time.monotonic() + timeout
