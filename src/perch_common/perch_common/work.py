@@ -10,14 +10,15 @@ loop points:
   with span(lo, hi): ...         reports inside the block (0..1 of its own work) become lo..hi of the call,
                                  so a helper reports its own share without knowing its caller's phases.
 
-All three are no-ops outside a context (a core used from a script or a unit test). The context is
+All four are no-ops outside a context (a core used from a script or a unit test). The context is
 per thread (a contextvar), like the cancel token it extends, so no core signature changes.
 
 Work budget (issue 22): a call may work at most `base + rate x size` CPU seconds of its process (a
 loaded machine slows a call without refusing it), `size` being its input
 (faces of the mesh; frames of a bag), set by the node once it knows the input (`set_budget`). Past
 it, the next checkpoint or report raises BudgetExceeded with the stage, the budget, the size and a
-hint: a pathological input (a triangle soup) is refused in seconds with its reason, not after minutes.
+hint: runaway work on a pathological input (a triangle soup) ends with its reason instead of running on
+(the defaults allow several times a loaded normal run; they are a guard, not a fast soup detector).
 """
 
 from __future__ import annotations
@@ -115,11 +116,12 @@ def span(low: float, high: float) -> Iterator[None]:
         context._spans.pop()
 
 
+SOUP_HINT = "the mesh is likely a triangle soup; run `perch mesh info`"   # what a budget refusal suggests first
 CLI_BUDGET_ENV = "PERCH_WORK_BUDGET"   # seconds for a command-line stage run (perch segment/filter/optimise); 0: none
 
 
 @contextlib.contextmanager
-def command_budget(name: str, faces: int, hint: str = "the mesh is likely a triangle soup; run `perch mesh info`",
+def command_budget(name: str, faces: int, hint: str = SOUP_HINT,
                    on_progress: Callable[[float, str], None] | None = None) -> Iterator[WorkContext]:
     """Run a command-line stage (`perch filter ...`) under the stage nodes' default work budget for `faces`
     (StageNodeConfig's work_budget_base and work_budget_rate), or PERCH_WORK_BUDGET seconds when set."""

@@ -235,24 +235,26 @@ class ScanChecker:
         return self.box_free(*box)
 
     def unobserved_share(self, centre: np.ndarray, axes: np.ndarray, half: np.ndarray, steps: int = 4,
-                         fall: bool = False) -> float:
-        """Share of a steps^3 grid inside the box that the scan does not enclose (see the module doc);
-        in a fall volume also the points with nothing scanned straight below them."""
+                         fall: bool = False) -> tuple[float, str]:
+        """(share of a steps^3 grid inside the box that the scan does not enclose (see the module doc), why):
+        in a fall volume also the points with nothing scanned straight below them. `why` is "no camera
+        saw it" (camera viewpoints), "no floor scanned below" when that rule left more unobserved, else ""."""
         ticks = (np.arange(steps) + 0.5) / steps * 2 - 1
         a, b, c = np.meshgrid(ticks, ticks, ticks, indexing="ij")
         local = np.column_stack([a.ravel(), b.ravel(), c.ravel()]) * half
         points = centre + local @ axes
+        cause = ""
         if self.mesh.viewpoints is not None and len(self.mesh.viewpoints):  # a reconstruction's cameras
             unknown = ~seen_free(self.rays, self.mesh.viewpoints, points)
-            self.unobserved_cause = "no camera saw it"
+            cause = "no camera saw it"
         else:
             unknown = self.escape_shares(points) > self.spec.enclosed_escape_share
         if fall:  # nothing scanned below: most rays of a 20 deg cone around gravity escape
             no_floor = self.escape_shares(points, self.floor_cone) > 0.5
             if no_floor.sum() > unknown.sum():
-                self.unobserved_cause = "no floor scanned below"
+                cause = "no floor scanned below"
             unknown |= no_floor
-        return float(unknown.mean())
+        return float(unknown.mean()), cause
 
     def escape_shares(self, points: np.ndarray, directions: np.ndarray | None = None) -> np.ndarray:
         """Per point, the share of its rays (ESCAPE_DIRECTIONS, or `directions`) that leave the model."""
@@ -304,18 +306,15 @@ class ScanChecker:
             out.reasons.append(f"support {100 * out.support_share:.0f} %")
         if out.flatness_rms > s.max_support_rms + 1e-9:
             out.reasons.append(f"not flat ({100 * out.flatness_rms:.1f} cm RMS)")
-        causes = {}   # with camera viewpoints, why a volume is unobserved (said in its reason)
-        self.unobserved_cause = ""
-        out.approach_observed = 1.0 - self.unobserved_share(*self.approach_box(point, normal))
-        causes["approach"], self.unobserved_cause = self.unobserved_cause, ""
+        approach_unknown, approach_cause = self.unobserved_share(*self.approach_box(point, normal))
         box = self.fall_box(point, normal)
-        out.fall_observed = 1.0 - self.unobserved_share(*box, fall=True) if box is not None else 1.0
-        causes["fall"] = self.unobserved_cause
+        fall_unknown, fall_cause = self.unobserved_share(*box, fall=True) if box is not None else (0.0, "")
+        out.approach_observed, out.fall_observed = 1.0 - approach_unknown, 1.0 - fall_unknown
         out.observed_share = min(out.approach_observed, out.fall_observed)
         limit = 1.0 - s.max_unobserved_share - OBSERVED_SLACK
-        for name, share, cause in (("approach prism", out.approach_observed, causes["approach"]),
+        for name, share, cause in (("approach prism", out.approach_observed, approach_cause),
                                    ("fall corridor" if kind == "wall" else "fall column", out.fall_observed,
-                                    causes["fall"])):
+                                    fall_cause)):
             if share < limit - 1e-9:
                 why = f" ({cause})" if cause and self.mesh.viewpoints is not None else ""
                 out.reasons.append(f"{name} {100 * (1 - share):.0f} % unobserved{why}")

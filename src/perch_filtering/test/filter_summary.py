@@ -34,7 +34,7 @@ def summarise(result) -> dict:
     regions = []
     for r in result.regions:
         tri = r.mesh.triangles()
-        areas = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+        areas = r.mesh.face_areas()
         centroid = (tri.mean(axis=1) * areas[:, None]).sum(axis=0) / max(areas.sum(), 1e-12)
         regions.append({"surface": int(r.source_surface), "class": int(r.surface_class), "area": float(r.area),
                         "centroid": centroid.tolist(), "normal": r.frame.normal.tolist(),

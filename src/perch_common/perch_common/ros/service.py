@@ -25,7 +25,7 @@ from perch_common.cancellation import CancelToken, cancellable, checkpoint
 from perch_common.errors import EXPECTED
 from perch_common.memory import release_memory
 from perch_common.request_validation import validate_request
-from perch_common.work import WorkContext, current, work_budget
+from perch_common.work import SOUP_HINT, WorkContext, current, work_budget
 
 CANCEL_TOPIC = "perch/stage_cancel"    # perch_interfaces/StageCancel: the one call whose work to stop
 PROGRESS_TOPIC = "perch/stage_progress"  # perch_interfaces/StageProgress: how far each call in progress is
@@ -182,7 +182,6 @@ class StageWork:
         release_memory()
 
 
-SOUP_HINT = "the mesh is likely a triangle soup; run `perch mesh info`"
 
 
 def set_work_budget(node, config, size: int, unit: str = "faces", hint: str = SOUP_HINT, per: float = 1000.0,

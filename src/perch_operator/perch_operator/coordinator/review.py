@@ -162,7 +162,7 @@ def crop_surface(surface: Surface, mesh: Mesh, box: Box) -> Surface:
                          f"(centre {np.round(box.center, 2).tolist()} m, size {np.round(box.size, 2).tolist()} m); "
                          "draw the box over the part of the surface to keep")
     kept = triangles[inside]
-    areas = 0.5 * np.linalg.norm(np.cross(kept[:, 1] - kept[:, 0], kept[:, 2] - kept[:, 0]), axis=1)
+    areas = mesh.face_areas()[faces[inside]]
     frame = surface.frame
     weights = areas if areas.sum() > 0 else np.ones(len(areas))
     shift = frame.to_plane(np.average(kept.mean(axis=1), axis=0, weights=weights)[None])[0]
