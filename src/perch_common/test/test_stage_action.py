@@ -1,6 +1,7 @@
 """create_stage_action: a stage's long-running form. A goal runs the service's callback with feedback
 (fraction, phase) and the service's reply as its result; the standard cancel stops it at its next
-checkpoint; a networked graph refuses that cancel (it carries no token)."""
+checkpoint; a networked graph refuses that cancel (it carries no token); each goal publishes the
+service's introspection events (request received, response sent), as a service call would."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import time
 import pytest
 
 from perch_common.cancellation import checkpoint
+from perch_common.ros.testing import poll_until
 from perch_common.work import report
 
 pytestmark = pytest.mark.ros
@@ -19,12 +21,14 @@ WAIT = 60.0   # s, generous deadline for anything that crosses the executor
 
 @pytest.fixture
 def graph():
-    """A node serving perch/segment (service and action) with a callback that works until cancelled or
-    released, and a client node; both spun by one multi-threaded executor."""
+    """A node serving perch/segment (service and action, introspection on) with a callback that works until
+    cancelled or released, and a client node that also reads the service's events; both spun by one
+    multi-threaded executor. Yields (action client, release event, events received)."""
     import rclpy
     from rclpy.action import ActionClient
     from rclpy.executors import MultiThreadedExecutor
     from rclpy.node import Node
+    from rclpy.qos import qos_profile_services_default
 
     from perch_common.ros.service import answering, create_stage_action, create_stage_service
     from perch_common.ros.testing import use_isolated_ros_env
@@ -38,7 +42,7 @@ def graph():
     class Server(Node):
         def __init__(self):
             super().__init__("stage_action_test_server", context=context)
-            create_stage_service(self, srv.Segment, "perch/segment", self._segment, introspection=False)
+            create_stage_service(self, srv.Segment, "perch/segment", self._segment, introspection=True)
             create_stage_action(self, action.Segment, srv.Segment, "perch/segment", self._segment)
 
         @answering
@@ -55,6 +59,9 @@ def graph():
     server = Server()
     client_node = rclpy.create_node("stage_action_test_client", context=context)
     client = ActionClient(client_node, action.Segment, "perch/segment")
+    events = []
+    subscription = client_node.create_subscription(srv.Segment.Event, "perch/segment/_service_event", events.append,
+                                                   qos_profile_services_default)
     executor = MultiThreadedExecutor(num_threads=4, context=context)
     executor.add_node(server)
     executor.add_node(client_node)
@@ -62,7 +69,9 @@ def graph():
     spinner.start()
     try:
         assert client.wait_for_server(timeout_sec=WAIT)
-        yield client, release
+        # Matched with the service's event writer and the action's (volatile: none may be missed).
+        poll_until(lambda: subscription.get_publisher_count() >= 2, WAIT, "both event writers")
+        yield client, release, events
     finally:
         release.set()
         executor.shutdown()
@@ -96,7 +105,7 @@ def _start(client, feedback: list):
 def test_a_goal_gives_feedback_and_the_services_reply_as_its_result(graph):
     from action_msgs.msg import GoalStatus
 
-    client, release = graph
+    client, release, _ = graph
     feedback = []
     handle = _start(client, feedback)
     release.set()
@@ -109,7 +118,7 @@ def test_a_goal_gives_feedback_and_the_services_reply_as_its_result(graph):
 def test_the_standard_cancel_stops_the_goal_at_its_next_checkpoint(graph):
     from action_msgs.msg import GoalStatus
 
-    client, _ = graph
+    client, _, _ = graph
     handle = _start(client, [])
     cancel = _wait(handle.cancel_goal_async())
     assert len(cancel.goals_canceling) == 1
@@ -122,7 +131,7 @@ def test_the_standard_cancel_stops_the_goal_at_its_next_checkpoint(graph):
 def test_a_networked_graph_refuses_the_standard_cancel(graph, monkeypatch):
     from action_msgs.msg import GoalStatus
 
-    client, release = graph
+    client, release, _ = graph
     monkeypatch.setenv("PERCH_NETWORK", "1")
     handle = _start(client, [])
     cancel = _wait(handle.cancel_goal_async())
@@ -130,6 +139,38 @@ def test_a_networked_graph_refuses_the_standard_cancel(graph, monkeypatch):
     release.set()
     answer = _wait(handle.get_result_async())
     assert answer.status == GoalStatus.STATUS_SUCCEEDED and answer.result.success
+
+
+def test_each_goal_publishes_the_services_introspection_events(graph):
+    """REQUEST_RECEIVED with the request as sent, RESPONSE_SENT with the service's reply, both keyed by
+    the goal id (client_gid) and the goal request's sequence number, which counts up per client as a
+    service client's does; so a recorder pairs them as it pairs a service call's."""
+    from action_msgs.msg import GoalStatus
+    from perch_interfaces.action import Segment
+
+    client, release, events = graph
+    release.set()
+    answers, goal_ids = [], []
+    for n in (1, 2):
+        handle = _wait(client.send_goal_async(Segment.Goal(request_id=f"goal/{n}")))
+        goal_ids.append(bytes(handle.goal_id.uuid))
+        answers.append(_wait(handle.get_result_async()))
+    assert [a.status for a in answers] == [GoalStatus.STATUS_SUCCEEDED] * 2
+    poll_until(lambda: len(events) >= 4, WAIT, "four events")
+    by_goal = {goal: [e for e in events if bytes(e.info.client_gid) == goal] for goal in goal_ids}
+    sequences = []
+    for n, goal in enumerate(goal_ids, start=1):
+        received, sent = by_goal[goal]
+        assert (received.info.event_type, sent.info.event_type) == (1, 2)
+        assert received.info.sequence_number == sent.info.sequence_number
+        sequences.append(received.info.sequence_number)
+        assert len(received.request) == 1 and not received.response
+        assert received.request[0].request_id == f"goal/{n}"
+        assert len(sent.response) == 1 and not sent.request
+        assert sent.response[0].success and sent.response[0].message == f"released goal/{n}"
+        stamp = lambda e: e.info.stamp.sec * 10**9 + e.info.stamp.nanosec   # noqa: E731
+        assert stamp(received) <= stamp(sent)
+    assert sequences[1] == sequences[0] + 1   # one client, its second goal request
 
 
 @pytest.mark.parametrize("name", ["Reconstruct", "Segment", "Filter", "Optimise"])

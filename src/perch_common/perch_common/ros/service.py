@@ -9,6 +9,10 @@ after each call the node gives freed memory back to the system.
 Each call runs under a perch_common.work.WorkContext: what the core reports (`report`, `steps`) is
 published on PROGRESS_TOPIC (perch_interfaces/StageProgress, naming the service and request_id), and
 the node sets the call's work budget once it knows its input (`set_work_budget`).
+
+A stage's action (create_stage_action) publishes the introspection events its service would publish
+for the same call (ActionIntrospection), so recordings, `perch replay --check` and the report read
+action calls exactly as service calls; rclpy Jazzy has no action introspection.
 """
 
 from __future__ import annotations
@@ -83,6 +87,7 @@ class StageWork:
         self._lock = threading.Lock()
         self._running: dict[tuple[str, str], set[CancelToken]] = {}
         self._services: set[str] = set()   # what this node serves: cancels for other services are not its own
+        self.introspection: dict[str, bool] = {}   # service name -> whether its calls publish events
         self._early: OrderedDict[tuple[str, str], str] = OrderedDict()
         self._serial = threading.Lock()   # one call at a time, whether it came as a service call or an action goal
         self._release_timer = None
@@ -208,7 +213,9 @@ def create_stage_service(node, srv_type, name: str, callback: Callable, introspe
     from rclpy.service_introspection import ServiceIntrospectionState
 
     # A service in its own (reentrant) group keeps its concurrency; in the node's default group it is serial.
-    serve = StageWork.of(node).serve(name, callback, serial="callback_group" not in kwargs)
+    work = StageWork.of(node)
+    serve = work.serve(name, callback, serial="callback_group" not in kwargs)
+    work.introspection[name] = introspection   # the stage's action publishes alike (create_stage_action)
     service = node.create_service(srv_type, name, serve, **kwargs)
     if introspection:
         service.configure_introspection(node.get_clock(), qos_profile_services_default,
@@ -216,13 +223,50 @@ def create_stage_service(node, srv_type, name: str, callback: Callable, introspe
     return service
 
 
-def create_stage_action(node, action_type, srv_type, name: str, callback: Callable):
+class ActionIntrospection:
+    """The introspection events of service `name` for calls that came as goals of its action.
+
+    As rcl publishes them for a service server (REQUEST_RECEIVED with the request as received, then
+    RESPONSE_SENT with the reply; CONTENTS state; stamp from the node's clock; topic
+    `<service>/_service_event`, QoS services default), with one difference rclpy forces: its action
+    server does not expose the client's writer GID, so `client_gid` is the goal id (16 bytes, one goal
+    = one call) and `sequence_number` the goal request's sequence number at its client, as a
+    service's is. Readers pair the two events by (client_gid, sequence_number) as for a service.
+    """
+
+    REQUEST_RECEIVED, RESPONSE_SENT = 1, 2   # service_msgs/ServiceEventInfo event types
+
+    def __init__(self, node, srv_type, name: str) -> None:
+        from rclpy.qos import qos_profile_services_default
+
+        self.node = node
+        self.srv_type = srv_type
+        self.publisher = node.create_publisher(srv_type.Event, f"{name}/_service_event", qos_profile_services_default)
+
+    def publish(self, event_type: int, goal_id: bytes, sequence_number: int, request=None, response=None) -> None:
+        event = self.srv_type.Event()
+        event.info.event_type = event_type
+        event.info.stamp = self.node.get_clock().now().to_msg()
+        event.info.client_gid = list(goal_id)
+        event.info.sequence_number = int(sequence_number)
+        if request is not None:
+            event.request = [request]
+        if response is not None:
+            event.response = [response]
+        self.publisher.publish(event)
+
+
+def create_stage_action(node, action_type, srv_type, name: str, callback: Callable,
+                        introspection: bool | None = None):
     """The long-running form of a stage service: action `name` (the service's own name) of `action_type`,
     whose goal and result have the service's request and response fields. The goal runs the very callback
     the service runs (validation, work budget, one call at a time with the service's calls); feedback
     carries what the core reports (fraction, phase); the standard cancel stops it at its next checkpoint.
     A networked graph refuses the standard cancel: it carries no token (perch_common.network_auth); the
-    signed StageCancel on CANCEL_TOPIC still stops a goal by its request_id."""
+    signed StageCancel on CANCEL_TOPIC still stops a goal by its request_id.
+
+    introspection: publish each goal as the service's introspection events (ActionIntrospection);
+    default: as the stage's service created before it is configured (on when there is none)."""
     import uuid
 
     from rclpy.action import ActionServer, CancelResponse, GoalResponse
@@ -233,12 +277,28 @@ def create_stage_action(node, action_type, srv_type, name: str, callback: Callab
     work = StageWork.of(node)
     run = work.serve(name, callback)
     goals: dict[bytes, str] = {}   # goal id -> the request_id its call runs under
+    if introspection is None:
+        introspection = work.introspection.get(name, True)
+    events = ActionIntrospection(node, srv_type, name) if introspection else None
+    sequences: dict[bytes, int] = {}   # goal id -> its goal request's sequence number (for the events)
+
+    class StageActionServer(ActionServer):
+        async def _execute_goal_request(self, request_header_and_message):
+            # The goal request's header is the only place rclpy shows its sequence number.
+            header, goal_request = request_header_and_message
+            if events is not None:
+                sequences[bytes(goal_request.goal_id.uuid)] = header.sequence_number
+            return await super()._execute_goal_request(request_header_and_message)
 
     def execute(goal_handle):
-        request = _copy_fields(goal_handle.request, srv_type.Request())
+        goal_id = bytes(goal_handle.goal_id.uuid)
+        request = copy_fields(goal_handle.request, srv_type.Request())
+        sequence = sequences.pop(goal_id, 0)
+        if events is not None:
+            events.publish(events.REQUEST_RECEIVED, goal_id, sequence, request=request)
         if not request.request_id:   # the standard cancel finds the call by the id given here
-            request.request_id = f"action/{uuid.UUID(bytes=bytes(goal_handle.goal_id.uuid)).hex}"
-        goals[bytes(goal_handle.goal_id.uuid)] = request.request_id
+            request.request_id = f"action/{uuid.UUID(bytes=goal_id).hex}"
+        goals[goal_id] = request.request_id
         if goal_handle.is_cancel_requested:   # cancelled before it started: remembered, it stops at once
             work.cancel(name, request.request_id, "action cancel")
 
@@ -248,8 +308,10 @@ def create_stage_action(node, action_type, srv_type, name: str, callback: Callab
         try:
             response = run(request, srv_type.Response(), feedback)
         finally:
-            goals.pop(bytes(goal_handle.goal_id.uuid), None)
-        result = _copy_fields(response, action_type.Result())
+            goals.pop(goal_id, None)
+        if events is not None:   # before the result, so a recording that ends with the call holds it
+            events.publish(events.RESPONSE_SENT, goal_id, sequence, response=response)
+        result = copy_fields(response, action_type.Result())
         if goal_handle.is_cancel_requested and not result.success:
             goal_handle.canceled()
         elif result.success:
@@ -269,12 +331,12 @@ def create_stage_action(node, action_type, srv_type, name: str, callback: Callab
         return CancelResponse.ACCEPT
 
     # Reentrant: a cancel must get through while the goal runs (StageWork serialises the calls themselves).
-    return ActionServer(node, action_type, name, execute, callback_group=ReentrantCallbackGroup(),
-                        goal_callback=lambda goal: GoalResponse.ACCEPT, cancel_callback=on_cancel)
+    return StageActionServer(node, action_type, name, execute, callback_group=ReentrantCallbackGroup(),
+                             goal_callback=lambda goal: GoalResponse.ACCEPT, cancel_callback=on_cancel)
 
 
-def _copy_fields(source, target):
-    """Copy the fields `target` has from `source` (a goal into a request, a response into a result)."""
+def copy_fields(source, target):
+    """Copy the fields `target` has from `source` (a goal into a request, a response into a result, and back)."""
     for field in target.get_fields_and_field_types():
         setattr(target, field, getattr(source, field))
     return target
