@@ -25,10 +25,20 @@ the program does not finish in time they are what is reported. Orientations of o
 see a subset of what another orientation of the same position sees are dropped first: that leaves
 the relaxation's optimum unchanged (the mass moves to the dominating column) and shrinks the
 program many times; the mask is computed once per candidate set (kept with it in the cache).
+
+The budget (`time_limit`) counts the process's CPU seconds, as the stages' work budgets do: on a
+loaded machine a wall-clock limit stopped the program before it had done its work (the Quest room's
+LP needs ~0.6 CPU s; at load 4 on 2 cores it took 1.7 s of wall time). HiGHS only knows a wall-clock
+limit, so it gets the CPU seconds left stretched by the machine's load (runnable tasks per core).
+The program is skipped when the steps before it used the budget up; the program-free bound is then
+reported, so an answer given with its seen points always carries a bound. HiGHS's presolve is off: on
+these programs it cost more than the solve (Quest room 0.61 -> 0.22 CPU s, generated room 0.48 ->
+0.19) and did not look at the time limit while it ran.
 """
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass
 
@@ -43,8 +53,9 @@ class Certificate:
 
     coverage_bound: float   # upper bound on the best coverage of k candidates (NaN: not obtained)
     columns: int            # candidate columns left after dropping dominated orientations
-    seconds: float
+    seconds: float          # CPU seconds of the process (what the budget counts)
     status: str             # "optimal", or why the bound is missing or only the dual bound at a time limit
+    wall_seconds: float = float("nan")
 
     def gap(self, coverage: float) -> float:
         """How far below the bound an answer's coverage is, as a fraction of the bound (>= 0 unless the
@@ -100,34 +111,41 @@ def cheap_bound(cands: CandidateSet, base_seen: np.ndarray, answer_seen: np.ndar
     one per position when drones must be apart)."""
     base_seen, answer_seen = np.asarray(base_seen, bool), np.asarray(answer_seen, bool) | base_seen
     reachable = float((base_seen | cands.reach.any(axis=0)).mean())
-    unseen = (~answer_seen).astype(np.float32)
-    gains = np.matmul(cands.visible.astype(np.float32), unseen)       # (P,A) points each would add
+    # Only the points the answer misses matter (a few): a float copy of every column cost ~80 MB on
+    # the Quest room and most of this bound's time.
+    gains = cands.visible[:, :, np.flatnonzero(~answer_seen)].sum(axis=-1)  # (P,A) points each would add
     gains = gains.max(axis=1) if min_spacing > 0 else gains.reshape(-1)
-    online = float(answer_seen.mean() + np.sort(gains)[::-1][:k].sum() / len(unseen))
+    online = float(answer_seen.mean() + np.sort(gains)[::-1][:k].sum() / len(answer_seen))
     return min(1.0, reachable, online)
 
 
 def coverage_certificate(cands: CandidateSet, base_seen: np.ndarray, k: int, min_spacing: float,
-                         time_limit: float = 2.0, answer_seen: np.ndarray | None = None) -> Certificate:
+                         time_limit: float = 2.0, answer_seen: np.ndarray | None = None,
+                         clock=time.process_time) -> Certificate:
     """An upper bound on the best coverage of k candidates added to a state seeing `base_seen`: the
     LP bound, or (given the answer's seen points `answer_seen`) first the bounds that need no
-    program (cheap_bound), enough when the answer reaches them; the smallest bound found."""
+    program (cheap_bound), enough when the answer reaches them; the smallest bound found.
+    `time_limit` is in seconds of `clock` (CPU seconds of the process)."""
     from scipy.optimize import linprog
     from scipy.sparse import coo_matrix, csr_matrix, vstack
 
-    start = time.perf_counter()
+    start, wall_start = clock(), time.perf_counter()
+
+    def done(bound: float, columns: int, status: str) -> Certificate:
+        return Certificate(bound, columns, clock() - start, status, time.perf_counter() - wall_start)
+
     n = len(base_seen)
     base = float(np.count_nonzero(base_seen))
     if k <= 0 or cands.positions == 0:
-        return Certificate(base / n, 0, time.perf_counter() - start, "optimal")
+        return done(base / n, 0, "optimal")
     open_points = np.flatnonzero(~np.asarray(base_seen, bool))
     if len(open_points) == 0:
-        return Certificate(1.0, 0, time.perf_counter() - start, "optimal")
+        return done(1.0, 0, "optimal")
     cheap = 1.0
     if answer_seen is not None:
         cheap = cheap_bound(cands, base_seen, answer_seen, k, min_spacing)
         if float(np.mean(np.asarray(answer_seen, bool) | base_seen)) >= cheap - 1e-12:
-            return Certificate(cheap, 0, time.perf_counter() - start, "tight: the answer reaches the bound")
+            return done(cheap, 0, "tight: the answer reaches the bound")
     visible = cands.visible[:, :, open_points]
     # Dominance on every point holds on the open ones too (columns dominated only there are kept:
     # the bound is the same, the program a little larger); computed once per candidate set.
@@ -135,7 +153,7 @@ def coverage_certificate(cands: CandidateSet, base_seen: np.ndarray, k: int, min
     pos, ori = np.nonzero(keep)
     cols = len(pos)
     if cols == 0:
-        return Certificate(base / n, 0, time.perf_counter() - start, "optimal")
+        return done(base / n, 0, "optimal")
     m = len(open_points)
     # Variables: x (cols) then y (m). Rows: y_n - sum x <= 0; sum x <= k; one per position; cliques.
     col_vis = visible[pos, ori]                                    # (cols, m)
@@ -165,21 +183,37 @@ def coverage_certificate(cands: CandidateSet, base_seen: np.ndarray, k: int, min
     a_ub = vstack(rows).tocsr()
     b_ub = np.concatenate([np.asarray(b, np.float64) for b in rhs])
     objective = np.concatenate([np.zeros(cols), -np.ones(m) / n])
-    remaining = max(0.01, time_limit - (time.perf_counter() - start))
+    spent = clock() - start
+    remaining = time_limit - spent
+    if remaining < 0.05 * time_limit:
+        why = f"no time left for the linear program ({spent:.2f} of {time_limit:g} CPU s spent before it)"
+        return done(cheap, cols, f"online coverage bound only: {why}") if answer_seen is not None else \
+            done(float("nan"), cols, f"no bound: {why}")
     res = linprog(objective, A_ub=a_ub, b_ub=b_ub, bounds=(0.0, 1.0), method="highs",
-                  options={"time_limit": remaining, "presolve": True})
-    seconds = time.perf_counter() - start
+                  options={"time_limit": remaining * load_stretch(), "presolve": False})
+    seconds = clock() - start
     if res.status == 0:
         # The primal optimum equals the dual objective at optimality; a dual-feasible point's objective
         # is what bounds the integer optimum, so take the larger of the two reported values.
         dual = _dual_bound(res, b_ub, n)
         bound = max(-float(res.fun), dual if np.isfinite(dual) else -np.inf)
-        return Certificate(min(1.0, cheap, base / n + bound), cols, seconds, "optimal")
+        return done(min(1.0, cheap, base / n + bound), cols, "optimal")
     if answer_seen is not None:
-        return Certificate(cheap, cols, seconds, f"online coverage bound only: the linear program stopped "
-                           f"({res.message.strip()}) after {seconds:.2f} s")
-    return Certificate(float("nan"), cols, seconds,
-                       f"no bound: the linear program stopped ({res.message.strip()}) after {seconds:.2f} s")
+        return done(cheap, cols, f"online coverage bound only: the linear program stopped "
+                    f"({res.message.strip()}) after {seconds:.2f} CPU s")
+    return done(float("nan"), cols,
+                f"no bound: the linear program stopped ({res.message.strip()}) after {seconds:.2f} CPU s")
+
+
+def load_stretch(most: float = 4.0) -> float:
+    """Wall seconds per CPU second a single-threaded task can expect now: runnable tasks per core
+    (1-minute load average), at least 1, at most `most` (so a stale load figure cannot hold the
+    program for long)."""
+    try:
+        load = os.getloadavg()[0]
+    except OSError:   # not available on this platform
+        return 1.0
+    return float(np.clip(load / max(1, os.cpu_count() or 1), 1.0, most))
 
 
 def hstack_zero(matrix, width: int):

@@ -186,8 +186,8 @@ class PlacementConfig:
     resilience_weight: float = param(0.5, "weight of the worst single-loss coverage in the worst_case objective",
                                      low=0.0, high=100.0)
     certificate: bool = param(True, "report the LP upper bound on the best coverage over the candidate set")
-    certificate_seconds: float = param(2.0, "time limit of the certificate's linear program", "s",
-                                       low=0.01, high=3600.0)
+    certificate_seconds: float = param(2.0, "CPU seconds the certificate may take (its linear program included)",
+                                       "s", low=0.01, high=3600.0)
     camera: CameraSpec = field(default_factory=CameraSpec)
     drone: DroneSpec = field(default_factory=DroneSpec)
     pso: PsoConfig = field(default_factory=PsoConfig)

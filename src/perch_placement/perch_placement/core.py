@@ -51,7 +51,7 @@ class PlacementResult:
     assessment: Assessment | None = None  # landing error, k-view coverage, loss of each camera (all cameras)
     coverage_bound: float = float("nan")  # LP upper bound on the best coverage on the candidate set
     certificate_status: str = ""           # how the bound was obtained, or why it is missing
-    certificate_seconds: float = 0.0       # time the certificate took (included in seconds)
+    certificate_seconds: float = 0.0       # CPU seconds the certificate took (its budget's clock)
 
 
 def scene_for(mesh: Mesh) -> RayScene:

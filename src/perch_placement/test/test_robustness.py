@@ -164,23 +164,33 @@ def _tiny_candidates():
     return cands
 
 
-@pytest.mark.parametrize("k, spacing, positions", [(1, 1.0, 99), (2, 1.0, 99), (2, 0.0, 99), (3, 1.6, 14)])
-def test_coverage_certificate_is_never_below_the_brute_force_optimum(k, spacing, positions):
-    cands = _tiny_candidates()
-    cands = cands.subset(np.arange(cands.positions) < positions)
+def _brute_force_best(cands, base, k, spacing):
+    """The best coverage of k candidates (drones `spacing` apart) added to `base`, by enumeration."""
     where = cands.drone_positions()
-    a, n = cands.orientations, cands.visible.shape[2]
-    visible = cands.visible.reshape(-1, n)
-    base = np.zeros(n, bool)
-    base[:3] = True   # points the fixed cameras already see
+    visible = cands.visible.reshape(-1, cands.visible.shape[2])
     subsets = np.array(list(itertools.combinations(range(len(visible)), k)))
-    pos = subsets // a
+    pos = subsets // cands.orientations
     ok = np.ones(len(subsets), bool)
     for i, j in itertools.combinations(range(k), 2):
         gap = np.linalg.norm(where[pos[:, i]] - where[pos[:, j]], axis=1)
         ok &= gap >= spacing if spacing > 0 else True
     assert ok.sum() > 10
-    best = float((base | visible[subsets[ok]].any(axis=1)).mean(axis=1).max())
+    return float((base | visible[subsets[ok]].any(axis=1)).mean(axis=1).max())
+
+
+def _tiny_problem(positions):
+    cands = _tiny_candidates()
+    cands = cands.subset(np.arange(cands.positions) < positions)
+    base = np.zeros(cands.visible.shape[2], bool)
+    base[:3] = True   # points the fixed cameras already see
+    return cands, base
+
+
+@pytest.mark.parametrize("k, spacing, positions", [(1, 1.0, 99), (2, 1.0, 99), (2, 0.0, 99), (3, 1.6, 14)])
+def test_coverage_certificate_is_never_below_the_brute_force_optimum(k, spacing, positions):
+    cands, base = _tiny_problem(positions)
+    visible = cands.visible.reshape(-1, cands.visible.shape[2])
+    best = _brute_force_best(cands, base, k, spacing)
     cert = coverage_certificate(cands, base, k, spacing, time_limit=30.0)
     assert cert.status == "optimal"
     assert cert.coverage_bound >= best - 1e-9
@@ -191,6 +201,28 @@ def test_coverage_certificate_is_never_below_the_brute_force_optimum(k, spacing,
         assert cheap_bound(cands, base, answer, k, spacing) >= best - 1e-9
         given = coverage_certificate(cands, base, k, spacing, time_limit=30.0, answer_seen=answer)
         assert given.coverage_bound >= best - 1e-9 and given.coverage_bound <= cert.coverage_bound + 1e-9
+
+
+def test_certificate_is_reported_within_its_budget_when_the_steps_before_the_program_spend_it():
+    """A loaded or slow machine: every reading of the budget's clock is 2 CPU seconds later, so the
+    2-second budget is spent before the program. An answer still gets a bound (the program-free
+    one, never below the optimum), and the certificate stops at its budget instead of solving."""
+    cands, base = _tiny_problem(99)
+    best = _brute_force_best(cands, base, 2, 1.0)
+    answer = base | cands.visible[0, 0]
+    ticks = itertools.count()
+    cert = coverage_certificate(cands, base, 2, 1.0, time_limit=2.0, answer_seen=answer,
+                                clock=lambda: 2.0 * next(ticks))
+    assert cert.status.startswith("online coverage bound only: no time left for the linear program")
+    assert best - 1e-9 <= cert.coverage_bound <= 1.0 and np.isfinite(cert.gap(float(answer.mean())))
+    assert cert.seconds <= 2.0 + 2.0   # one step of the clock past the check, no program
+    ticks = itertools.count()
+    alone = coverage_certificate(cands, base, 2, 1.0, time_limit=2.0, clock=lambda: 2.0 * next(ticks))
+    assert np.isnan(alone.coverage_bound) and alone.status.startswith("no bound: no time left")
+    # With its budget on the process's CPU clock the program runs and gives the LP bound.
+    solved = coverage_certificate(cands, base, 2, 1.0, time_limit=2.0, answer_seen=answer)
+    assert solved.status == "optimal" and best - 1e-9 <= solved.coverage_bound <= cert.coverage_bound + 1e-9
+    assert 0 <= solved.seconds <= 2.0
 
 
 def test_dominated_orientations_are_dropped_and_equal_ones_kept_once():
