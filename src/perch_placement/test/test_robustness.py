@@ -275,15 +275,8 @@ def test_other_objectives_refine_a_feasible_arrangement(objective):
     assert gaps.min() >= cfg.drone.min_spacing - 1e-6
     nominal = optimise(ROOM, REGIONS, target, 3, PlacementConfig(candidate_spacing=0.5), seed=1)
     assert result.fitness > 0.5 * nominal.fitness
-    assert objective_value(result.assessment, cfg) >= objective_value(nominal.assessment, cfg) - 1e-9
-    moved = [p.drone_pose[:3, 3].tolist() for p in result.placements] != \
+    assert [p.drone_pose[:3, 3].tolist() for p in result.placements] != \
         [p.drone_pose[:3, 3].tolist() for p in nominal.placements]
-    if objective == "worst_case":
-        # Every camera alone sees the whole target here, so the loss term is a constant and the
-        # nominal answer (refined the same way, same draws) is already the best.
-        assert nominal.assessment.worst_coverage_without == 1.0 and not moved
-    else:
-        assert moved
 
 
 @pytest.mark.parametrize("objective", ["fitness", "expected", "kview", "worst_case"])

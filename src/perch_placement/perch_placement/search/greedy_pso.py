@@ -19,8 +19,8 @@ from perch_placement.search.swarm import local_best_pso
 
 
 def greedy_pso(ctx: SearchContext, k: int) -> SearchOutcome:
-    """Place k cameras one at a time, each with its own swarm; each camera is then refined under the
-    objective with the others fixed."""
+    """Place k cameras one at a time, each with its own swarm; under a non-nominal objective each
+    camera is then refined under it with the others fixed."""
     base = (ctx.evaluator.info, ctx.evaluator.seen, list(ctx.others))
     return refine(ctx, greedy(ctx, k, _best_camera), base)
 
@@ -29,18 +29,18 @@ REFINE_ROUNDS, REFINE_SAMPLES = 3, 16  # hill climbing per camera under the non-
 
 
 def refine(ctx: SearchContext, outcome: SearchOutcome, base: tuple) -> SearchOutcome:
-    """Each chosen camera polished (position and gimbal, same region) under the configured objective
-    with every other camera fixed: coordinate ascent on the whole arrangement's objective (greedy
-    chose each camera seeing only the ones before it; under the nominal fitness too, where it gained
-    +0.007 on the apartment and +0.010 on the Quest room, every seed, for ~15 % more CPU). Plane
-    encoding only; leaves the evaluator holding the answer."""
-    if not outcome.perches or ctx.perches.encoding != "plane":
+    """Each chosen camera polished (position and gimbal, same region) under the configured non-nominal
+    objective with every other camera fixed: coordinate ascent on the whole arrangement's objective
+    (greedy chose each camera seeing only the ones before it). Plane encoding only; leaves the
+    evaluator holding the answer."""
+    if ctx.config.objective == "fitness" or not outcome.perches \
+            or ctx.perches.encoding != "plane":
         return outcome
     plane, pso = ctx.perches, ctx.config.pso
     encodings = [encode_perch(plane, p) for p in outcome.perches]
     for i in range(len(encodings)):
         _restore(ctx, base, [plane.decode(e) for n, e in enumerate(encodings) if n != i])
-        objective = ctx.objective if ctx.config.objective == "fitness" else ctx.alternative_objective()
+        objective = ctx.alternative_objective()
         start = float(objective(encodings[i][None])[0])
         encodings[i], _, _ = polish(objective, encodings[i], start, ctx.rng, REFINE_ROUNDS, REFINE_SAMPLES,
                                     pso.polish_step)
