@@ -6,6 +6,11 @@ import ctypes
 import ctypes.util
 import functools
 import gc
+import json
+import os
+import time
+import tracemalloc
+from pathlib import Path
 
 M_MMAP_THRESHOLD = -3            # glibc mallopt parameter
 MMAP_THRESHOLD_BYTES = 4 << 20   # allocations of 4 MB and more get their own mapping, unmapped on free
@@ -34,12 +39,45 @@ def limit_heap_growth() -> bool:
     return bool(libc.mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES))
 
 
+TRACE_DIR_ENV = "PERCH_TRACEMALLOC_DIR"   # with PYTHONTRACEMALLOC=1: where release_memory writes what Python holds
+TRACE_LINES = 400                         # source lines kept per record (largest first)
+
+
 def release_memory() -> None:
-    """Collect garbage cycles and return free heap pages to the system (malloc_trim)."""
+    """Collect garbage cycles and return free heap pages to the system (malloc_trim); in a traced
+    process (PYTHONTRACEMALLOC and PERCH_TRACEMALLOC_DIR set) also record what Python holds now."""
     gc.collect()
     libc = _libc()
     if libc is not None:
         libc.malloc_trim(0)
+    record_traced()
+
+
+def record_traced(folder: str | Path | None = None) -> Path | None:
+    """Write what Python's allocations hold now, by source line, to FOLDER/<pid>-<ns>.json
+    ({"total_bytes", "lines": {"file:line": bytes}}); None unless tracemalloc traces this process and a
+    folder is given or set in PERCH_TRACEMALLOC_DIR. `perch bench soak --tracemalloc` compares two."""
+    folder = folder or os.environ.get(TRACE_DIR_ENV)
+    if not folder or not tracemalloc.is_tracing():
+        return None
+    snapshot = tracemalloc.take_snapshot().filter_traces([tracemalloc.Filter(False, tracemalloc.__file__)])
+    stats = snapshot.statistics("lineno")   # without the last record's own leftovers
+    lines = {f"{s.traceback[0].filename}:{s.traceback[0].lineno}": s.size for s in stats[:TRACE_LINES]}
+    path = Path(folder) / f"{os.getpid()}-{time.time_ns()}.json"
+    partial = path.with_suffix(".partial")
+    partial.write_text(json.dumps({"total_bytes": sum(s.size for s in stats), "lines": lines}))
+    partial.replace(path)   # a reader never sees half a record
+    return path
+
+
+def traced_growth(before: dict, after: dict, top: int = 10) -> dict:
+    """Two record_traced records compared: total growth in MB and the source lines that grew most (kB)."""
+    lines = {k: after["lines"].get(k, 0) - before["lines"].get(k, 0)
+             for k in set(before["lines"]) | set(after["lines"])}
+    largest = sorted(lines.items(), key=lambda item: -item[1])[:top]
+    return {"before_mb": round(before["total_bytes"] / 2**20, 2), "after_mb": round(after["total_bytes"] / 2**20, 2),
+            "growth_mb": round((after["total_bytes"] - before["total_bytes"]) / 2**20, 2),
+            "top_lines_kb": {k: round(v / 1024, 1) for k, v in largest}}
 
 
 def freeze_startup_objects() -> None:

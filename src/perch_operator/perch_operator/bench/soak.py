@@ -58,6 +58,7 @@ class SoakReport:
     mission_s: list[float] = field(default_factory=list)
     rss_mb: dict[str, dict[str, float]] = field(default_factory=dict)
     operator_rss_mb: list[float] = field(default_factory=list)   # the coordinator's RSS after each mission
+    operator_traced: dict = field(default_factory=dict)   # --tracemalloc: Python's share of it, 10th to last
     respawn: str = ""
     problems: list[str] = field(default_factory=list)
 
@@ -88,7 +89,8 @@ class SoakReport:
                 "mission_wall_s_median": round(statistics.median(self.mission_s), 2) if self.mission_s else None,
                 "respawn": self.respawn, "rss_mb": self.rss_mb, "operator_rss_mb": self.operator_rss_mb,
                 "operator_growth_10_to_end": self.operator_growth(),
-                "rss_growth_after_10th": self.rss_growth_after_10th(), "problems": self.problems}
+                "rss_growth_after_10th": self.rss_growth_after_10th(), "operator_traced": self.operator_traced,
+                "problems": self.problems}
 
 
 def plan_command(out: Path, scene: int, extra: tuple[str, ...] = ()) -> list[str]:
@@ -136,8 +138,10 @@ class LaunchedGraph:
 class Soak:
     """Runs the missions against a LaunchedGraph with the client node `node`."""
 
-    def __init__(self, graph: LaunchedGraph, node, work: Path, seed: int = 0, log=None):
+    def __init__(self, graph: LaunchedGraph, node, work: Path, seed: int = 0, log=None, traces: Path | None = None):
         self.graph = graph
+        self.traces = traces   # the graph's record_traced folder (--tracemalloc), else None
+        self._traced_after_10: Path | None = None
         self.node = node
         self.work = Path(work)
         self.rng = random.Random(seed)
@@ -168,9 +172,11 @@ class Soak:
             self._operator_rss(report)
             if i + 1 == 10:
                 self._sample_rss(report, "after_10")
+                self._traced_after_10 = self._operator_traced()
             if i + 1 == missions // 2 + 10 and i + 1 < missions:
                 self._sample_rss(report, "10_after_respawn", [RESPAWNED_NODE])
         self._sample_rss(report, "end")
+        self._compare_traced(report)
         running = self.graph.pids()
         missing = [n for n in NODE_SERVICES if n not in running]
         if missing or not self.graph.alive()["perch launch"]:
@@ -354,6 +360,26 @@ class Soak:
         with contextlib.suppress(psutil.NoSuchProcess, TypeError):
             report.operator_rss_mb.append(round(psutil.Process(pid).memory_info().rss / 2**20, 1))
 
+    def _operator_traced(self) -> Path | None:
+        """The coordinator's newest record of what Python holds (it writes one as it releases memory)."""
+        pid = self.graph.pids().get("perch_operator")
+        if self.traces is None or pid is None:
+            return None
+        return max(self.traces.glob(f"{pid}-*.json"), key=lambda p: int(p.stem.split("-")[1]), default=None)
+
+    def _compare_traced(self, report: SoakReport) -> None:
+        import json
+
+        from perch_common.memory import traced_growth
+
+        last = self._operator_traced()
+        if self._traced_after_10 is None or last is None:
+            if self.traces is not None:
+                report.problems.append("--tracemalloc: the coordinator wrote no record after the 10th or the last mission")
+            return
+        report.operator_traced = traced_growth(json.loads(self._traced_after_10.read_text()),
+                                               json.loads(last.read_text()))
+
     def _sample_rss(self, report: SoakReport, when: str, only: list[str] | None = None) -> None:
         import psutil
 
@@ -405,13 +431,16 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the random mix")
     p.add_argument("--work", type=Path, help="folder for the missions' outputs (default: a temporary one)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON (always JSON on stdout)")
+    p.add_argument("--tracemalloc", action="store_true",
+                   help="trace the graph's Python allocations (slower) and report what the coordinator's Python "
+                        "objects grew by from the 10th mission to the last, by source line")
     register_faults(p)
     p.set_defaults(func=_run)
 
 
-def launched(work: Path, node, timeout: float = 180.0) -> LaunchedGraph:
-    """Start `perch launch` and wait until every stage service is offered."""
-    graph = LaunchedGraph(work)
+def launched(work: Path, node, timeout: float = 180.0, env: dict | None = None) -> LaunchedGraph:
+    """Start `perch launch` (in `env`, default this process's) and wait until every stage service is offered."""
+    graph = LaunchedGraph(work, env)
     wanted = [node.resolve_service_name(s[0]) for s in NODE_SERVICES.values()]
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -453,9 +482,16 @@ def _run(args) -> int:
             summary["work"] = str(work)
             emit(summary)
             return 1 if report.problems else 0
-        graph = launched(work, node)
+        traces = work / "tracemalloc" if args.tracemalloc else None
+        env = None
+        if traces is not None:
+            from perch_common.memory import TRACE_DIR_ENV
+
+            traces.mkdir(exist_ok=True)
+            env = dict(os.environ, PYTHONTRACEMALLOC="1", **{TRACE_DIR_ENV: str(traces)})
+        graph = launched(work, node, env=env)
         try:
-            report = Soak(graph, node, work, args.seed).run(args.missions)
+            report = Soak(graph, node, work, args.seed, traces=traces).run(args.missions)
         finally:
             graph.stop()
         summary = report.summary()
