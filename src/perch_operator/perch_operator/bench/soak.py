@@ -443,13 +443,17 @@ def launched(work: Path, node, timeout: float = 180.0, env: dict | None = None) 
     graph = LaunchedGraph(work, env)
     wanted = [node.resolve_service_name(s[0]) for s in NODE_SERVICES.values()]
     deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        offered = {n for n, _ in node.get_service_names_and_types()}
-        if set(wanted) <= offered:
-            return graph
-        if graph.proc.poll() is not None:
-            break
-        time.sleep(0.5)
+    try:
+        while time.monotonic() < deadline:
+            offered = {n for n, _ in node.get_service_names_and_types()}
+            if set(wanted) <= offered:
+                return graph
+            if graph.proc.poll() is not None:
+                break
+            time.sleep(0.5)
+    except BaseException:   # Ctrl-C while the graph starts: it must not outlive the soak
+        graph.stop()
+        raise
     graph.stop()
     raise RuntimeError(f"perch launch did not offer {wanted} within {timeout:.0f} s; see {graph.log_path}")
 
@@ -477,8 +481,10 @@ def _run(args) -> int:
                 report = faults.run(args.faults)
             finally:
                 faults.stop()
-            report.problems += leftovers(faults.graph)
+            orphans, dead_shm = left_behind()
+            report.problems += leftover_problems(orphans, dead_shm)
             summary = report.summary()
+            summary.update(orphans_after=len(orphans), dead_shm_files_after=len(dead_shm))
             summary["work"] = str(work)
             emit(summary)
             return 1 if report.problems else 0
@@ -708,8 +714,9 @@ def register_faults(p) -> None:
                         "mid-mission (seeded), each followed by an ordinary mission")
 
 
-def leftovers(graph: LaunchedGraph) -> list[str]:
-    """After the graph stopped: node processes still running, and Fast DDS files of dead processes."""
+def left_behind() -> tuple[list[int], list[Path]]:
+    """After the graph stopped: Perch node processes still running on this domain, and Fast DDS
+    shared-memory files of dead processes."""
     import psutil
 
     from perch_common.processes import dead_shm_files
@@ -717,9 +724,13 @@ def leftovers(graph: LaunchedGraph) -> list[str]:
     orphans = [p.pid for p in psutil.process_iter(["cmdline", "environ"])
                if _perch_node(p) and p.info["environ"] and p.info["environ"].get("ROS_DOMAIN_ID")
                == os.environ.get("ROS_DOMAIN_ID")]
+    return orphans, dead_shm_files(min_age=0.0)
+
+
+def leftover_problems(orphans: list[int], dead_shm: list[Path]) -> list[str]:
+    """left_behind's findings as problems of the soak (none when nothing was left)."""
     problems = [f"node processes left running: {orphans}"] if orphans else []
-    dead = dead_shm_files(min_age=0.0)
-    return problems + ([f"/dev/shm files of dead processes: {[p.name for p in dead]}"] if dead else [])
+    return problems + ([f"/dev/shm files of dead processes: {[p.name for p in dead_shm]}"] if dead_shm else [])
 
 
 def _perch_node(process) -> bool:
