@@ -260,9 +260,10 @@ class KViewState:
         ray = points[None] - self.positions[:, None]
         self.rays = ray / np.maximum(np.linalg.norm(ray, axis=-1, keepdims=True), 1e-12)  # (K,N,3)
 
-    def coverage(self, candidates: Arrangement) -> np.ndarray:
-        """(B,) k-view coverage with each candidate added."""
-        seen = self.evaluator.views(candidates.camera_position, candidates.camera_rotation, candidates.zoom)[0]
+    def coverage(self, candidates: Arrangement, seen: np.ndarray | None = None) -> np.ndarray:
+        """(B,) k-view coverage with each candidate added (`seen` (B,N): their visibility, if known)."""
+        if seen is None:
+            seen = self.evaluator.views(candidates.camera_position, candidates.camera_rotation, candidates.zoom)[0]
         count = self.count[None] + seen
         if self.k <= 1:
             return (count >= 1).mean(axis=1)

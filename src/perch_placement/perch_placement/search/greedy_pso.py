@@ -7,46 +7,78 @@ import numpy as np
 
 from perch_placement.candidates import CandidateGreedy
 from perch_placement.perches import Perch, Perches
+from perch_placement.robustness import KViewState
 from perch_placement.search.context import (
     SearchContext,
     SearchOutcome,
     _restore,
     candidate_encoding,
     greedy,
+    perch_arrangement,
     polish,
 )
 from perch_placement.search.swarm import local_best_pso
 
 
 def greedy_pso(ctx: SearchContext, k: int) -> SearchOutcome:
-    """Place k cameras one at a time, each with its own swarm; under a non-nominal objective each
-    camera is then refined under it with the others fixed."""
+    """Place k cameras one at a time, each with its own swarm; each camera is then refined under the
+    objective with the others fixed."""
     base = (ctx.evaluator.info, ctx.evaluator.seen, list(ctx.others))
     return refine(ctx, greedy(ctx, k, _best_camera), base)
 
 
-REFINE_ROUNDS, REFINE_SAMPLES = 3, 16  # hill climbing per camera under the non-nominal objective
+REFINE_ROUNDS, REFINE_SAMPLES = 3, 16  # hill climbing per camera under the objective
 
 
 def refine(ctx: SearchContext, outcome: SearchOutcome, base: tuple) -> SearchOutcome:
-    """Each chosen camera polished (position and gimbal, same region) under the configured non-nominal
-    objective with every other camera fixed: coordinate ascent on the whole arrangement's objective
-    (greedy chose each camera seeing only the ones before it). Plane encoding only; leaves the
-    evaluator holding the answer."""
-    if ctx.config.objective == "fitness" or not outcome.perches \
-            or ctx.perches.encoding != "plane":
+    """Each chosen camera polished (position and gimbal, same region) under the configured objective
+    with every other camera fixed: coordinate ascent on the whole arrangement's objective (greedy
+    chose each camera seeing only the ones before it). Under the nominal fitness a move must also keep
+    the arrangement's k-view coverage: unconstrained, the ascent traded it away (apartment 2-view
+    90.7 -> 89.2 %). Plane encoding only; leaves the evaluator holding the answer."""
+    if not outcome.perches or ctx.perches.encoding != "plane":
         return outcome
     plane, pso = ctx.perches, ctx.config.pso
     encodings = [encode_perch(plane, p) for p in outcome.perches]
     for i in range(len(encodings)):
         _restore(ctx, base, [plane.decode(e) for n, e in enumerate(encodings) if n != i])
-        objective = ctx.alternative_objective()
+        if ctx.config.objective == "fitness":
+            objective = fitness_keeping_kview(ctx, encodings[i])
+        else:
+            objective = ctx.alternative_objective()
         start = float(objective(encodings[i][None])[0])
         encodings[i], _, _ = polish(objective, encodings[i], start, ctx.rng, REFINE_ROUNDS, REFINE_SAMPLES,
                                     pso.polish_step)
     chosen = [plane.decode(e) for e in encodings]
     _restore(ctx, base, chosen)
     return SearchOutcome(chosen, outcome.stop_reason)
+
+
+def fitness_keeping_kview(ctx: SearchContext, current: np.ndarray):
+    """Fitness (B,) of one more camera on top of the committed ones at each encoding, -1 where the
+    perch is infeasible or the arrangement's k-view coverage falls below the one with the camera at
+    `current` (so hill climbing never takes such a move)."""
+    cfg, evaluator = ctx.config, ctx.evaluator
+    kview = KViewState(evaluator, ctx.arrangement(), cfg.kview_k, cfg.kview_angle_deg)
+
+    def scores(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        perch = ctx.perches.decode(x)
+        ok = np.flatnonzero(ctx.perches.feasible(perch, np.array(ctx.others).reshape(-1, 3), ctx.exclusions))
+        fitness, coverage = np.full(len(perch), -1.0), np.zeros(len(perch))
+        if len(ok):
+            cameras = perch_arrangement(perch.take(ok))
+            seen, info = evaluator.views(cameras.camera_position, cameras.camera_rotation, cameras.zoom)
+            evaluator.evaluations += len(ok)
+            fitness[ok] = evaluator.score(evaluator.info[None] + info, evaluator.seen[None] | seen).fitness
+            coverage[ok] = kview.coverage(cameras, seen)
+        return fitness, coverage
+
+    floor = float(scores(current[None])[1][0]) - 1e-9
+
+    def objective(x: np.ndarray) -> np.ndarray:
+        fitness, coverage = scores(x)
+        return np.where(coverage >= floor, fitness, -1.0)
+    return objective
 
 
 def encode_perch(plane: Perches, perch: Perch) -> np.ndarray:
