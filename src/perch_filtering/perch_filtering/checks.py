@@ -16,11 +16,12 @@ import numpy as np
 
 from perch_common.mesh_samples import MeshSamples
 from perch_common.types import SurfaceClass
-from perch_filtering.raster import SurfaceRaster
+from perch_filtering.raster import SurfaceRaster, any_yaw_radius, disc_kernel
 from perch_filtering.sampling import SampleIndex, project
 
 SNAP = 0.35  # cells (the worst case, a point half a cell diagonal from its cell centre, is 0.71)
 GAP = 0.25  # share of the sample spacing (points of a face lie within ~0.5 spacing of a sample)
+DISC_SNAP = 0.71  # cells: a sample snapped to its nearest cell moves by up to half a cell diagonal
 
 
 @dataclass
@@ -73,6 +74,11 @@ def _in_image(pix: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 NO_OBSTACLE = -1e9  # height of "no obstacle below" in the wall fall image
 
 
+def _disc(radius: float, cell: float) -> np.ndarray:
+    """Kernel that makes a sample snapped to its nearest cell block every cell centre within `radius`."""
+    return disc_kernel(radius / cell + DISC_SNAP)
+
+
 def _box_cells(half: float, cell: float) -> int:
     """Cells to dilate by so that a sample snapped to its nearest cell blocks every cell centre within
     `half` of it along an axis (snapping moves a sample by at most half a cell)."""
@@ -81,7 +87,7 @@ def _box_cells(half: float, cell: float) -> int:
 
 def free_fall(raster: SurfaceRaster, near: NearbyGeometry, up: np.ndarray, floor_height: float,
               lookahead: float, corridor_margin: float, corridor_depth: float, spacing: float,
-              surface_class: SurfaceClass = SurfaceClass.WALL) -> np.ndarray:
+              surface_class: SurfaceClass = SurfaceClass.WALL, any_yaw: bool = False) -> np.ndarray:
     """Free fall height (m, capped at `lookahead`) below every cell: the recovery-height measure.
 
     Each cell's corridor is its column grown by `corridor_margin` on either side; the perch window
@@ -91,6 +97,8 @@ def free_fall(raster: SurfaceRaster, near: NearbyGeometry, up: np.ndarray, floor
     deep; the fall ends at the highest sample in it. Ceilings (and intermediate surfaces facing
     down): the column below the cell; it ends at the nearest sample. Both also end at the floor.
     Floors (and intermediate surfaces facing up: landing) need no fall: `lookahead` everywhere.
+    `any_yaw` (ceilings): the column grows by `corridor_margin` in every direction (a disc), not along
+    the raster's axes only.
     """
     import cv2
 
@@ -108,11 +116,14 @@ def free_fall(raster: SurfaceRaster, near: NearbyGeometry, up: np.ndarray, floor
     half = _box_cells(corridor_margin + spacing * GAP, cell)
     pix = np.round(raster.to_pixels(near.uv)).astype(np.int64)
     if not wall:  # ceiling-like: the column below the cell ends at the nearest sample
+        kernel = (_disc(corridor_margin + spacing * GAP, cell) if any_yaw
+                  else np.ones((2 * half + 1, 2 * half + 1), np.uint8))
+        half = kernel.shape[0] // 2
         depth = np.full((rows + 2 * half, cols + 2 * half), lookahead, np.float32)
         pix = pix + half
         usable = _in_image(pix, depth.shape)
         np.minimum.at(depth, (pix[usable, 1], pix[usable, 0]), near.depth[usable] - spacing * GAP)
-        column = cv2.erode(depth, np.ones((2 * half + 1, 2 * half + 1), np.uint8), borderType=cv2.BORDER_REPLICATE)
+        column = cv2.erode(depth, kernel, borderType=cv2.BORDER_REPLICATE)
         return np.minimum(fall, column[half:half + rows, half:half + cols])
     slope = float(f.axis_v @ up) * cell  # height per row (> 0: oriented frames' v axis follows up)
     if slope <= 1e-9:
@@ -132,23 +143,29 @@ def free_fall(raster: SurfaceRaster, near: NearbyGeometry, up: np.ndarray, floor
 
 
 def approach_clearance(raster: SurfaceRaster, near: NearbyGeometry, half_u: float, half_v: float,
-                       lookahead: float, spacing: float) -> np.ndarray:
+                       lookahead: float, spacing: float, any_yaw: bool = False) -> np.ndarray:
     """Free depth (m, capped at `lookahead`) of the approach prism centred on every cell.
 
     The prism is the rectangle +-half_u x +-half_v around the cell (the window grown by the lateral
     margin) swept along the normal; its free depth is the depth of the nearest sample inside it.
-    Geometry beside the prism does not count, however close.
+    Geometry beside the prism does not count, however close. `any_yaw` (ceilings): the prism is the
+    rectangle turned to every yaw about the cell, the disc of its half diagonal.
     """
     import cv2
 
     cell = raster.cell
     rows, cols = raster.shape
-    ku = _box_cells(half_u + spacing * GAP, cell)
-    kv = _box_cells(half_v + spacing * GAP, cell)
+    if any_yaw:
+        kernel = _disc(any_yaw_radius(half_u, half_v) + spacing * GAP, cell)
+        ku = kv = kernel.shape[0] // 2
+    else:
+        ku = _box_cells(half_u + spacing * GAP, cell)
+        kv = _box_cells(half_v + spacing * GAP, cell)
+        kernel = np.ones((2 * kv + 1, 2 * ku + 1), np.uint8)
     depth = np.full((rows + 2 * kv, cols + 2 * ku), lookahead, np.float32)
     if len(near.depth):
         pix = np.round(raster.to_pixels(near.uv)).astype(np.int64) + [ku, kv]
         usable = _in_image(pix, depth.shape) & (near.depth < lookahead)
         np.minimum.at(depth, (pix[usable, 1], pix[usable, 0]), near.depth[usable] - spacing * GAP)
-    prism = cv2.erode(depth, np.ones((2 * kv + 1, 2 * ku + 1), np.uint8), borderType=cv2.BORDER_REPLICATE)
+    prism = cv2.erode(depth, kernel, borderType=cv2.BORDER_REPLICATE)
     return np.maximum(prism[kv:kv + rows, ku:ku + cols], 0.0)

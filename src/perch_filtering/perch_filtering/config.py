@@ -45,7 +45,7 @@ class FilterConfig:
     los_offset: float = param(0.02, "line-of-sight rays start this far in front of the surface", "m", low=0.0, high=1.0)
     plane_tolerance: float = param(0.03, "scanned surface within this of a window's perch plane supports it", "m",
                                    low=0.0, high=1.0)
-    surface_depth: float = param(0.06, "most depth in front of a surface's plane that counts as the scanned surface "
+    surface_depth: float = param(0.04, "most depth in front of a surface's plane that counts as the scanned surface "
                                  "itself (plane_tolerance plus 3 sigma of the surface's scan noise, capped here; support "
                                  "judges it under the window); farther geometry is an obstacle to the approach "
                                  "prism and the fall corridor", "m", low=0.0, high=1.0)

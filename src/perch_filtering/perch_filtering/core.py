@@ -42,7 +42,15 @@ from perch_filtering.config import FilterConfig
 from perch_filtering.holes import hole_patches
 from perch_filtering.observed import unobserved_share
 from perch_filtering.orientation import class_enabled, find_floor, orient, oriented_copy, visibility_scores, winding_votes
-from perch_filtering.raster import SurfaceRaster, erode_window, rasterise, window_kernel
+from perch_filtering.raster import (
+    SurfaceRaster,
+    any_yaw_radius,
+    disc_kernel,
+    erode_window,
+    rasterise,
+    turned_kernel,
+    window_kernel,
+)
 from perch_filtering.regions import mask_polygons, triangulate
 from perch_filtering.sampling import SampleIndex, project
 from perch_filtering.standoff import standoffs_clear
@@ -53,6 +61,9 @@ from perch_filtering.voxels import FlightGrid, build_flight_grid, grid_rotation
 
 __all__ = ["FilterConfig", "FilterResult", "filter_surfaces", "FILTER_NAMES"]
 
+ANY_YAW_CLASSES = (SurfaceClass.CEILING, SurfaceClass.FLOOR)  # gravity fixes no in-plane axis
+ANY_YAW_STEP_DEG = 15.0  # yaws in which such a window's support is asked
+CELL_HALF_DIAGONAL = 0.5 * 2 ** 0.5  # cells
 NOISE_SIGMAS = 3.0  # scan noise sigmas in front of a plane that count as the surface itself (surface_band)
 SUPPORT_BIN = 0.1  # depth bins of the support statistics, as a share of plane_tolerance (3 mm at 3 cm)
 
@@ -87,6 +98,7 @@ class _Work:
     roughness: float = 0.0  # RMS distance (m) of the surface's vertices to its plane
     band: float = 0.0       # m, geometry nearer the plane is the scanned surface itself (surface_band)
     evidence: dict = field(default_factory=dict)  # PerchEvidence field -> per-cell map
+    window: np.ndarray | None = None  # the window's kernel (a disc of any yaw on ceilings and floors)
 
 
 def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, up: np.ndarray,
@@ -175,6 +187,15 @@ def _raster_filters(surface: Surface, mesh: Mesh, samples, index: SampleIndex, s
         return _Work(surface, None, None, removal)
     spacing = samples.spacing
     roughness = _roughness(surface, mesh)
+    # Gravity fixes a wall window's axes; on a ceiling (or floor) a drone may settle in any yaw, so its
+    # window, approach prism and fall column are judged turned to every yaw: discs of their half diagonals.
+    any_yaw = surface.surface_class in ANY_YAW_CLASSES
+    window = any_yaw_window(config) if any_yaw else kernel
+    half_u = 0.5 * config.window_width + config.approach_margin
+    half_v = 0.5 * config.window_height + config.approach_margin
+    column_margin = (any_yaw_radius(half_u, half_v) - any_yaw_radius(0.5 * config.window_width,
+                                                                     0.5 * config.window_height)
+                     if any_yaw else config.approach_margin)
     # Geometry within the surface band of the plane is the scanned surface (support judges it under the
     # window); beyond it, anything blocks the approach and the fall. The surface's own faces may reach
     # as far as a window's surface may (plane_tolerance + max_support_rms): a scan's warp is no obstacle.
@@ -183,22 +204,37 @@ def _raster_filters(surface: Surface, mesh: Mesh, samples, index: SampleIndex, s
     margin = max(prism_half, lookahead) + spacing + 2 * config.cell
     near = geometry_in_front(samples, index, raster, surface.face_indices, up, band, lookahead + spacing, margin,
                              max(band, config.plane_tolerance + config.max_support_rms))
-    fall = free_fall(raster, near, up, floor_height, lookahead, config.approach_margin, 2 * config.drone_radius,
-                     spacing, surface.surface_class)
+    fall = free_fall(raster, near, up, floor_height, lookahead, column_margin, 2 * config.drone_radius,
+                     spacing, surface.surface_class, any_yaw)
     fall_ok = fall >= config.min_recovery_height
     removal.recovery_height = float((inside & ~fall_ok).sum() * cell_area)
     alive = inside & fall_ok
-    centres = erode_window(fall_ok, kernel)
+    centres = erode_window(fall_ok, window)
     removal.perch_window = float((alive & ~centres).sum() * cell_area)
     alive &= centres
-    clearance = approach_clearance(raster, near, 0.5 * config.window_width + config.approach_margin,
-                                   0.5 * config.window_height + config.approach_margin, lookahead, spacing)
+    clearance = approach_clearance(raster, near, half_u, half_v, lookahead, spacing, any_yaw)
     approach_ok = clearance > config.approach_distance
     removal.obstacle_clearance = float((alive & ~approach_ok).sum() * cell_area)
     alive &= approach_ok
-    window_fall = -_window_max(-fall, kernel)
+    window_fall = -_window_max(-fall, window)
     return _Work(surface, raster, alive, removal, roughness, band,
-                 {"approach_clearance": clearance, "free_fall": window_fall})
+                 {"approach_clearance": clearance, "free_fall": window_fall}, window)
+
+
+def _turned_windows(kernel: np.ndarray, config: FilterConfig) -> list[np.ndarray]:
+    """The window kernel turned by every ANY_YAW_STEP_DEG (after 0) up to the turn after which it repeats
+    (a quarter turn for a square, half for a rectangle): support is asked in the worst yaw."""
+    period = 90.0 if config.window_width == config.window_height else 180.0
+    return [turned_kernel(kernel, np.radians(yaw)) for yaw in np.arange(ANY_YAW_STEP_DEG, period - 1e-9,
+                                                                        ANY_YAW_STEP_DEG)]
+
+
+def any_yaw_window(config: FilterConfig) -> np.ndarray:
+    """The window turned to every yaw about its centre: the disc of its half diagonal (of its larger
+    half axis when elliptic), as the kernel of the cells whose centres lie in it."""
+    radius = (0.5 * max(config.window_width, config.window_height) if config.window_ellipse
+              else any_yaw_radius(0.5 * config.window_width, 0.5 * config.window_height))
+    return disc_kernel(radius / config.cell)
 
 
 def surface_band(noise: float, config: FilterConfig) -> float:
@@ -221,16 +257,18 @@ def _support(w: _Work, scene: RayScene, kernel: np.ndarray, config: FilterConfig
     """Filter 'support': enough of the window lies on scanned surface close to its perch plane."""
     import cv2
 
-    under = cv2.dilate(w.alive.astype(np.uint8), kernel).astype(bool)
+    window = w.window if w.window is not None else kernel
+    under = cv2.dilate(w.alive.astype(np.uint8), window).astype(bool)
     share = np.zeros(w.raster.shape, np.float32)
     rms = np.full(w.raster.shape, np.inf, np.float32)
     if under.any():  # the statistics on the part of the raster the live windows cover
         rows, cols = np.nonzero(under)
         box = (slice(rows.min(), rows.max() + 1), slice(cols.min(), cols.max() + 1))
         depth = first_surface_depth(scene, w.raster, under, w.band + config.cell)[box]
-        window = local_window_support(depth, kernel, config.plane_tolerance + config.max_support_rms,
-                                      config.plane_tolerance, SUPPORT_BIN * config.plane_tolerance)
-        share[box], rms[box] = window.share, window.rms
+        local = local_window_support(depth, kernel, config.plane_tolerance + config.max_support_rms,
+                                     config.plane_tolerance, SUPPORT_BIN * config.plane_tolerance,
+                                     _turned_windows(kernel, config) if w.window is not None else ())
+        share[box], rms[box] = local.share, local.rms
     ok = (share >= config.min_support - 1e-6) & (rms <= config.max_support_rms)
     w.removal.support = float((w.alive & ~ok).sum() * w.raster.cell_area)
     w.alive &= ok
@@ -240,16 +278,20 @@ def _support(w: _Work, scene: RayScene, kernel: np.ndarray, config: FilterConfig
 def _reachability(work: list[_Work], grid: FlightGrid, mesh: Mesh,
                   config: FilterConfig) -> list[tuple[_Work, np.ndarray]]:
     """Filter 'reachability': the drone fits at the standoff point in front of the perch (a drone
-    radius from the mesh, measured exactly) and that point is reachable by flight from the target.
+    radius from the mesh, measured exactly, wherever in its cell the perch is) and that point is
+    reachable by flight from the target.
     Every surface's standoff points are measured in one query (per-query costs are paid once)."""
     stands = [w.raster.cell_world(w.alive) + config.standoff * w.surface.frame.normal for w in work]
+    # A kept cell stands for its whole square: a perch anywhere in it moves the standoff point by up to
+    # half a cell diagonal from the centre's, and the distance to the mesh by as much (it is 1-Lipschitz).
+    radius = config.drone_radius + CELL_HALF_DIAGONAL * config.cell
     nears = [grid.lookup(grid.reachable_near, stand) for stand in stands]
     asked = np.concatenate([stand[near] for stand, near in zip(stands, nears)]) if work else np.zeros((0, 3))
     if len(asked) >= LARGE_QUERY:
         clear = standoffs_clear(mesh, [(w.raster, w.alive, near) for w, near in zip(work, nears)], asked,
-                                config.standoff, config.drone_radius)
+                                config.standoff, radius)
     else:  # the clearance test reuses the samples the filter drew (same spacing: kept with the mesh)
-        clear = clear_of_mesh(mesh, asked, config.drone_radius, config.voxel_size)
+        clear = clear_of_mesh(mesh, asked, radius, config.voxel_size)
     fits = np.split(clear, np.cumsum([n.sum() for n in nears])[:-1])
     out = []
     for w, near, fit in zip(work, nears, fits):
@@ -273,6 +315,8 @@ def _observed(w: _Work, kept: np.ndarray, scene: RayScene, up: np.ndarray, confi
     start = s.surface_depth + s.cell  # in front of what counts as the surface itself
     half_u = 0.5 * s.window_width + s.approach_margin
     half_v = 0.5 * s.window_height + s.approach_margin
+    if w.window is not None:  # any yaw: the square holding the disc every turned prism sweeps
+        half_u = half_v = any_yaw_radius(half_u, half_v)
     views = viewpoints  # the cameras' evidence, when the mesh was reconstructed from posed frames
     approach = unobserved_share(scene, w.raster, kept, (-half_u, half_u), (-half_v, half_v),
                                 (start, max(s.approach_distance, start + s.cell)), s.enclosed_escape_share,

@@ -17,8 +17,12 @@ and tests triangles against boxes directly), so that the two can check each othe
             max_unobserved_share + OBSERVED_SLACK of each may be unobserved (module doc below);
   sight     (with a target) at least min_visible_share of the target's sample points seen;
   reach     the standoff point in front of the seated perch is at least a drone radius from the mesh.
-START (7 cm): geometry nearer the plane than surface_depth (6 cm) is the scanned surface itself
-(support bounds what it may do), plus 1 cm for faces crossing a box's side between mesh samples.
+Ceilings and floors: gravity fixes no in-plane axis there, so a drone may settle in any yaw; the approach
+prism, the fall column and the support grid are judged turned every YAW_STEP_DEG, and must pass in each.
+START (6 cm): geometry nearer the plane than surface_depth (4 cm) is the scanned surface itself
+(support bounds what it may do), plus 1 cm for faces crossing a box's side between mesh samples and
+1 cm for the plane measured from: the filter's is the surface's fitted plane, the checker's the seated
+perch's (the window's median depth), which lie up to ~1 cm apart on the corpus's walls.
 
 Observed space with camera viewpoints (a reconstruction from posed RGB-D frames, Mesh.viewpoints): a
 point is observed when some camera saw through it (perch_common.viewpoints.seen_free); the reason then
@@ -53,6 +57,8 @@ SUPPORT_POINTS = 21   # per side of the perch window
 # grid with 64: over one volume the two shares differ by up to ~4 points (measured on the corpus).
 OBSERVED_SLACK = 0.05
 ESCAPE_DIRECTIONS = 64  # rays per sample point of a volume (Fibonacci sphere, fixed)
+ANY_YAW_KINDS = ("ceiling", "floor")  # gravity fixes no in-plane axis there: a drone may settle in any yaw
+YAW_STEP_DEG = 15.0     # the yaws in which such a window is judged
 
 
 @dataclass
@@ -72,7 +78,7 @@ class CheckSpec:
     drone_radius: float = 0.35
     standoff: float = 0.5
     plane_tolerance: float = 0.03
-    surface_depth: float = 0.06
+    surface_depth: float = 0.04
     min_support: float = 0.9
     max_support_rms: float = 0.02
     min_visible_share: float = 0.2
@@ -117,6 +123,22 @@ def surface_kind(normal: np.ndarray, up: np.ndarray, class_angle_deg: float) -> 
     if c <= -np.cos(a):
         return "ceiling"
     return "wall" if abs(c) <= np.sin(a) else "intermediate"
+
+
+def window_yaws(kind: str, spec: CheckSpec) -> np.ndarray:
+    """Yaws (rad) about the normal in which a window of this kind is judged: 0 where gravity fixes its
+    axes (walls, intermediate surfaces), else every YAW_STEP_DEG over the turn after which the window
+    repeats (a quarter turn for a square, half for a rectangle)."""
+    if kind not in ANY_YAW_KINDS:
+        return np.zeros(1)
+    period = 90.0 if abs(spec.window_width - spec.window_height) < 1e-9 else 180.0
+    return np.radians(np.arange(0.0, period - 1e-9, YAW_STEP_DEG))
+
+
+def turned(axes: np.ndarray, yaw: float) -> np.ndarray:
+    """Rows u, v, n turned by `yaw` about n."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.stack([c * axes[0] + s * axes[1], -s * axes[0] + c * axes[1], axes[2]])
 
 
 def window_grid(spec: CheckSpec, axis_u: np.ndarray, axis_v: np.ndarray) -> np.ndarray:
@@ -169,7 +191,7 @@ class ScanChecker:
         self.radii = np.linalg.norm(self.tris - self.centroids[:, None], axis=2).max(axis=1)
         self.floor = float(np.percentile(mesh.vertices @ self.up, 1.0))  # the scan's floor level
         self.target_points = target.sample(self.spec.visibility_points, seed=self.spec.seed) if target else None
-        self.start = self.spec.surface_depth + 0.01
+        self.start = self.spec.surface_depth + 0.02
         self.directions = sphere_directions(ESCAPE_DIRECTIONS)
         # Down and 12 directions 20 deg around it (a floor below a fall volume's point).
         tilt, turns = np.radians(20.0), np.arange(12) * np.pi / 6
@@ -177,14 +199,19 @@ class ScanChecker:
         ring = -np.cos(tilt) * self.up + np.sin(tilt) * (np.cos(turns)[:, None] * side[0] + np.sin(turns)[:, None] * side[1])
         self.floor_cone = np.vstack([-self.up, ring])
 
-    def frame(self, normal: np.ndarray) -> np.ndarray:
-        """Rows u, v, n: v along up projected on the plane (walls), else any in-plane pair."""
+    def frame(self, normal: np.ndarray, yaw: float = 0.0) -> np.ndarray:
+        """Rows u, v, n: v along up projected on the plane (walls), else any in-plane pair; turned by
+        `yaw` about n."""
         n = normal / np.linalg.norm(normal)
         v = self.up - (self.up @ n) * n
         if np.linalg.norm(v) < 0.3:
             v = np.cross(n, [1.0, 0, 0]) if abs(n[0]) < 0.9 else np.cross(n, [0, 1.0, 0])
         v /= np.linalg.norm(v)
-        return np.stack([np.cross(v, n), v, n])
+        return turned(np.stack([np.cross(v, n), v, n]), yaw)
+
+    def yaws(self, normal: np.ndarray) -> np.ndarray:
+        """The yaws in which a window on a surface with this normal is judged (window_yaws)."""
+        return window_yaws(self.kind(normal), self.spec)
 
     def kind(self, normal: np.ndarray) -> str:
         """'wall', 'ceiling', 'floor' or 'intermediate' by the spec's class angle."""
@@ -198,17 +225,19 @@ class ScanChecker:
         local = np.einsum("fvk,ak->fva", self.tris[near] - centre, axes)
         return not triangles_overlap_box(local, half).any()
 
-    def approach_box(self, point: np.ndarray, normal: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Centre, axes (rows) and half sizes of the approach prism."""
-        s, axes = self.spec, self.frame(normal)
+    def approach_box(self, point: np.ndarray, normal: np.ndarray,
+                     yaw: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Centre, axes (rows) and half sizes of the approach prism (turned by `yaw`)."""
+        s, axes = self.spec, self.frame(normal, yaw)
         half = np.array([s.window_width / 2 + s.approach_margin, s.window_height / 2 + s.approach_margin,
                          (s.approach_distance - self.start) / 2])
         return point + axes[2] * (self.start + s.approach_distance) / 2, axes, half
 
-    def fall_box(self, point: np.ndarray, normal: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-        """Centre, axes and half sizes of the fall corridor (walls) or column (ceilings); None for
-        surfaces that need no fall (floors, upward intermediate surfaces)."""
-        s, axes = self.spec, self.frame(normal)
+    def fall_box(self, point: np.ndarray, normal: np.ndarray,
+                 yaw: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """Centre, axes and half sizes of the fall corridor (walls) or column (ceilings; turned by `yaw`);
+        None for surfaces that need no fall (floors, upward intermediate surfaces)."""
+        s, axes = self.spec, self.frame(normal, yaw)
         kind = self.kind(normal)
         rho, h, margin = s.drone_radius, s.min_recovery_height, s.approach_margin
         if kind == "wall":
@@ -220,8 +249,8 @@ class ScanChecker:
         return None
 
     def approach_free(self, point: np.ndarray, normal: np.ndarray) -> bool:
-        """The approach prism in front of the perch is free."""
-        return self.box_free(*self.approach_box(point, normal))
+        """The approach prism in front of the perch is free (in every yaw the window is judged in)."""
+        return all(self.box_free(*self.approach_box(point, normal, yaw)) for yaw in self.yaws(normal))
 
     def fall_free(self, point: np.ndarray, normal: np.ndarray) -> bool:
         """The fall corridor (walls) or column (ceilings) is free and high enough above the floor."""
@@ -232,7 +261,7 @@ class ScanChecker:
         bottom = point @ self.up - (s.window_height / 2 if self.kind(normal) == "wall" else 0.0)
         if bottom - s.min_recovery_height < self.floor:
             return False
-        return self.box_free(*box)
+        return all(self.box_free(*self.fall_box(point, normal, yaw)) for yaw in self.yaws(normal))
 
     def unobserved_share(self, centre: np.ndarray, axes: np.ndarray, half: np.ndarray, steps: int = 4,
                          fall: bool = False) -> tuple[float, str]:
@@ -266,14 +295,16 @@ class ScanChecker:
 
     def support(self, point: np.ndarray, normal: np.ndarray) -> tuple[float, float, float]:
         """Share of the window grid whose first hit lies on the window's perch plane, RMS of those hits
-        and the perch plane's offset along the normal (where the drone touches the scan)."""
-        axes = self.frame(normal)
-        grid = point + window_grid(self.spec, axes[0], axes[1])
+        and the perch plane's offset along the normal (where the drone touches the scan); in the worst
+        of the yaws the window is judged in (the offset: in the first)."""
+        yaws = self.yaws(normal)
+        axes = [self.frame(normal, yaw) for yaw in yaws]
+        grid = point + np.concatenate([window_grid(self.spec, a[0], a[1]) for a in axes])
         start = self.start + 0.01
-        hits = self.rays.cast(grid + start * axes[2], np.repeat(-axes[2][None], len(grid), axis=0))
-        depth = np.where(hits.hit, start - hits.distance, np.inf)[:, None]
+        hits = self.rays.cast(grid + start * axes[0][2], np.repeat(-axes[0][2][None], len(grid), axis=0))
+        depth = np.where(hits.hit, start - hits.distance, np.inf).reshape(len(yaws), -1).T
         share, rms, offset = local_plane_support(depth, self.spec)
-        return float(share[0]), float(rms[0]), float(offset[0])
+        return float(share.min()), float(rms.max()), float(offset[0])
 
     def visible_share(self, point: np.ndarray, normal: np.ndarray) -> float:
         """Share of the target's sample points seen from 2 cm in front of the perch."""

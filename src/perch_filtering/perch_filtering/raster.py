@@ -116,6 +116,35 @@ def window_kernel(width: float, height: float, cell: float, ellipse: bool) -> np
     return ((c / a) ** 2 + (r / b) ** 2 <= 1.0 + 1e-9).astype(np.uint8)
 
 
+def disc_kernel(radius_cells: float) -> np.ndarray:
+    """Structuring element of the cell offsets within `radius_cells` of the centre (a disc)."""
+    half = int(np.floor(radius_cells + 1e-9))
+    r, c = np.mgrid[-half:half + 1, -half:half + 1]
+    return (r * r + c * c <= radius_cells * radius_cells + 1e-9).astype(np.uint8)
+
+
+def turned_kernel(kernel: np.ndarray, yaw: float) -> np.ndarray:
+    """The cell offsets whose centres, turned back by `yaw`, fall on a cell of `kernel` (a window
+    kernel turned about its centre; its size grows to hold the turned corners)."""
+    rows, cols = kernel.shape
+    half_v, half_u = rows // 2, cols // 2
+    reach = int(np.ceil(np.hypot(half_u, half_v)))
+    r, c = np.mgrid[-reach:reach + 1, -reach:reach + 1]
+    u = np.rint(np.cos(yaw) * c + np.sin(yaw) * r).astype(np.int64)
+    v = np.rint(-np.sin(yaw) * c + np.cos(yaw) * r).astype(np.int64)
+    inside = (np.abs(u) <= half_u) & (np.abs(v) <= half_v)
+    out = np.zeros(r.shape, np.uint8)
+    out[inside] = kernel[v[inside] + half_v, u[inside] + half_u]
+    return out
+
+
+def any_yaw_radius(half_u: float, half_v: float) -> float:
+    """Radius of the disc that a half_u x half_v rectangle sweeps when turned about its centre: its
+    half diagonal. A ceiling's gravity fixes no in-plane axis, so a drone may settle there in any yaw
+    (and other checks judge the window in their own axes): the window must be safe in every one."""
+    return float(np.hypot(half_u, half_v))
+
+
 def erode_window(alive: np.ndarray, kernel: np.ndarray) -> np.ndarray:
     """Cells where the whole window fits on alive cells; outside the raster counts as not alive."""
     import cv2

@@ -73,13 +73,14 @@ class LocalSupport:
 
 
 def local_window_support(depth: np.ndarray, kernel: np.ndarray, band: float, tolerance: float,
-                         bin_width: float) -> LocalSupport:
+                         bin_width: float, turned: list[np.ndarray] = ()) -> LocalSupport:
     """Support of the window centred on every cell against its own perch plane.
 
     The perch plane lies at the median of the window's first-surface depths within `band` of the
     fitted plane; the share counts the window's cells within `tolerance` of it (holes count as
     unsupported) and the RMS is their distance to it. Depths are binned by `bin_width`, so every
-    statistic is a box sum over bins (the median is interpolated inside its bin)."""
+    statistic is a box sum over bins (the median is interpolated inside its bin). With `turned` (the
+    window turned to other yaws), the share is the smallest over all of them against the same plane."""
     shape = depth.shape
     valid = np.isfinite(depth) & (np.abs(depth) <= band)
     d = np.where(valid, depth, 0.0).astype(np.float32)
@@ -100,6 +101,7 @@ def local_window_support(depth: np.ndarray, kernel: np.ndarray, band: float, tol
     m = np.nan_to_num(median, nan=0.0)
     count = np.zeros(shape, np.float32)
     squares = np.zeros(shape, np.float32)
+    turned_counts = [np.zeros(shape, np.float32) for _ in turned]
     for b, (mine, n) in counts.items():
         near = np.abs(edges[b] + 0.5 * bin_width - m) <= tolerance
         if not near.any():
@@ -108,9 +110,14 @@ def local_window_support(depth: np.ndarray, kernel: np.ndarray, band: float, tol
         s1, s2 = _box_sum(dm, kernel), _box_sum(dm * dm, kernel)
         count += np.where(near, n, 0.0)
         squares += np.where(near, s2 - 2.0 * m * s1 + m * m * n, 0.0)
+        for other, other_count in zip(turned, turned_counts):
+            other_count += np.where(near, _box_sum(mine, other), 0.0)
     with np.errstate(divide="ignore", invalid="ignore"):
         rms = np.where(count > 0.5, np.sqrt(np.maximum(squares, 0.0) / np.maximum(count, 1.0)), np.inf)
-    return LocalSupport(m, (count / area).astype(np.float32), rms.astype(np.float32))
+    share = count / area
+    for other, other_count in zip(turned, turned_counts):
+        share = np.minimum(share, other_count / float(other.sum()))
+    return LocalSupport(m, share.astype(np.float32), rms.astype(np.float32))
 
 
 def _box_sum(values: np.ndarray, kernel: np.ndarray) -> np.ndarray:

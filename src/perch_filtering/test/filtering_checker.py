@@ -37,7 +37,9 @@ from perch_filtering.perch_check import (
     local_plane_support,
     surface_kind,
     triangles_overlap_box,
+    turned,
     window_grid,
+    window_yaws,
 )
 
 TOL = 0.01          # m: geometry closer to a plane than this is the plane itself
@@ -96,7 +98,8 @@ class SceneOracle:
             ok = points @ up - s.window_height / 2 * float(f.axis_v @ up) >= self.floor_z + h
             half = np.array([s.window_width / 2 + margin, (s.window_height + h) / 2, (2 * rho - TOL) / 2])
             offset = f.axis_v * (-h / 2) + f.normal * (TOL + 2 * rho) / 2
-        ok[ok] = boxes_free(self._corridor_triangles(plane_id), points[ok] + offset, axes, half)
+        for yaw in window_yaws(kind, s):  # the column turned about the normal: the offset stays
+            ok[ok] = boxes_free(self._corridor_triangles(plane_id), points[ok] + offset, turned(axes, yaw), half)
         return ok
 
     def _corridor_triangles(self, plane_id: int) -> np.ndarray:
@@ -121,7 +124,10 @@ class SceneOracle:
         half = np.array([s.window_width / 2 + s.approach_margin, s.window_height / 2 + s.approach_margin,
                          (s.approach_distance - TOL) / 2])
         axes = np.stack([f.axis_u, f.axis_v, f.normal])
-        return boxes_free(tris, points + f.normal * (TOL + s.approach_distance) / 2, axes, half)
+        ok = np.ones(len(points), bool)
+        for yaw in window_yaws(self.plane_class(plane_id), s):
+            ok[ok] = boxes_free(tris, points[ok] + f.normal * (TOL + s.approach_distance) / 2, turned(axes, yaw), half)
+        return ok
 
     def _other_triangles(self, plane_id: int) -> np.ndarray:
         """Triangles of other planes reaching more than TOL in front of this plane."""
@@ -138,12 +144,18 @@ class SceneOracle:
         window's perch plane, and the RMS distance of those hits to it."""
         f = self.frame(plane_id)
         n = self.scene.planes[plane_id].normal
-        offsets = window_grid(self.spec, f.axis_u, f.axis_v)
-        grid = (points[None, :, :] + offsets[:, None, :]).reshape(-1, 3)
-        start = self.spec.surface_depth + 0.02
-        hits = self.rays.cast(grid + start * n, np.repeat(-n[None], len(grid), axis=0))
-        depth = np.where(hits.hit, start - hits.distance, np.inf).reshape(len(offsets), len(points))
-        return local_plane_support(depth, self.spec)[:2]
+        axes = np.stack([f.axis_u, f.axis_v, f.normal])
+        share, rms = np.ones(len(points)), np.zeros(len(points))
+        for yaw in window_yaws(self.plane_class(plane_id), self.spec):  # the worst yaw
+            u, v = turned(axes, yaw)[:2]
+            offsets = window_grid(self.spec, u, v)
+            grid = (points[None, :, :] + offsets[:, None, :]).reshape(-1, 3)
+            start = self.spec.surface_depth + 0.02
+            hits = self.rays.cast(grid + start * n, np.repeat(-n[None], len(grid), axis=0))
+            depth = np.where(hits.hit, start - hits.distance, np.inf).reshape(len(offsets), len(points))
+            yaw_share, yaw_rms = local_plane_support(depth, self.spec)[:2]
+            share, rms = np.minimum(share, yaw_share), np.maximum(rms, yaw_rms)
+        return share, rms
 
     def visible_share(self, points: np.ndarray, normal: np.ndarray) -> np.ndarray:
         """Share of the target's sample points each point sees."""

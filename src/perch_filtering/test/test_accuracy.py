@@ -26,7 +26,9 @@ def test_precision_recall_and_hard_failures(kind, seed, options):
     score = evaluate(scene, surfaces, result, spec_from(config), seed=seed)
     assert score["regions"] > 0
     assert score["precision"] >= 0.99, score
-    assert score["recall"] >= 0.95, score  # measured 0.963-0.975
+    # measured 0.949-0.968; 0.963-0.975 before ceilings were judged in any yaw and each cell's whole
+    # square was kept a drone radius from the mesh (precision 0.996-1.0 now)
+    assert score["recall"] >= 0.94, score
     assert score["wrong_side_m2"] == 0.0, score
     assert score["above_furniture_share"] == 0.0, score
     assert score["unreachable_share"] == 0.0, score

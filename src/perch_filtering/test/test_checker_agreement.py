@@ -70,11 +70,12 @@ def _agree_on(mesh, up):
         assert v.observed_share >= 1 - config.max_unobserved_share - OBSERVED_SLACK, (p.drone_index, v.observed_share)
 
 
-# A wall perch Perch places on realsense_corner with surface_depth 6 cm (input frame, the MANIFEST's up):
+# A wall perch Perch placed on realsense_corner with surface_depth 6 cm (input frame, the MANIFEST's up):
 # coherent 10 cm bumps 4.5-5.5 cm in front of its perch plane inside the window and 4.8 cm ones in the
-# fall corridor, which the 6 cm band counts as the wall; ../shared/tools/perch-audit finds its approach
-# and fall blocked. Its neighbour on the same wall (bumps below 4 cm) is safe. The default stays 6 cm
-# until ceiling windows are judged in any yaw (perch_filtering README); at 4 cm the checker refuses it.
+# fall corridor, which the 6 cm band counted as the wall; ../shared/tools/perch-audit finds its approach
+# and fall blocked. Its neighbour on the same wall (bumps below 4 cm) is safe. The filter's default band
+# is 4 cm now (ceiling windows are judged in any yaw) and it no longer keeps that perch; the checker, whose
+# boxes start surface_depth + 2 cm in front (perch_check), sees the bumps from a 3 cm band on.
 CORNER_PERCHES = (([0.740974, 0.824379, -2.925921], True), ([-0.682806, 0.820486, -2.83625], False))
 CORNER_NORMAL = [0.06823, 0.013775, 0.997575]
 
@@ -91,7 +92,7 @@ def test_bumps_beyond_the_surface_depth_block_the_perch():
 
     path, up = _scan("realsense_corner.ply")
     verdicts = check_perches(load_mesh(path), [p for p, _ in CORNER_PERCHES], [CORNER_NORMAL] * 2, up,
-                             spec_from_config(FilterConfig(surface_depth=0.04)))
+                             spec_from_config(FilterConfig(surface_depth=0.03)))
     assert [v.safe for v in verdicts] == [safe for _, safe in CORNER_PERCHES], [v.reasons for v in verdicts]
     assert {"approach blocked", "fall blocked"} <= set(verdicts[1].reasons), verdicts[1].reasons
 

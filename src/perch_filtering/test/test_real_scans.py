@@ -66,7 +66,7 @@ def test_regions_and_placements_pass_the_scan_checker(name, up):
         assert len(placed.placements) == 5, placed.message
     else:  # the apartment's regions (whole scan segmented) hold 4 drones 1 m apart, and 4 are placed
         assert len(placed.placements) == 4, placed.message
-        assert placed.message.startswith("4 of 5 cameras: the 3 perch regions"), placed.message
+        assert placed.message.startswith("4 of 5 cameras: the "), placed.message
         assert "hold 4 drone(s) 1 m apart" in placed.message, placed.message
 
 
