@@ -31,7 +31,7 @@ from perch_filtering.raster import SurfaceRaster
 
 ESCAPE_DIRECTIONS = 32  # rays per grid node (Fibonacci sphere, fixed)
 NODE_SPACING = 0.15     # m between grid nodes along the plane
-DEPTH_LAYERS = 4        # node layers across a volume's depth (3 put a wall corridor's far half, over a floor hole, at 1 layer in 3)
+DEPTH_LAYERS = 4        # node layers across a volume's depth (3 put a corridor's far half, over a floor hole, at 1 in 3)
 
 
 DOWN_CONE_DEG = 20.0  # half angle of the cone of rays that looks for a floor below a fall volume's point
