@@ -226,7 +226,11 @@ def test_the_commander_inside_a_users_node_and_executor(graph, mission):
         assert perch.getResult() == MissionResult.SUCCEEDED, perch.getMissionResult().message
         result = perch.getMissionResult()
         assert len(result.waypoints) == 2 and rejected is not None and len(decided) == 3   # 2 + the replacement
-        assert stages[:2] == ["clean", "crop"] and "confirm" in stages
+        # getFeedback() is the latest feedback (polled, as nav2_simple_commander's is): a quick stage such as
+        # crop may come and go between two polls, so the stages seen are checked for their order only.
+        pipeline = ["clean", "crop", "segment", "review", "filter", "optimise", "confirm"]
+        assert stages[0] == "clean" and "confirm" in stages, stages
+        assert [pipeline.index(stage) for stage in stages] == sorted(pipeline.index(stage) for stage in stages), stages
         # A second mission, cancelled while it runs.
         assert perch.startMission(**goal)
         deadline = time.monotonic() + 120
