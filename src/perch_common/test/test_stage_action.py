@@ -146,6 +146,7 @@ def test_each_goal_publishes_the_services_introspection_events(graph):
     the goal id (client_gid) and the goal request's sequence number, which counts up per client as a
     service client's does; so a recorder pairs them as it pairs a service call's."""
     from action_msgs.msg import GoalStatus
+
     from perch_interfaces.action import Segment
 
     client, release, events = graph

@@ -244,6 +244,7 @@ class ActionIntrospection:
         self.publisher = node.create_publisher(srv_type.Event, f"{name}/_service_event", qos_profile_services_default)
 
     def publish(self, event_type: int, goal_id: bytes, sequence_number: int, request=None, response=None) -> None:
+        """One event of the goal `goal_id`, with the request or the reply (as the service's types)."""
         event = self.srv_type.Event()
         event.info.event_type = event_type
         event.info.stamp = self.node.get_clock().now().to_msg()
