@@ -62,7 +62,8 @@ def call_service(node: Node, srv_type, name: str, request, timeout: float = 30.0
     """Wait for the service, call it and return the response; raise TimeoutError naming what hung.
 
     One client per (node, service) is kept: a client created just before its first call can lose
-    the reply while discovery still matches it to the server.
+    the reply while discovery still matches it to the server (Perch's Fast DDS profiles let the
+    server wait 5 s for that match: test_service_reply_wait).
     """
     key = (id(node), srv_type.__name__, name)
     client = _clients.get(key)
