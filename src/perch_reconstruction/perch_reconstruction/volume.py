@@ -98,7 +98,7 @@ class TsdfVolume:
             raw = mesh.vertex.colors.numpy().astype(np.float64)
             scale = 255.0 if raw.size and raw.max() <= 1.0 + 1e-6 else 1.0
             colors = np.clip(np.round(raw * scale), 0, 255).astype(np.uint8)
-        return Mesh(vertices, faces, colors, frame_id=frame_id)
+        return Mesh(*in_canonical_order(vertices, faces, colors), frame_id=frame_id)
 
     def render_depth(self, pose: np.ndarray, intrinsics: Intrinsics):
         """Ray-cast the volume at `pose` into an slam.Frame of the given intrinsics."""
@@ -209,3 +209,19 @@ class Tracker:
         if result.fitness < c.tracking_min_fitness:
             return None
         return self._pose @ result.transformation.numpy()
+
+
+def in_canonical_order(vertices: np.ndarray, faces: np.ndarray, colors: np.ndarray | None):
+    """Vertices sorted by position, then faces by their vertices. Open3D's parallel extraction lists
+    the same triangles (each in the same turn) in a different order from run to run, and decimation
+    breaks ties by order: sorted, the same volume gives the same mesh."""
+    order = np.lexsort(vertices.T[::-1])
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    faces = rank[faces]
+    if len(vertices) < 1 << 21:   # three indices fit one int64 key: one argsort instead of a lexsort
+        key = (faces[:, 0] << 42) | (faces[:, 1] << 21) | faces[:, 2]
+        faces = faces[np.argsort(key)]
+    else:
+        faces = faces[np.lexsort(faces.T[::-1])]
+    return vertices[order], faces, None if colors is None else colors[order]
