@@ -5,13 +5,16 @@ Open the console, set a target box (typed, then one face dragged with the mouse)
 proposal, accept the rest, and check that the waypoints published on
 perch/mission_waypoints are the accepted perches the console showed. Every wait is on a page or
 graph condition (Playwright's auto-waiting locators, polled topics), never a fixed sleep. Screenshots
-of each step go to src/perch_console/doc/ (the README shows them).
+of each step go to perch-console-shots/ in the temporary folder; with PERCH_UPDATE_DOC_SCREENSHOTS=1 they replace the
+README's in src/perch_console/doc/ (a plain test run leaves the checkout as it was).
 """
 
 from __future__ import annotations
 
+import os
 import re
 import shutil
+import tempfile
 import time
 from pathlib import Path
 
@@ -22,6 +25,7 @@ pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 CHROMIUM = "/usr/bin/chromium"
 DOC = Path(__file__).resolve().parents[1] / "doc"
+SHOTS = DOC if os.environ.get("PERCH_UPDATE_DOC_SCREENSHOTS") == "1" else Path(tempfile.gettempdir()) / "perch-console-shots"
 STAGE_NODES = ["perch_operator", "perch_reconstruction", "perch_segmentation", "perch_filtering", "perch_placement"]
 SERVICES = ["/perch/crop", "/perch/clean_mesh", "/perch/segment", "/perch/filter", "/perch/optimise"]
 CAMERAS = 3
@@ -103,8 +107,8 @@ def shot(page, name: str) -> None:
     from perch_console.cli import dismiss_notices
 
     dismiss_notices(page)   # viser's software-WebGL notice, shown again whenever the renderer restarts
-    DOC.mkdir(exist_ok=True)
-    page.screenshot(path=str(DOC / name))
+    SHOTS.mkdir(exist_ok=True)
+    page.screenshot(path=str(SHOTS / name))
 
 
 def until(condition, what: str, timeout: float = WAIT_MS / 1000, page=None):
