@@ -45,7 +45,22 @@ def _spin_until(node, future, deadline: float, what: str, gone: Callable[[], str
         reason = gone() if gone is not None else ""
         if reason:
             raise CoordinatorGone(reason)
+        _spin_briefly(node, future)
+
+
+def _spin_briefly(node, future) -> None:
+    """Spin for up to 0.1 s. A SIGINT can land while rclpy turns a taken message (a feedback, a status)
+    into Python: the KeyboardInterrupt then leaves rclpy's C++ as pybind11's TypeError "Unable to convert
+    function return value" raised from it, or the context it shut down fails the next call. Either is
+    the interrupt, and is raised as one."""
+    try:
         rclpy.spin_until_future_complete(node, future, timeout_sec=0.1)
+    except KeyboardInterrupt:
+        raise
+    except Exception as exc:
+        if isinstance(exc.__cause__, KeyboardInterrupt) or not node.context.ok():
+            raise KeyboardInterrupt from exc
+        raise
 
 
 class MissionCanceller:
@@ -251,7 +266,7 @@ def _goal_handle(node, client, sent, goal_id, statuses: GoalStatusWatch, deadlin
             raise TimeoutError(f"the coordinator did not answer the goal within {server_wait:.0f} s (another "
                                "process on this ROS domain may serve the action without running it: "
                                "`ros2 action info` lists the servers, a restart of the graph clears it)")
-        rclpy.spin_until_future_complete(node, sent, timeout_sec=0.1)
+        _spin_briefly(node, sent)
     return sent.result()
 
 
