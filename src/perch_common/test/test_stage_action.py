@@ -115,6 +115,24 @@ def test_a_goal_gives_feedback_and_the_services_reply_as_its_result(graph):
     assert feedback[0].phase == "waiting for the test" and 0.25 <= feedback[0].fraction <= 0.5
 
 
+@pytest.fixture
+def short_results(monkeypatch):
+    """Stage action servers created after it keep a finished goal 1 s (STAGE_RESULT_SECONDS)."""
+    monkeypatch.setattr("perch_common.ros.service.STAGE_RESULT_SECONDS", 1)
+
+
+def test_a_finished_goal_is_let_go_after_the_result_time(short_results, graph):
+    from action_msgs.msg import GoalStatus
+
+    client, release, _ = graph
+    handle = _start(client, [])
+    release.set()
+    assert _wait(handle.get_result_async()).status == GoalStatus.STATUS_SUCCEEDED
+    # Its request and result are freed: a late get_result finds no such goal (rclpy keeps them 900 s).
+    poll_until(lambda: _wait(handle.get_result_async()).status == GoalStatus.STATUS_UNKNOWN, WAIT,
+               "the finished goal let go")
+
+
 def test_the_standard_cancel_stops_the_goal_at_its_next_checkpoint(graph):
     from action_msgs.msg import GoalStatus
 

@@ -257,6 +257,12 @@ class ActionIntrospection:
         self.publisher.publish(event)
 
 
+# Seconds a finished goal (its request, meshes included, and its result) stays with a stage's action server for a
+# late get_result; rclpy's 900 s kept every mission's stage inputs of the last quarter hour in memory.
+# Callers ask for the result as the goal is accepted (rclpy's ActionClient, the coordinator).
+STAGE_RESULT_SECONDS = 60
+
+
 def create_stage_action(node, action_type, srv_type, name: str, callback: Callable,
                         introspection: bool | None = None):
     """The long-running form of a stage service: action `name` (the service's own name) of `action_type`,
@@ -333,7 +339,8 @@ def create_stage_action(node, action_type, srv_type, name: str, callback: Callab
 
     # Reentrant: a cancel must get through while the goal runs (StageWork serialises the calls themselves).
     return StageActionServer(node, action_type, name, execute, callback_group=ReentrantCallbackGroup(),
-                             goal_callback=lambda goal: GoalResponse.ACCEPT, cancel_callback=on_cancel)
+                             goal_callback=lambda goal: GoalResponse.ACCEPT, cancel_callback=on_cancel,
+                             result_timeout=STAGE_RESULT_SECONDS)
 
 
 def copy_fields(source, target):
