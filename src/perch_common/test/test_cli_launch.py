@@ -89,6 +89,17 @@ def test_launch_lists_installed_listed_nodes(tmp_path):
         GraphProcesses(config, nodes=["nope"])
 
 
+def test_the_coordinator_runs_on_glibc_malloc_unless_the_user_chose_an_allocator():
+    import os
+
+    base = {k: v for k, v in os.environ.items() if k != "PYTHONMALLOC"}
+    graph = GraphProcesses(nodes=["perch_operator", "perch_segmentation"], env=base)
+    assert graph.node_environment("perch_operator")["PYTHONMALLOC"] == "malloc"
+    assert "PYTHONMALLOC" not in graph.node_environment("perch_segmentation")
+    chosen = GraphProcesses(nodes=["perch_operator"], env={**base, "PYTHONMALLOC": "pymalloc"})
+    assert chosen.node_environment("perch_operator")["PYTHONMALLOC"] == "pymalloc"
+
+
 @pytest.mark.ros
 def test_launch_starts_and_stops_cleanly_on_ctrl_c(tmp_path):
     import signal

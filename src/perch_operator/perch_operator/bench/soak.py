@@ -103,12 +103,17 @@ def plan_command(out: Path, scene: int, extra: tuple[str, ...] = ()) -> list[str
 class LaunchedGraph:
     """`perch launch` as a child process (every node its own process, respawned when it dies)."""
 
-    def __init__(self, work: Path, env: dict | None = None):
+    def __init__(self, work: Path, env: dict | None = None, without: list[str] = ()):
+        from perch_common.launch import GraphProcesses
+
         self.log_path = Path(work) / "launch.log"
+        self.without = list(without)
+        self.extra: dict[str, subprocess.Popen] = {}   # nodes the soak runs itself (heaptrack)
+        nodes = ["--nodes", ",".join(n for n in GraphProcesses().nodes if n not in without)] if without else []
         with open(self.log_path, "w") as stream:
             self.proc = subprocess.Popen([sys.executable, "-m", "perch_common.cli", "launch", "--log-dir",
-                                          str(Path(work) / "logs")], stdout=stream, stderr=subprocess.STDOUT,
-                                         env=dict(os.environ if env is None else env))
+                                          str(Path(work) / "logs"), *nodes], stdout=stream,
+                                         stderr=subprocess.STDOUT, env=dict(os.environ if env is None else env))
 
     def pids(self) -> dict[str, int]:
         """Node name -> process id of the launcher's node processes now running."""
@@ -122,6 +127,7 @@ class LaunchedGraph:
                 continue
             if "-m" in cmd and child.status() != psutil.STATUS_ZOMBIE:
                 found[cmd[cmd.index("-m") + 1].split(".")[0]] = child.pid
+        found.update({name: proc.pid for name, proc in self.extra.items() if proc.poll() is None})
         return found
 
     def alive(self) -> dict[str, bool]:
@@ -138,9 +144,12 @@ class LaunchedGraph:
 class Soak:
     """Runs the missions against a LaunchedGraph with the client node `node`."""
 
-    def __init__(self, graph: LaunchedGraph, node, work: Path, seed: int = 0, log=None, traces: Path | None = None):
+    def __init__(self, graph: LaunchedGraph, node, work: Path, seed: int = 0, log=None, traces: Path | None = None,
+                 heaptrack: "CoordinatorHeaptrack | None" = None, smaps: Path | None = None):
         self.graph = graph
         self.traces = traces   # the graph's record_traced folder (--tracemalloc), else None
+        self.heaptrack = heaptrack
+        self.smaps = smaps   # a folder for the coordinator's /proc/PID/smaps after each mission, else None
         self._traced_after_10: Path | None = None
         self.node = node
         self.work = Path(work)
@@ -170,6 +179,8 @@ class Soak:
             if i % 3 == 2:
                 self._bad_request(report)
             self._operator_rss(report)
+            if self.heaptrack is not None and i + 1 == self.heaptrack.after:
+                self.heaptrack.mark_now()
             if i + 1 == 10:
                 self._sample_rss(report, "after_10")
                 self._traced_after_10 = self._operator_traced()
@@ -359,6 +370,11 @@ class Soak:
         pid = self.graph.pids().get("perch_operator")
         with contextlib.suppress(psutil.NoSuchProcess, TypeError):
             report.operator_rss_mb.append(round(psutil.Process(pid).memory_info().rss / 2**20, 1))
+        if self.smaps is not None and pid is not None:
+            with contextlib.suppress(OSError):
+                self.smaps.mkdir(parents=True, exist_ok=True)
+                text = Path(f"/proc/{pid}/smaps").read_text()
+                (self.smaps / f"after_{len(report.mission_s):03d}.smaps").write_text(text)
 
     def _operator_traced(self) -> Path | None:
         """The coordinator's newest record of what Python holds (it writes one as it releases memory)."""
@@ -424,6 +440,62 @@ def bad_requests() -> list[tuple[str, type, object, str]]:
     ]
 
 
+HEAPTRACK_LIB = Path("/usr/lib/heaptrack")   # Debian's heaptrack package
+TRACED_NODE = "perch_operator"
+
+
+class CoordinatorHeaptrack:
+    """The coordinator run by the soak itself under heaptrack's preload library (the other nodes stay
+    with `perch launch`). heaptrack writes its raw record as it goes; its length after `after` missions
+    marks that moment, and `finish` SIGKILLs the coordinator (no shutdown frees anything) and
+    interprets the record twice, cut at the mark and whole: `heaptrack_print -f end -d early -l` then
+    lists by call stack what the coordinator allocated after mission `after` and still held at the end.
+    (heaptrack -p attaches through gdb, which crashed the coordinator on this kind of host.)"""
+
+    def __init__(self, folder: Path, after: int, work: Path):
+        self.folder = Path(folder)
+        self.after = after
+        self.folder.mkdir(parents=True, exist_ok=True)
+        self.raw = self.folder / "operator.raw"
+        self.raw.unlink(missing_ok=True)   # heaptrack writes into an existing file without truncating it
+        self.mark: int | None = None
+        from perch_common.launch import GraphProcesses
+        from perch_common.processes import child_environment
+
+        graph = GraphProcesses(nodes=[TRACED_NODE], log_dir=Path(work) / "logs")
+        env = dict(child_environment(graph.node_environment(TRACED_NODE)), DUMP_HEAPTRACK_OUTPUT=str(self.raw),
+                   LD_PRELOAD=str(HEAPTRACK_LIB / "libheaptrack_preload.so"))
+        (Path(work) / "logs").mkdir(parents=True, exist_ok=True)
+        with open(Path(work) / "logs" / f"{TRACED_NODE}.log", "ab") as out:
+            self.proc = subprocess.Popen(graph.command(TRACED_NODE), env=env, stdout=out, stderr=subprocess.STDOUT)
+
+    def mark_now(self) -> None:
+        """Remember how far the record has come (the moment the growth is measured from)."""
+        self.mark = self.raw.stat().st_size
+
+    def finish(self) -> dict[str, str]:
+        """SIGKILL the traced coordinator and interpret its record; the interpreted files by name."""
+        self.proc.kill()
+        self.proc.wait()
+        interpret = HEAPTRACK_LIB / "libexec" / "heaptrack_interpret"
+        records = {}
+        with open(self.raw, "rb") as raw:
+            data = raw.read()
+        cuts = {"end": len(data)}
+        if self.mark is not None:
+            cuts["early"] = data.rfind(b"\n", 0, self.mark) + 1   # whole lines only
+        for name, cut in cuts.items():
+            path = self.folder / f"operator.{name}.zst"
+            with open(path, "wb") as out:
+                interpreter = subprocess.Popen([str(interpret)], stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+                compressor = subprocess.Popen(["zstd", "-q", "-c"], stdin=interpreter.stdout, stdout=out)
+                interpreter.stdout.close()
+                interpreter.communicate(data[:cut])
+                compressor.wait()
+            records[name] = str(path)
+        return records
+
+
 def register(sub) -> None:
     """`perch bench soak`."""
     p = sub.add_parser("soak", help="missions with killed/cancelled clients, bad requests and a node respawn")
@@ -434,27 +506,39 @@ def register(sub) -> None:
     p.add_argument("--tracemalloc", action="store_true",
                    help="trace the graph's Python allocations (slower) and report what the coordinator's Python "
                         "objects grew by from the 10th mission to the last, by source line")
+    p.add_argument("--heaptrack", type=Path, metavar="DIR",
+                   help="run the coordinator under heaptrack (slower) and SIGKILL it after the last mission: "
+                        "`heaptrack_print -f DIR/operator.end.zst -d DIR/operator.early.zst -l` lists what it "
+                        "allocated after --heaptrack-after missions and still held; its RSS includes heaptrack's own")
+    p.add_argument("--heaptrack-after", type=int, default=10)
+    p.add_argument("--smaps", type=Path, metavar="DIR",
+                   help="keep the coordinator's /proc/PID/smaps after each mission in DIR (which mappings grow)")
     register_faults(p)
     p.set_defaults(func=_run)
 
 
-def launched(work: Path, node, timeout: float = 180.0, env: dict | None = None) -> LaunchedGraph:
-    """Start `perch launch` (in `env`, default this process's) and wait until every stage service is offered."""
-    graph = LaunchedGraph(work, env)
-    wanted = [node.resolve_service_name(s[0]) for s in NODE_SERVICES.values()]
-    deadline = time.monotonic() + timeout
+def launched(work: Path, node, timeout: float = 180.0, env: dict | None = None, traced: bool = False) -> LaunchedGraph:
+    """Start `perch launch` (in `env`, default this process's) and wait until every stage service is
+    offered (`traced`: every node but the coordinator, which the soak starts under heaptrack)."""
+    graph = LaunchedGraph(work, env, without=[TRACED_NODE] if traced else [])
     try:
-        while time.monotonic() < deadline:
-            offered = {n for n, _ in node.get_service_names_and_types()}
-            if set(wanted) <= offered:
-                return graph
-            if graph.proc.poll() is not None:
-                break
-            time.sleep(0.5)
-    except BaseException:   # Ctrl-C while the graph starts: it must not outlive the soak
+        wait_offered(node, graph, timeout)
+    except BaseException:   # Ctrl-C while the graph starts, or it failed: it must not outlive the soak
         graph.stop()
         raise
-    graph.stop()
+    return graph
+
+
+def wait_offered(node, graph: LaunchedGraph, timeout: float) -> None:
+    """Wait until the graph's nodes offer their services (RuntimeError when they do not in time)."""
+    wanted = [node.resolve_service_name(s[0]) for n, s in NODE_SERVICES.items() if n not in graph.without]
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if set(wanted) <= {n for n, _ in node.get_service_names_and_types()}:
+            return
+        if graph.proc.poll() is not None:
+            break
+        time.sleep(0.5)
     raise RuntimeError(f"perch launch did not offer {wanted} within {timeout:.0f} s; see {graph.log_path}")
 
 
@@ -495,13 +579,22 @@ def _run(args) -> int:
 
             traces.mkdir(exist_ok=True)
             env = dict(os.environ, PYTHONTRACEMALLOC="1", **{TRACE_DIR_ENV: str(traces)})
-        graph = launched(work, node, env=env)
+        graph = launched(work, node, env=env, traced=bool(args.heaptrack))
+        heaptrack = None
         try:
-            report = Soak(graph, node, work, args.seed, traces=traces).run(args.missions)
+            if args.heaptrack:
+                heaptrack = CoordinatorHeaptrack(args.heaptrack, args.heaptrack_after, work)
+                graph.extra[TRACED_NODE] = heaptrack.proc
+                wait_offered(node, graph, 60.0)
+            report = Soak(graph, node, work, args.seed, traces=traces, heaptrack=heaptrack,
+                          smaps=args.smaps).run(args.missions)
         finally:
+            records = heaptrack.finish() if heaptrack is not None else None
             graph.stop()
         summary = report.summary()
         summary["work"] = str(work)
+        if records:
+            summary["heaptrack"] = records
         emit(summary)
     return 1 if report.problems else 0
 
