@@ -178,7 +178,8 @@ def test_the_live_node_takes_poses_from_tf_while_a_bag_with_poses_only_as_tf_pla
         client = rclpy.create_node("tf_live_test")
         from std_srvs.srv import Trigger
 
-        assert call_service(client, Trigger, "/perch/reconstruct/reset", Trigger.Request(), timeout=60).success
+        assert call_service(client, Trigger, "/perch/reconstruct/reset", Trigger.Request(), timeout=60,
+                            resend_every=5).success
         play = subprocess.run([sys.executable, "-m", "perch_common.cli", "bag", "play", str(bag), "--rate", "1",
                                "--wait-subscribers", "120"], capture_output=True, text=True, timeout=300)
         assert play.returncode == 0, play.stderr

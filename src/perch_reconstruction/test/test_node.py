@@ -67,7 +67,7 @@ def test_live_replay_matches_offline(ros, synthetic_bag):
     # wait for the node before playing (its services appear once its subscriptions exist)
     from std_srvs.srv import Trigger
 
-    assert call_service(client, Trigger, "/perch/reconstruct/reset", Trigger.Request()).success
+    assert call_service(client, Trigger, "/perch/reconstruct/reset", Trigger.Request(), resend_every=5).success
     play = subprocess.run([sys.executable, "-m", "perch_common.cli", "bag", "play", str(synthetic_bag),
                            "--rate", "1", "--wait-subscribers", "120"], capture_output=True, text=True, timeout=300)
     assert play.returncode == 0, play.stderr
@@ -130,7 +130,7 @@ def test_error_replies_keep_the_node_running(ros, tmp_path):
     assert not reply.success and "corrupt.mcap" in reply.message
     reply = call_service(client, CleanMesh, "/perch/clean_mesh", CleanMesh.Request())
     assert not reply.success and "mesh to clean: mesh is empty" in reply.message
-    assert call_service(client, Trigger, "/perch/reconstruct/reset", Trigger.Request()).success
+    assert call_service(client, Trigger, "/perch/reconstruct/reset", Trigger.Request(), resend_every=5).success
     reply = _reconstruct(client)
     assert not reply.success and reply.message.startswith("nothing integrated")
     assert proc.poll() is None
@@ -180,7 +180,7 @@ def test_real_kitchen_progress_live_and_bag_in_the_pose_and_odometry_frames(ros,
     done = subprocess.run([sys.executable, "-m", "perch_common.cli", "bag", "from-frames", str(kitchen_dir),
                            "-o", str(bag), "--limit", "30"], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
-    assert call_service(client, Trigger, "/perch/reconstruct/reset", Trigger.Request()).success
+    assert call_service(client, Trigger, "/perch/reconstruct/reset", Trigger.Request(), resend_every=5).success
     play = subprocess.run([sys.executable, "-m", "perch_common.cli", "bag", "play", str(bag), "--rate", "1",
                            "--wait-subscribers", "120"], capture_output=True, text=True, timeout=300)
     assert play.returncode == 0, play.stderr
@@ -199,5 +199,5 @@ def test_real_kitchen_progress_live_and_bag_in_the_pose_and_odometry_frames(ros,
     # The call over, the topic reports the live integration again, unchanged by the bags.
     after = _progress(client)[-1]
     assert after.mode == after.MODE_LIVE and after.frames_integrated == 30 and after.bag_path == ""
-    assert call_service(client, Trigger, "/perch/reconstruct/reset", Trigger.Request()).success
+    assert call_service(client, Trigger, "/perch/reconstruct/reset", Trigger.Request(), resend_every=5).success
     assert proc.poll() is None

@@ -39,7 +39,8 @@ def _set(node, name, value):
 
     request = SetParameters.Request(parameters=[Parameter(
         name=name, value=ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=value))])
-    result = call_service(node, SetParameters, "/perch_segmentation/set_parameters", request, timeout=10).results[0]
+    result = call_service(node, SetParameters, "/perch_segmentation/set_parameters", request, timeout=10,
+                          resend_every=5).results[0]
     assert result.successful, result.reason
 
 

@@ -58,12 +58,17 @@ def node_process(module: str, params: dict[str, Any] | None = None, params_file:
 _clients: dict[tuple[int, str, str], object] = {}
 
 
-def call_service(node: Node, srv_type, name: str, request, timeout: float = 30.0, wait: float = 30.0):
+def call_service(node: Node, srv_type, name: str, request, timeout: float = 30.0, wait: float = 30.0,
+                 resend_every: float | None = None):
     """Wait for the service, call it and return the response; raise TimeoutError naming what hung.
 
     One client per (node, service) is kept: a client created just before its first call can lose
     the reply while discovery still matches it to the server (Perch's Fast DDS profiles let the
-    server wait 5 s for that match: test_service_reply_wait).
+    server wait 5 s for that match: test_service_reply_wait). The request itself can be lost the
+    same way: wait_for_service tells that this client's request writer matched the server's reader,
+    not that the server's reader has matched the writer yet, and a volatile reader drops what came
+    before. Nothing on the client's side shows that second match, so for an idempotent service
+    `resend_every` seconds sends the request again until a reply comes.
     """
     key = (id(node), srv_type.__name__, name)
     client = _clients.get(key)
@@ -71,14 +76,26 @@ def call_service(node: Node, srv_type, name: str, request, timeout: float = 30.0
         client = _clients[key] = node.create_client(srv_type, name)
     if not client.wait_for_service(timeout_sec=wait):
         raise TimeoutError(f"service {name} did not appear within {wait:.0f} s")
-    future = client.call_async(request)
-    deadline = time.monotonic() + timeout
-    while not future.done() and time.monotonic() < deadline:
-        rclpy.spin_until_future_complete(node, future, timeout_sec=0.1)
-    if not future.done():
-        client.remove_pending_request(future)
-        raise TimeoutError(f"service {name} did not answer within {timeout:.0f} s")
-    return future.result()
+    futures = [client.call_async(request)]
+    start = time.monotonic()
+    deadline = start + timeout
+    while not any(f.done() for f in futures) and time.monotonic() < deadline:
+        rclpy.spin_once(node, timeout_sec=0.1)
+        if resend_every and time.monotonic() - start > resend_every * len(futures):
+            futures.append(client.call_async(request))
+    answered = next((f for f in futures if f.done()), None)
+    if answered is not None:   # requests sent after the answered one are served next: let them finish first
+        later = futures[futures.index(answered) + 1:]
+        settle = time.monotonic() + (resend_every or 0.0)
+        while not all(f.done() for f in later) and time.monotonic() < settle:
+            rclpy.spin_once(node, timeout_sec=0.1)
+    for future in futures:
+        if not future.done():
+            client.remove_pending_request(future)
+    if answered is None:
+        sent = f" ({len(futures)} requests sent)" if len(futures) > 1 else ""
+        raise TimeoutError(f"service {name} did not answer within {timeout:.0f} s{sent}")
+    return answered.result()
 
 
 def poll_until(condition, timeout: float, what: str):
