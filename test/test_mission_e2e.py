@@ -19,7 +19,9 @@ pytestmark = pytest.mark.ros
 
 CAMERAS = 3
 SCENE_SEED = 3
-MAX_RSS_SLOPE_MB = 1.5   # per mission, once warm: a leak of a mission's mesh or reply shows as several MB
+# MB a mission, the typical (median) change of RSS from one mission to the next over missions 10-20: a leak
+# of a mission's mesh or reply adds several MB every mission; the allocator's plateaus do not (see the test).
+MAX_RSS_STEP_MB = 1.0
 
 
 @pytest.fixture(scope="module")
@@ -551,9 +553,11 @@ def test_twenty_missions_without_crashes_or_memory_growth(graph, scene):
             rss[name].append(proc.memory_info().rss / 2**20)
     assert all(graph.processes.alive().values()), graph.processes.alive()
     for name, values in rss.items():
-        # No steady growth once warm: the median slope over every pair of missions 11-20 (Theil-Sen; one
-        # sample taken before the allocator gave a stage's transient peak back cannot move it, a leak can).
-        warm = values[10:]
-        slope = float(np.median([(warm[j] - warm[i]) / (j - i)
-                                 for i in range(len(warm)) for j in range(i + 1, len(warm))]))
-        assert slope < MAX_RSS_SLOPE_MB, f"{name}: RSS grows {slope:.2f} MB a mission over missions 11-20 ({values})"
+        # No growth once warm. A stage's RSS after a mission sits on one of a few plateaus, tens of MB
+        # apart, for several missions at a time (how much of its last peak the allocator kept: perch_placement
+        # 234 MB for missions 2-13, then 274 MB, flat, in one run), so a slope or a peak over ten missions
+        # reads one plateau change as a leak. A leak grows every mission: the median step between
+        # consecutive missions is ~0 on plateaus whatever their jumps, and the leak's size with a leak.
+        steps = np.diff(values[9:])
+        assert float(np.median(steps)) < MAX_RSS_STEP_MB, (
+            f"{name}: RSS grows by a median {np.median(steps):.2f} MB a mission over missions 10-20 ({values})")
