@@ -107,6 +107,15 @@ class RayScene:
             normal[hit] = self._normals[face[hit]]
         return RayHits(distance, face, normal)
 
+    def any_hit(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
+        """Whether each ray hits the mesh at all (`cast(...).hit`): Embree's occlusion query stops at
+        the first face it meets instead of finding the nearest, ~4x less CPU where only hit or miss counts."""
+        origins, directions = _float32_rows(origins), _float32_rows(directions)
+        if len(origins) == 0 or self._scene is None:
+            return np.zeros(len(origins), bool)
+        return np.concatenate(_in_parallel(len(origins), lambda part: self._scene.run(
+            origins[part], directions[part], query="OCCLUDED") == 0))
+
     def occluded(self, origins: np.ndarray, targets: np.ndarray, epsilon: float = 1e-3) -> np.ndarray:
         """True where the segment origin->target hits the mesh, ignoring `epsilon` metres at both ends."""
         origins, targets = _float32_rows(origins), _float32_rows(targets)

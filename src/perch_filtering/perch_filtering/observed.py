@@ -54,8 +54,8 @@ def escape_shares(scene: RayScene, points: np.ndarray, directions: np.ndarray) -
     if not len(points):
         return np.zeros(0)
     origins = np.repeat(points, len(directions), axis=0)
-    hits = scene.cast(origins, np.tile(directions, (len(points), 1)))
-    return (~hits.hit).reshape(len(points), len(directions)).mean(axis=1)
+    hit = scene.any_hit(origins, np.tile(directions, (len(points), 1)))
+    return (~hit).reshape(len(points), len(directions)).mean(axis=1)
 
 
 def unobserved_share(scene: RayScene, raster: SurfaceRaster, alive: np.ndarray, u_range: tuple[float, float],
@@ -97,7 +97,7 @@ def unobserved_share(scene: RayScene, raster: SurfaceRaster, alive: np.ndarray, 
     if down is not None:  # nothing scanned below: most of a narrow downward cone escapes (a hole lets a few out)
         escaped |= escape_shares(scene, points, down_cone(down)) > 0.5
     unknown = np.zeros(shape, np.float64)
-    np.add.at(unknown, (nr, nc), escaped.reshape(DEPTH_LAYERS, -1).mean(axis=0))
+    unknown[nr, nc] = escaped.reshape(DEPTH_LAYERS, -1).mean(axis=0)  # the nodes are distinct
     # Box mean over each live node's volume (integral image; the grid covers every live volume).
     total = np.pad(unknown, ((1, 0), (1, 0))).cumsum(0).cumsum(1)
     rr, cc = node_r - r0, node_c - c0

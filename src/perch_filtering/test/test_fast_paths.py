@@ -135,3 +135,33 @@ def test_sight_shares_in_chunks_equal_one_batch_of_float64_rays(room, monkeypatc
     chunked = visibility._shares(origins, normals, targets, scene, None)
     np.testing.assert_array_equal(chunked, simple)
     assert 0.05 < (simple > 0).mean() < 0.95
+
+
+def test_any_hit_equals_the_cast_hits(room):
+    """The escape rays' occlusion query (any face) says hit exactly where the nearest-hit cast does."""
+    from perch_common.raycast import RayScene, sphere_directions
+
+    rng = np.random.default_rng(3)
+    scene = RayScene(room.mesh)
+    lo, hi = room.mesh.vertices.min(axis=0), room.mesh.vertices.max(axis=0)
+    points = lo - 0.5 + rng.random((4000, 3)) * (hi - lo + 1.0)  # inside the rooms, in walls and outside
+    directions = sphere_directions(32)
+    origins, rays = np.repeat(points, len(directions), axis=0), np.tile(directions, (len(points), 1))
+    hit = scene.cast(origins, rays).hit
+    assert 0.2 < hit.mean() < 0.95  # both answers occur
+    np.testing.assert_array_equal(scene.any_hit(origins, rays), hit)
+
+
+@pytest.mark.parametrize("ufunc", [np.minimum, np.maximum])
+def test_scatter_equals_ufunc_at_with_float64_values(ufunc):
+    """The flat scatter of values rounded to the image's float32 equals ufunc.at with the float64 values."""
+    from perch_filtering.checks import scatter
+
+    rng = np.random.default_rng(9)
+    image = rng.normal(size=(70, 90)).astype(np.float32)
+    rows, cols = rng.integers(0, 70, 50_000), rng.integers(0, 90, 50_000)
+    values = rng.normal(scale=2.0, size=50_000)  # float64, many per cell
+    plain = image.copy()
+    ufunc.at(plain, (rows, cols), values)
+    scatter(ufunc, image, rows, cols, values)
+    np.testing.assert_array_equal(image, plain)
