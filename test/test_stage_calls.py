@@ -165,3 +165,68 @@ def test_a_big_request_leaves_no_copy_of_itself_in_the_node(segmentation):
     time.sleep(1.5)   # the node trims its heap 0.2 s after replying
     kept = process.memory_info().rss - before
     assert kept < 0.25 * size, f"the node kept {kept / 2**20:.1f} MB after a {size / 2**20:.1f} MB request"
+
+
+def _small_segment_request():
+    from perch_common.ros.conversions import mesh_to_msg
+    from perch_common.scene_generator import generate_scene
+    from perch_interfaces.srv import Segment
+
+    return Segment.Request(mesh=mesh_to_msg(generate_scene(2, "apartment").mesh))
+
+
+def test_a_request_lost_on_its_way_is_sent_again(segmentation):
+    """DDS may drop a request that reaches a server's reader before the reader matched the caller (just
+    after either started). Nothing is heard of such a call, so the caller sends it again."""
+    from rclpy.task import Future
+
+    from perch_common.ros.service import resent_id
+    from perch_operator.coordinator.stages import RESEND_AFTER
+
+    _, (_, node) = segmentation   # node a was taken off the spinning executor by call_service's spin_once
+    caller = _caller(node)
+    client = caller.clients["segment"]
+    deliver, sent = client.call_async, []
+
+    def first_one_lost(request):
+        sent.append(request.request_id)
+        return Future() if len(sent) == 1 else deliver(request)
+
+    client.call_async = first_one_lost
+    started = time.monotonic()
+    reply = caller.call("segment", _small_segment_request())
+    assert reply.success and len(reply.surfaces) > 10, reply.message
+    assert sent == [sent[0], resent_id(sent[0], 1)]
+    # Sent again after RESEND_AFTER seconds of silence, answered within the segmentation's own time.
+    assert RESEND_AFTER <= time.monotonic() - started < RESEND_AFTER + 60
+
+
+def test_a_resend_of_a_call_that_arrived_is_answered_as_a_duplicate(segmentation, monkeypatch):
+    """A caller that heard nothing (its progress messages lost, say) resends a call the node has; the
+    node runs the call once, answers each resend as a duplicate, and the caller returns the call's reply."""
+    from rclpy.qos import qos_profile_services_default
+
+    from perch_common.ros.service import is_duplicate_reply
+    from perch_interfaces.srv import Segment
+    from perch_operator.coordinator import stages
+
+    _, (_, node) = segmentation
+    events: list = []
+    node.create_subscription(Segment.Event, SERVICE + "/_service_event", events.append, qos_profile_services_default)
+    monkeypatch.setattr(stages, "RESEND_AFTER", 0.0)   # resend at once, RESENDS times
+    caller = _caller(node)
+    caller._heard_of = lambda call_id: False
+    reply = caller.call("segment", _small_segment_request())
+    assert reply.success and len(reply.surfaces) > 10, reply.message
+
+    def replies() -> list:
+        return [e.response[0] for e in list(events) if e.info.event_type == RESPONSE_SENT and len(e.response)]
+
+    deadline = time.monotonic() + 60
+    while len(replies()) < 1 + stages.RESENDS:
+        assert time.monotonic() < deadline, f"{len(replies())} of {1 + stages.RESENDS} replies seen"
+        time.sleep(0.05)
+    answers = replies()
+    assert sum(is_duplicate_reply(a) for a in answers) == stages.RESENDS
+    ran = [a for a in answers if not is_duplicate_reply(a)]
+    assert len(ran) == 1 and ran[0].success and len(ran[0].surfaces) == len(reply.surfaces)

@@ -81,3 +81,43 @@ def _catch(run, request):
         return run(request, None)
     except Cancelled as exc:
         return exc
+
+
+def test_a_resent_call_runs_only_when_the_first_never_arrived(work):
+    from perch_common.ros.service import STARTED_PHASE, is_duplicate_reply, resent_id
+
+    runs, announced = [], []
+    work._publish_progress = lambda service, request_id, fraction, phase: announced.append((request_id, phase))
+
+    def callback(request, response):
+        runs.append(request.request_id)
+        response.success, response.message = True, "done"
+        return response
+
+    segment = work.serve("perch/segment", callback)
+
+    def reply(request_id):
+        return segment(SimpleNamespace(request_id=request_id), SimpleNamespace(success=False, message=""))
+
+    # The first arrived: its resends are answered as duplicates and do not run.
+    assert reply("caller/segment/1").message == "done"
+    duplicate = reply(resent_id("caller/segment/1", 1))
+    assert is_duplicate_reply(duplicate) and "caller/segment/1" in duplicate.message
+    assert is_duplicate_reply(reply(resent_id("caller/segment/1", 2)))
+    # The first was lost: its first resend runs, the next is a duplicate of it.
+    assert reply(resent_id("caller/segment/2", 1)).message == "done"
+    assert is_duplicate_reply(reply(resent_id("caller/segment/2", 2)))
+    # A first id is never refused (a caller that sends one id twice gets two runs).
+    assert reply("caller/segment/1").message == "done"
+    assert runs == ["caller/segment/1", resent_id("caller/segment/2", 1), "caller/segment/1"]
+    # Each call that ran announced itself as it started (the caller's sign that its request arrived).
+    assert [r for r, phase in announced if phase == STARTED_PHASE] == runs
+
+
+def test_a_cancel_of_a_call_stops_its_resend(work):
+    from perch_common.ros.service import resent_id
+
+    segment = served(work, "perch/segment")
+    assert work.cancel("perch/segment", "caller/segment/3") == 0   # before either arrived
+    with pytest.raises(Cancelled):
+        segment(SimpleNamespace(request_id=resent_id("caller/segment/3", 1)), None)

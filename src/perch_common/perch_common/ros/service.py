@@ -10,6 +10,13 @@ Each call runs under a perch_common.work.WorkContext: what the core reports (`re
 published on PROGRESS_TOPIC (perch_interfaces/StageProgress, naming the service and request_id), and
 the node sets the call's work budget once it knows its input (`set_work_budget`).
 
+A request can be lost on its way (DDS drops what a server's reader receives before it has matched the
+caller's writer, just after either side started), so a caller that hears nothing of a call may send it
+again under `resent_id(request_id, n)`. StageWork runs a resent call only when the first never arrived;
+otherwise it answers at once with a reply that `is_duplicate_reply` recognises, and the caller keeps
+waiting for the first call's reply. Every call announces itself on PROGRESS_TOPIC as it starts, so a caller
+knows that its request arrived.
+
 A stage's action (create_stage_action) publishes the introspection events its service would publish
 for the same call (ActionIntrospection), so recordings, `perch replay --check` and the report read
 action calls exactly as service calls; rclpy Jazzy has no action introspection.
@@ -35,6 +42,25 @@ CANCEL_TOPIC = "perch/stage_cancel"    # perch_interfaces/StageCancel: the one c
 PROGRESS_TOPIC = "perch/stage_progress"  # perch_interfaces/StageProgress: how far each call in progress is
 RELEASE_DELAY = 0.2                    # s after a reply before freeing memory (the reply is sent by then)
 EARLY_CANCELS = 256                    # cancels remembered for calls not started yet (queued behind others)
+CALLS_REMEMBERED = 1024                # request ids kept to recognise a resent call as a duplicate
+RESENT_MARK = "#resent"                # request_id + RESENT_MARK + n: the n-th resend of that call
+DUPLICATE_REPLY = "duplicate of call"  # a resent call's reply when the first arrived (its reply is the answer)
+STARTED_PHASE = "request received"
+
+
+def resent_id(request_id: str, attempt: int) -> str:
+    """The request_id of the `attempt`-th resend of call `request_id`."""
+    return f"{request_id}{RESENT_MARK}{attempt}"
+
+
+def first_call_id(request_id: str) -> str:
+    """The call a request_id belongs to: itself, or the call that a resend repeats."""
+    return request_id.split(RESENT_MARK, 1)[0]
+
+
+def is_duplicate_reply(response) -> bool:
+    """True for StageWork's answer to a resend of a call that had arrived (not the call's answer)."""
+    return not response.success and response.message.startswith(DUPLICATE_REPLY)
 
 
 def answering(callback: Callable) -> Callable:
@@ -89,6 +115,7 @@ class StageWork:
         self._services: set[str] = set()   # what this node serves: cancels for other services are not its own
         self.introspection: dict[str, bool] = {}   # service name -> whether its calls publish events
         self._early: OrderedDict[tuple[str, str], str] = OrderedDict()
+        self._seen: OrderedDict[tuple[str, str], None] = OrderedDict()   # calls that arrived, by first id
         self._serial = threading.Lock()   # one call at a time, whether it came as a service call or an action goal
         self._release_timer = None
         # Its own group: a cancel must get through while a service callback is busy.
@@ -148,10 +175,17 @@ class StageWork:
             self._services.add(name)
 
         def run(request, response, on_progress: Callable[[float, str], None] | None = None):
-            key = (name, str(getattr(request, "request_id", "")))
-            publish = functools.partial(self._publish_progress, name, key[1])
+            request_id = str(getattr(request, "request_id", ""))
+            key = (name, first_call_id(request_id))   # a resend is cancelled and recognised by its first id
+            if self._duplicate(key, request_id):
+                self.node.get_logger().info(f"{name}: {request_id!r} repeats a call that arrived; answered as such")
+                response.success, response.message = False, f"{DUPLICATE_REPLY} {key[1]!r}, which arrived; its reply answers"
+                return response
+            publish = functools.partial(self._publish_progress, name, request_id)
             token = WorkContext(name, publish if on_progress is None else
                                 lambda fraction, phase: (publish(fraction, phase), on_progress(fraction, phase)))
+            if request_id:
+                publish(0.0, STARTED_PHASE)
             with self._lock:
                 self._running.setdefault(key, set()).add(token)
                 early = self._early.pop(key, None)
@@ -170,6 +204,17 @@ class StageWork:
                 self._schedule_release()
 
         return run
+
+    def _duplicate(self, key: tuple[str, str], request_id: str) -> bool:
+        """Note that call `key` arrived; True when `request_id` resends a call that had arrived already."""
+        if not key[1]:
+            return False
+        with self._lock:
+            arrived = key in self._seen
+            self._seen[key] = None
+            while len(self._seen) > CALLS_REMEMBERED:
+                self._seen.popitem(last=False)
+        return arrived and request_id != key[1]
 
     def _publish_progress(self, service: str, request_id: str, fraction: float, phase: str) -> None:
         msg = self._progress_type(service=service, request_id=request_id, fraction=float(fraction), phase=phase)

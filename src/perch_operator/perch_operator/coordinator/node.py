@@ -36,7 +36,7 @@ from perch_common.ros.conversions import (
 )
 from perch_common.ros.node_main import run_node
 from perch_common.ros.params import declare_config, read_config
-from perch_common.ros.service import PROGRESS_TOPIC, answering, create_stage_service
+from perch_common.ros.service import answering, create_stage_service
 from perch_common.ros.static_transforms import StaticTransformPublisher, alignment_to_msg, transform_msg
 from perch_common.transforms import parse_up_axis, pose_to_matrix
 from perch_interfaces import msg as pm
@@ -75,7 +75,7 @@ class OperatorNode(Node):
         self.static_transforms = StaticTransformPublisher(self)
         group = ReentrantCallbackGroup()
         self.stages = StageCaller(self, group, self.config.service_wait, self.config.stage_timeout,
-                                  self.config.gone_grace)
+                                  self.config.gone_grace, on_progress=self._on_stage_progress)
         self.crop_service = create_stage_service(self, srv.Crop, STAGE_SERVICES["crop"], self._crop,
                                                  self.config.introspection, callback_group=group)
         self.confirm_service = self.create_service(srv.Confirm, CONFIRM_SERVICE, self._confirm,
@@ -126,8 +126,8 @@ class OperatorNode(Node):
         self._running_mission: Mission | None = None
         self.create_subscription(pm.ReconstructionProgress, "perch/reconstruct/progress",
                                  self._on_reconstruct_progress, 10, callback_group=group)
-        # ... and the other stages' phases (perch_common.work), for this coordinator's own calls.
-        self.create_subscription(pm.StageProgress, PROGRESS_TOPIC, self._on_stage_progress, 10, callback_group=group)
+        # ... and the other stages' phases (perch_common.work) of this coordinator's own calls: self.stages
+        # hears them (they are also its calls' signs of life) and passes them to _on_stage_progress.
         self._mission_state = ""   # the current mission's: running, succeeded, failed or cancelled
         self._busy = threading.Lock()
         self._next_proposal_id = 1

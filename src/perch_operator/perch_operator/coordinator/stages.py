@@ -14,6 +14,12 @@ came back (`perch launch` respawns it within a second) can never answer the call
 so the call fails as soon as every server it was sent to has left the graph for `gone_grace` seconds
 (the DDS lease, 3 s, drops a killed process). The stage is not retried on the new node: a crash may
 be the input's doing, and the user gets a clear reason at once instead of a second wait.
+
+A request can be lost on its way (DDS drops data a server's reader gets before it has matched the
+writer, and nothing on the caller's side shows that match): a call of which nothing is heard (no reply,
+no progress: a stage announces every call it starts) is sent again after RESEND_AFTER seconds, then after
+twice that, ... (RESENDS times), under the same call's id (perch_common.ros.service.resent_id); the stage
+runs a resend only if the first never arrived, and answers it as a duplicate otherwise.
 """
 
 from __future__ import annotations
@@ -30,7 +36,11 @@ from perch_common.errors import PerchError
 from perch_common.mesh_cache import PROCESS_CACHE, MeshBook, is_mesh_not_cached
 from perch_common.ros.conversions import id_only_msg, is_id_only, msg_content_id
 from perch_common.ros.servers import server_endpoints
+from perch_common.ros.service import PROGRESS_TOPIC, first_call_id, is_duplicate_reply, resent_id
 from perch_interfaces import srv
+
+RESEND_AFTER = 3.0   # s without a sign of a call before it is sent again (doubling after each resend)
+RESENDS = 3
 
 
 @dataclass(frozen=True)
@@ -70,7 +80,9 @@ class MissionCancelled(PerchError):
 class StageCaller:
     """One client per stage service on `node`; `call` blocks the calling thread (not the executor)."""
 
-    def __init__(self, node, callback_group, service_wait: float, timeout: float, gone_grace: float):
+    def __init__(self, node, callback_group, service_wait: float, timeout: float, gone_grace: float,
+                 on_progress: Callable | None = None):
+        """on_progress(msg): each perch_interfaces/StageProgress of this caller's calls."""
         self.node = node
         self.service_wait = service_wait
         self.timeout = timeout
@@ -79,7 +91,7 @@ class StageCaller:
                         for name, s in STAGES.items()}
         self.services = {name: node.resolve_service_name(s.service) for name, s in STAGES.items()}
         from perch_common.ros.service import CANCEL_TOPIC
-        from perch_interfaces.msg import StageCancel
+        from perch_interfaces.msg import StageCancel, StageProgress
 
         self._cancel_msg = StageCancel
         self.cancel_pub = node.create_publisher(StageCancel, CANCEL_TOPIC, 10)
@@ -87,12 +99,29 @@ class StageCaller:
         # Request ids: this caller's own prefix (unique across processes and restarts), then a count.
         self.caller_id = f"{node.get_fully_qualified_name()}/{uuid.uuid4().hex[:12]}"
         self._calls = itertools.count(1)
+        self.on_progress = on_progress
+        self._heard: dict[str, bool] = {}   # calls in flight (first ids): whether a stage announced them
+        self._heard_lock = threading.Lock()
+        node.create_subscription(StageProgress, PROGRESS_TOPIC, self._on_progress, 10, callback_group=callback_group)
 
-    def _abandon(self, stage: str, client, future, request_id: str, reason: str) -> None:
-        """Stop waiting for a call and tell the stage to stop that call's work (it checks between steps)."""
+    def _on_progress(self, msg) -> None:
+        if not msg.request_id.startswith(f"{self.caller_id}/"):
+            return   # another caller's call
+        call_id = first_call_id(msg.request_id)
+        with self._heard_lock:
+            if call_id in self._heard:   # not a late message of a finished call
+                self._heard[call_id] = True
+        if self.on_progress is not None:
+            self.on_progress(msg)
+
+    def _heard_of(self, request_id: str) -> bool:
+        with self._heard_lock:
+            return self._heard.get(request_id, False)
+
+    def _abandon(self, stage: str, request_id: str, reason: str) -> None:
+        """Tell the stage to stop the work of a call no longer waited for (it checks between steps)."""
         from perch_common.network_auth import sign_if_networked
 
-        client.remove_pending_request(future)
         message = self._cancel_msg(service=STAGES[stage].service, request_id=request_id, reason=reason)
         if hasattr(message, "auth"):   # a networked graph's stages stop calls for signed cancels only
             message.auth = sign_if_networked("stage_cancel", message.service, request_id, reason)
@@ -148,27 +177,57 @@ class StageCaller:
         if not client.wait_for_service(timeout_sec=self.service_wait):
             raise StageError(stage, f"service not available within {self.service_wait:.0f} s; is its node "
                                     "running? (`perch launch` starts the graph)", self.services[stage])
-        request.request_id = f"{self.caller_id}/{stage}/{next(self._calls)}"
+        call_id = f"{self.caller_id}/{stage}/{next(self._calls)}"
+        request.request_id = call_id
+        with self._heard_lock:
+            self._heard[call_id] = False
         done = threading.Event()
-        future = client.call_async(request)
-        future.add_done_callback(lambda _: done.set())
+        futures = []
+
+        def send() -> None:
+            future = client.call_async(request)
+            future.add_done_callback(lambda _: done.set())
+            futures.append(future)
+
+        send()
         servers = ServerWatch(self.node, self.services[stage], self.gone_grace)
-        deadline = time.monotonic() + self.timeout
-        while not done.wait(0.05):
-            now = time.monotonic()
-            if cancelled():
-                self._abandon(stage, client, future, request.request_id, "mission cancelled")
-                raise MissionCancelled(f"mission cancelled during stage {stage}")
-            if servers.gone():
+        started = time.monotonic()
+        deadline, resend_at, resends = started + self.timeout, started + RESEND_AFTER, 0
+        try:
+            while True:
+                if done.wait(0.05):
+                    done.clear()
+                    for future in [f for f in futures if f.done()]:
+                        futures.remove(future)
+                        response = future.result()
+                        if response is None:
+                            raise StageError(stage, "the call ended without a reply", self.services[stage])
+                        if not is_duplicate_reply(response):
+                            return response
+                now = time.monotonic()
+                if cancelled():
+                    self._abandon(stage, call_id, "mission cancelled")
+                    raise MissionCancelled(f"mission cancelled during stage {stage}")
+                if servers.gone():
+                    raise StageError(stage, servers.describe(), self.services[stage])
+                if now > deadline:
+                    self._abandon(stage, call_id, "no reply within stage_timeout")
+                    raise StageError(stage, f"no reply within {self.timeout:.0f} s (parameter stage_timeout)",
+                                     self.services[stage])
+                if resends < RESENDS and now > resend_at and not self._heard_of(call_id):
+                    resends += 1
+                    self.node.get_logger().warning(
+                        f"stage {stage}: nothing heard of call {call_id!r} for {now - started:.0f} s "
+                        f"(the request may have been lost); sending it again ({resends} of {RESENDS})")
+                    request.request_id = resent_id(call_id, resends)
+                    send()
+                    request.request_id = call_id
+                    resend_at = now + RESEND_AFTER * 2 ** resends
+        finally:   # a reply still to come (the first call's or a resend's) is not waited for
+            for future in futures:
                 client.remove_pending_request(future)
-                raise StageError(stage, servers.describe(), self.services[stage])
-            if now > deadline:
-                self._abandon(stage, client, future, request.request_id, "no reply within stage_timeout")
-                raise StageError(stage, f"no reply within {self.timeout:.0f} s (parameter stage_timeout)", self.services[stage])
-        response = future.result()
-        if response is None:
-            raise StageError(stage, "the call ended without a reply", self.services[stage])
-        return response
+            with self._heard_lock:
+                del self._heard[call_id]
 
 
 class ServerWatch:
