@@ -54,6 +54,8 @@ def register(sub) -> None:
     p.add_argument("--target", default=None, metavar="SPEC", help="as for perch plan (default: the scene's "
                                                                    "own target; for --mesh the cropped floor)")
     p.add_argument("--cameras", type=int, default=0, help="cameras (0: node default)")
+    p.add_argument("--up", default="", help="the mesh's up axis, as for perch plan (+z, -y, auto, \"x y z\"; "
+                                             "default: the coordinator's input_up_axis)")
     p.add_argument("--missions", type=int, default=1, help="consecutive missions on one graph")
     p.add_argument("--repeat", type=int, default=1, help="fresh processes to run (medians reported)")
     p.add_argument("--reject", action="store_true", help="after the first mission, time one rejection's re-plan")
@@ -73,7 +75,11 @@ def build_goal(args):
     from perch_interfaces.action import PlanPerches
     from perch_operator.cli.plan import parse_target
 
-    goal = PlanPerches.Goal(num_cameras=max(0, args.cameras), auto_accept=True, seed=-1)
+    if args.up.strip().lower() not in ("", "auto"):
+        from perch_common.transforms import parse_up_axis
+
+        parse_up_axis(args.up)  # a malformed axis fails here, before anything is launched
+    goal = PlanPerches.Goal(num_cameras=max(0, args.cameras), auto_accept=True, seed=-1, up_axis=args.up)
     if args.mesh:
         from perch_common.mesh import load_mesh
 
