@@ -87,12 +87,21 @@ def needle_mask(mesh: Mesh) -> np.ndarray:
     """Faces that are needle slivers (see NEEDLE_ASPECT, NEEDLE_LENGTH)."""
     if mesh.num_faces == 0:
         return np.zeros(0, bool)
-    corners = mesh.triangles()
-    lengths = np.linalg.norm(corners[:, [1, 2, 0]] - corners, axis=2)
+    corner = [mesh.vertices[mesh.faces[:, i]] for i in range(3)]
+    lengths = np.empty((mesh.num_faces, 3))
+    for i in range(3):   # |b - a|, |c - b|, |a - c|, summed in np.linalg.norm's order (the same numbers)
+        edge = corner[(i + 1) % 3] - corner[i]
+        lengths[:, i] = edge[:, 0] * edge[:, 0] + edge[:, 1] * edge[:, 1] + edge[:, 2] * edge[:, 2]
+    np.sqrt(lengths, out=lengths)
     longest = lengths.max(axis=1)
-    altitude = 2.0 * mesh.face_areas() / np.maximum(longest, 1e-300)
-    typical = float(np.median(lengths))
-    return (altitude < NEEDLE_ASPECT * longest) & (longest > NEEDLE_LENGTH * typical)
+    typical = float(np.median(lengths, overwrite_input=True))
+    # Only faces long enough to be needles need their width (most of a large mesh is not).
+    needles = np.flatnonzero(longest > NEEDLE_LENGTH * typical)
+    cross = Mesh(mesh.vertices, mesh.faces[needles]).face_areas() * 2.0
+    altitude = cross / np.maximum(longest[needles], 1e-300)
+    mask = np.zeros(mesh.num_faces, bool)
+    mask[needles] = altitude < NEEDLE_ASPECT * longest[needles]
+    return mask
 
 
 def winding_flips(faces: np.ndarray, at_least: float = 0) -> tuple[np.ndarray, int]:
@@ -111,13 +120,14 @@ def winding_flips(faces: np.ndarray, at_least: float = 0) -> tuple[np.ndarray, i
     if n == 0:
         return flips, 0
     directed, owner = _edges(faces)
-    _, edge_id, counts = np.unique(_edge_keys(directed, int(faces.max()) + 1), return_inverse=True,
-                                   return_counts=True)
-    edge_id = edge_id.ravel()
-    shared = counts[edge_id] == 2
-    order = np.argsort(edge_id[shared], kind="stable")
-    uses = np.flatnonzero(shared)[order].reshape(-1, 2)     # the two uses of each manifold edge
-    first, second = uses[:, 0], uses[:, 1]
+    # The two uses of each manifold edge (shared by exactly two faces), in the order of the edges' keys:
+    # one sort of the keys (np.unique and a second sort of the shared edges cost twice as much).
+    keys = _edge_keys(directed, int(faces.max()) + 1)
+    order = np.argsort(keys)
+    keys = keys[order]
+    starts = np.flatnonzero(np.concatenate([[True], keys[1:] != keys[:-1]]))
+    pairs = starts[np.diff(np.append(starts, len(keys))) == 2]
+    first, second = np.minimum(order[pairs], order[pairs + 1]), np.maximum(order[pairs], order[pairs + 1])
     same_way = directed[first, 0] == directed[second, 0]     # both faces run the edge a->b: inconsistent
     inconsistent = int(same_way.sum())
     if not inconsistent or inconsistent <= at_least:
