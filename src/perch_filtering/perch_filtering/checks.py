@@ -27,11 +27,12 @@ DISC_SNAP = 0.71  # cells: a sample snapped to its nearest cell moves by up to h
 @dataclass
 class NearbyGeometry:
     """Mesh samples in front of one surface (in no particular order): depth along its normal, plane
-    coords, height along up."""
+    coords, height along up, and the raster cell each is snapped to (col, row; both measures use it)."""
 
     depth: np.ndarray
     uv: np.ndarray
     height: np.ndarray
+    pixels: np.ndarray
 
 
 def geometry_in_front(samples: MeshSamples, index: SampleIndex, raster: SurfaceRaster, own_faces: np.ndarray,
@@ -63,7 +64,8 @@ def geometry_in_front(samples: MeshSamples, index: SampleIndex, raster: SurfaceR
         mine = candidate[inside][own[face[inside]]]
         keep[mine] = local[mine, 0] > own_min_depth if own_min_depth is not None else False
     sel = local[keep]
-    return NearbyGeometry(sel[:, 0], sel[:, 1:], project(samples.points[candidates[keep]], up)[:, 0])
+    return NearbyGeometry(sel[:, 0], sel[:, 1:], project(samples.points[candidates[keep]], up)[:, 0],
+                          np.round(raster.to_pixels(sel[:, 1:])).astype(np.int64))
 
 
 def _in_image(pix: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -121,7 +123,7 @@ def free_fall(raster: SurfaceRaster, near: NearbyGeometry, up: np.ndarray, floor
     if len(near.depth) == 0:
         return fall
     half = _box_cells(corridor_margin + spacing * GAP, cell)
-    pix = np.round(raster.to_pixels(near.uv)).astype(np.int64)
+    pix = near.pixels
     if not wall:  # ceiling-like: the column below the cell ends at the nearest sample
         kernel = (_disc(corridor_margin + spacing * GAP, cell) if any_yaw
                   else np.ones((2 * half + 1, 2 * half + 1), np.uint8))
@@ -171,7 +173,7 @@ def approach_clearance(raster: SurfaceRaster, near: NearbyGeometry, half_u: floa
         kernel = np.ones((2 * kv + 1, 2 * ku + 1), np.uint8)
     depth = np.full((rows + 2 * kv, cols + 2 * ku), lookahead, np.float32)
     if len(near.depth):
-        pix = np.round(raster.to_pixels(near.uv)).astype(np.int64) + [ku, kv]
+        pix = near.pixels + [ku, kv]
         usable = _in_image(pix, depth.shape) & (near.depth < lookahead)
         scatter(np.minimum, depth, pix[usable, 1], pix[usable, 0], near.depth[usable] - spacing * GAP)
     prism = cv2.erode(depth, kernel, borderType=cv2.BORDER_REPLICATE)

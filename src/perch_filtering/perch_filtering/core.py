@@ -22,6 +22,7 @@ to the shared ray-cast scene in one batch.
 from __future__ import annotations
 
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -34,6 +35,7 @@ from perch_common.proximity import LARGE_QUERY, clear_of_mesh
 from perch_common.raycast import RayScene
 from perch_common.raycast import ray_scene as shared_ray_scene
 from perch_common.target import TargetVolume
+from perch_common.threads import thread_environment
 from perch_common.timing import Laps
 from perch_common.types import NOT_MEASURED, FilterRemoval, PerchEvidence, PerchRegion, Surface, SurfaceClass
 from perch_common.work import report, steps
@@ -139,12 +141,11 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
     clock.lap("orientation")
 
     kernel = window_kernel(config.window_width, config.window_height, config.cell, config.window_ellipse)
-    work = [_raster_filters(s, mesh, samples, index, scene, up, floor_height, kernel, config)
-            for s in steps(oriented, "raster filters: surface", 0.2, 0.45)]
+    work = _per_surface(lambda s: _raster_filters(s, mesh, samples, index, scene, up, floor_height, kernel, config),
+                        oriented, "raster filters: surface", 0.2, 0.45)
     clock.lap("raster_filters")
-    for w in steps(work, "support: surface", 0.45, 0.5):
-        if w.raster is not None:
-            _support(w, scene, kernel, config)
+    _per_surface(lambda w: _support(w, scene, kernel, config) if w.raster is not None else None,
+                 work, "support: surface", 0.45, 0.5)
     clock.lap("support")
     report(0.5, "line of sight")
     patches = hole_patches(oriented, config.drone_radius)
@@ -155,8 +156,8 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
     report(0.7, "reachability")
     reached = _reachability([w for w in work if w.raster is not None], grid, scene.mesh, config)
     clock.lap("reachability")
-    for w, kept in steps(reached, "observed space: surface", 0.85, 0.99):
-        _observed(w, kept, scene, up, config, mesh.viewpoints)
+    _per_surface(lambda pair: _observed(*pair, scene, up, config, mesh.viewpoints), reached,
+                 "observed space: surface", 0.85, 0.99)
     clock.lap("observed")
     regions: list[PerchRegion] = []
     for w, kept in reached:
@@ -167,6 +168,40 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
                           [o.decided_by for o in orientations], time.perf_counter() - start, clock.laps)
     result.message = _summary(result)
     return result
+
+
+def _surface_threads() -> int:
+    """Threads the per-surface phases run on: as many as the ray casts get (OMP_NUM_THREADS, at most 2
+    from Perch's entry points)."""
+    try:
+        return max(1, int(thread_environment()["OMP_NUM_THREADS"]))
+    except ValueError:
+        return 1
+
+
+def _per_surface(work, items: list, phase: str, low: float, high: float) -> list:
+    """[work(item) for item in items] on _surface_threads() threads, in order. The surfaces are
+    independent and their numpy, OpenCV and Embree work releases the GIL, so the phases use both
+    cores where a surface's own work is serial. Progress and checkpoints (cancel, budget) stay on the
+    calling thread, once per surface in order; a few surfaces run ahead of the one awaited (bounded
+    memory); a cancel or an error leaves the ones not started unstarted."""
+    threads = _surface_threads()
+    if threads == 1 or len(items) < 2:
+        return [work(item) for item in steps(items, phase, low, high)]
+    out: list = []
+    futures: list = []
+    with ThreadPoolExecutor(max_workers=threads, thread_name_prefix="perch-filter") as pool:
+        try:
+            for i, _ in enumerate(steps(range(len(items)), phase, low, high)):
+                while len(futures) < min(len(items), i + 2 * threads):
+                    futures.append(pool.submit(work, items[len(futures)]))
+                out.append(futures[i].result())
+                futures[i] = None
+        finally:
+            for future in futures:
+                if future is not None:
+                    future.cancel()
+    return out
 
 
 def _raster_filters(surface: Surface, mesh: Mesh, samples, index: SampleIndex, scene: RayScene, up: np.ndarray,

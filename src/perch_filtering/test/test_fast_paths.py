@@ -165,3 +165,29 @@ def test_scatter_equals_ufunc_at_with_float64_values(ufunc):
     ufunc.at(plain, (rows, cols), values)
     scatter(ufunc, image, rows, cols, values)
     np.testing.assert_array_equal(image, plain)
+
+
+def test_per_surface_threads_keep_the_order_and_stop_at_an_error(monkeypatch):
+    """The per-surface phases return results in the surfaces' order, and an error stops the surfaces
+    not yet started (a few run ahead of the one awaited)."""
+    import threading
+
+    from perch_filtering import core
+
+    monkeypatch.setattr(core, "_surface_threads", lambda: 2)
+    threads, started = set(), []
+
+    def work(item):
+        threads.add(threading.get_ident())
+        started.append(item)
+        if item == 5:
+            raise ValueError("surface 5")
+        return item * item + float(np.sum(np.sqrt(np.arange(200_000.0))))  # numpy work: releases the GIL
+
+    expected = [i * i + float(np.sum(np.sqrt(np.arange(200_000.0)))) for i in range(5)]
+    assert core._per_surface(work, list(range(5)), "test", 0.0, 1.0) == expected
+    assert threading.get_ident() not in threads
+    started.clear()
+    with pytest.raises(ValueError, match="surface 5"):
+        core._per_surface(work, list(range(40)), "test", 0.0, 1.0)
+    assert 5 in started and max(started) < 5 + 2 * 2 + 1
