@@ -23,6 +23,7 @@ from perch_interfaces.action import PlanPerches
 
 ACTION = MISSION_ACTION   # the name `perch operator` and the soak import
 LOST_ANSWER_GRACE = 1.0   # s a listed goal waits for its answer before the answer counts as lost
+GOAL_RESEND_AFTER = 3.0   # s without an answer or a status listing before a goal is sent again
 SERVER_GONE_GRACE = 1.0   # s the accepting coordinator may be absent from the graph before the mission ends
 
 
@@ -48,13 +49,16 @@ def _spin_until(node, future, deadline: float, what: str, gone: Callable[[], str
         _spin_briefly(node, future)
 
 
-def _spin_briefly(node, future) -> None:
-    """Spin for up to 0.1 s. A SIGINT can land while rclpy turns a taken message (a feedback, a status)
-    into Python: the KeyboardInterrupt then leaves rclpy's C++ as pybind11's TypeError "Unable to convert
-    function return value" raised from it, or the context it shut down fails the next call. Either is
-    the interrupt, and is raised as one."""
+def _spin_briefly(node, future=None) -> None:
+    """Spin for up to 0.1 s (or until `future` is done). A SIGINT can land while rclpy turns a taken
+    message (a feedback, a status) into Python: the KeyboardInterrupt then leaves rclpy's C++ as
+    pybind11's TypeError "Unable to convert function return value" raised from it, or the context it
+    shut down fails the next call. Either is the interrupt, and is raised as one."""
     try:
-        rclpy.spin_until_future_complete(node, future, timeout_sec=0.1)
+        if future is None:
+            rclpy.spin_once(node, timeout_sec=0.1)
+        else:
+            rclpy.spin_until_future_complete(node, future, timeout_sec=0.1)
     except KeyboardInterrupt:
         raise
     except Exception as exc:
@@ -149,9 +153,11 @@ def run_mission(node, goal: PlanPerches.Goal, timeout: float = 600.0, server_wai
                              "start the graph with `perch launch` (or use `perch plan`, which launches it)")
         deadline = time.monotonic() + timeout
         goal_id = UUID(uuid=list(uuid.uuid4().bytes))
-        sent = client.send_goal_async(
-            goal, feedback_callback=(lambda m: on_feedback(m.feedback)) if on_feedback else None, goal_uuid=goal_id)
-        handle = _goal_handle(node, client, sent, goal_id, statuses,
+        def send():
+            return client.send_goal_async(
+                goal, feedback_callback=(lambda m: on_feedback(m.feedback)) if on_feedback else None, goal_uuid=goal_id)
+
+        handle = _goal_handle(node, client, send, goal_id, statuses,
                               min(deadline, time.monotonic() + server_wait), server_wait)
         if not handle.accepted:
             raise GoalRejected("the coordinator rejected the goal: another mission is running (wait for it, "
@@ -242,17 +248,31 @@ class GoalStatusWatch:
         self.node.destroy_subscription(self._sub)
 
 
-def _goal_handle(node, client, sent, goal_id, statuses: GoalStatusWatch, deadline: float, server_wait: float):
-    """The goal's handle from the coordinator's answer, or from its status list when the answer is lost.
+def _goal_handle(node, client, send, goal_id, statuses: GoalStatusWatch, deadline: float, server_wait: float):
+    """Send the goal (`send()`: its future); its handle from the coordinator's answer, or from its status
+    list when the answer is lost.
 
     A service response is dropped when the server answers before it has matched this client's
     response reader (a young coordinator, or a young client on a busy machine). The goal is then
-    running all the same, and the status topic lists it: the mission is followed from there."""
+    running all the same, and the status topic lists it: the mission is followed from there.
+    A request can be lost the same way (a young coordinator's reader drops what comes before it matched
+    this client), so a goal neither answered nor listed after GOAL_RESEND_AFTER s is sent again under its
+    own id (then after twice that, ...): the coordinator refuses a goal id it holds, so the mission runs once;
+    such a refusal is only taken for the answer when the goal does not show up in the status list."""
     from rclpy.action.client import ClientGoalHandle
 
     key = bytes(goal_id.uuid)
-    listed_at = None
-    while not sent.done():
+    listed_at = refused_at = refusal = None
+    sent, started, resends = [send()], time.monotonic(), 0
+    resend_at = started + GOAL_RESEND_AFTER
+    while True:
+        for future in sent:
+            if future.done() and future.result().accepted:
+                return future.result()
+        if len(sent) == 1 and sent[0].done():
+            return sent[0].result()   # refused, and never sent twice: the refusal is the answer
+        if refusal is None and any(f.done() for f in sent):
+            refusal, refused_at = next(f.result() for f in sent if f.done()), time.monotonic()
         now = time.monotonic()
         if key in statuses.accepted:
             listed_at = listed_at or now
@@ -261,13 +281,21 @@ def _goal_handle(node, client, sent, goal_id, statuses: GoalStatusWatch, deadlin
                                           "following the goal by its status instead")
                 answer = PlanPerches.Impl.SendGoalService.Response(accepted=True, stamp=statuses.accepted[key])
                 return ClientGoalHandle(client, goal_id, answer)
+        elif refused_at is not None and now - refused_at > LOST_ANSWER_GRACE + 1.0:
+            return refusal   # refused, and not running (a goal it holds would be listed by now)
         if now > deadline:
             # The coordinator answers a goal at once (accepted or refused); no answer means it never got it.
             raise TimeoutError(f"the coordinator did not answer the goal within {server_wait:.0f} s (another "
                                "process on this ROS domain may serve the action without running it: "
                                "`ros2 action info` lists the servers, a restart of the graph clears it)")
-        _spin_briefly(node, sent)
-    return sent.result()
+        if now > resend_at and listed_at is None and refusal is None:
+            resends += 1
+            node.get_logger().warning(f"no answer to the goal for {now - started:.0f} s (the request may have "
+                                      "been lost on the way); sending it again")
+            sent.append(send())
+            resend_at = now + GOAL_RESEND_AFTER * 2 ** resends
+        pending = [f for f in sent if not f.done()]
+        _spin_briefly(node, pending[0] if pending else None)
 
 
 class ProgressPrinter:

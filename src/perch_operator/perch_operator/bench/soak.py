@@ -604,7 +604,9 @@ def _run(args) -> int:
 # Node -> the stage it serves in a mission. A stage node is frozen (SIGSTOP) as soon as the mission
 # reports that its stage is running (the call goes out right after; on the apartment each stage
 # works for far longer than the report takes to arrive), so no reply slips out before it is
-# SIGKILLed a random moment later. Freezing it earlier would outlast the DDS lease on a slow machine:
+# SIGKILLed a random moment later. The coordinator is frozen alike: unfrozen, it finished a mission
+# whose last stage ended within the kill's delay ("killed during optimise", result: success).
+# Freezing it earlier would outlast the DDS lease on a slow machine:
 # the node would leave the graph before its call, which the respawned node then serves.
 FAULT_TARGETS: dict[str, str] = {
     "perch_reconstruction": "clean",
@@ -696,7 +698,7 @@ class FaultSoak:
         report.missions += 1
         pids = self.graph.pids()
         stage = FAULT_TARGETS[target] or self.rng.choice(FAULT_STAGES)
-        freeze = target in NODE_SERVICES and target != "perch_operator"
+        freeze = target != "perch launch"   # the launcher's nodes die with it, not when it stops
         pid = self.graph.proc.pid if target == "perch launch" else pids[target]
         delay = self.rng.uniform(0.0, KILL_JITTER)
         killed_at: list[float] = []

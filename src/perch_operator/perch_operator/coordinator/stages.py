@@ -19,7 +19,9 @@ A request can be lost on its way (DDS drops data a server's reader gets before i
 writer, and nothing on the caller's side shows that match): a call of which nothing is heard (no reply,
 no progress: a stage announces every call it starts) is sent again after RESEND_AFTER seconds, then after
 twice that, ... (RESENDS times), under the same call's id (perch_common.ros.service.resent_id); the stage
-runs a resend only if the first never arrived, and answers it as a duplicate otherwise.
+runs a resend only if the first never arrived, and answers it as a duplicate otherwise. A call is resent
+only while the service's servers are the ones it went to: a respawned node does not take up a call
+that its dead predecessor may have been running.
 """
 
 from __future__ import annotations
@@ -214,7 +216,9 @@ class StageCaller:
                     self._abandon(stage, call_id, "no reply within stage_timeout")
                     raise StageError(stage, f"no reply within {self.timeout:.0f} s (parameter stage_timeout)",
                                      self.services[stage])
-                if resends < RESENDS and now > resend_at and not self._heard_of(call_id):
+                # Resent only to the servers it went to: a node that replaced them (respawned) must not take
+                # up a call its dead predecessor may have been running (ServerWatch fails that call).
+                if resends < RESENDS and now > resend_at and not self._heard_of(call_id) and servers.unchanged():
                     resends += 1
                     self.node.get_logger().warning(
                         f"stage {stage}: nothing heard of call {call_id!r} for {now - started:.0f} s "
@@ -261,6 +265,10 @@ class ServerWatch:
             return False
         self._absent_since = self._absent_since or now
         return now - self._absent_since > self.grace
+
+    def unchanged(self) -> bool:
+        """The service's servers are still exactly those present as the call went out (at the last check)."""
+        return bool(self.servers) and set(self.current) == set(self.servers)
 
     def describe(self) -> str:
         """Why the call ended: which node died or restarted, and whether a new one serves now."""
