@@ -22,7 +22,7 @@ to the shared ray-cast scene in one batch.
 from __future__ import annotations
 
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -123,13 +123,19 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
     rotation = grid_rotation(up, np.array([s.frame.normal for s in walls]) if walls else None,
                              np.array([s.area for s in walls]))
     local = project(samples.points, rotation)  # one projection for the flight grid and the sample index
-    grid = build_flight_grid(samples.points, rotation, target, config.voxel_size, config.drone_radius,
-                             config.max_voxels, config.seed, local)
-    index = SampleIndex(samples, rotation, local=local)
-    del local
-    clock.lap("grid")
-    report(0.12, "ray scene")
-    scene = ray_scene if ray_scene is not None else shared_ray_scene(mesh)
+    # The sample index and the ray scene (Embree's BVH, when the mesh has none yet) are built beside the
+    # flight grid: independent, and their numpy and Embree work releases the GIL.
+    with ThreadPoolExecutor(max_workers=2, thread_name_prefix="perch-filter") as pool:
+        submit = pool.submit if _surface_threads() > 1 else _done
+        index_built = submit(SampleIndex, samples, rotation, local=local)
+        scene_built = submit(lambda: ray_scene if ray_scene is not None else shared_ray_scene(mesh))
+        grid = build_flight_grid(samples.points, rotation, target, config.voxel_size, config.drone_radius,
+                                 config.max_voxels, config.seed, local)
+        index = index_built.result()
+        del local
+        clock.lap("grid")
+        report(0.12, "ray scene")
+        scene = scene_built.result()
     centre = target.centroid()
     clock.lap("ray_scene")
     report(0.15, "orientation")
@@ -177,6 +183,13 @@ def _surface_threads() -> int:
         return max(1, int(thread_environment()["OMP_NUM_THREADS"]))
     except ValueError:
         return 1
+
+
+def _done(work, *args, **kwargs) -> Future:
+    """work(*args, **kwargs) run now, as a finished future (the one-thread path of a submit)."""
+    future: Future = Future()
+    future.set_result(work(*args, **kwargs))
+    return future
 
 
 def _per_surface(work, items: list, phase: str, low: float, high: float) -> list:

@@ -9,7 +9,7 @@ from scipy import ndimage
 
 from perch_common.target import TargetVolume
 from perch_common.transforms import rotation_between
-from perch_filtering.sampling import project
+from perch_filtering.sampling import floor_cells, project
 
 SIX_CONNECTED = ndimage.generate_binary_structure(3, 1)
 # Distances are exact up to this many voxels past the drone radius (enough for the hover test below).
@@ -82,7 +82,7 @@ def build_flight_grid(points: np.ndarray, rotation: np.ndarray, target: TargetVo
         raise ValueError(f"occupancy grid of {shape.tolist()} voxels exceeds max_voxels={max_voxels}: "
                          f"raise voxel_size ({voxel} m) or crop the mesh")
     occupied = np.zeros(tuple(shape), bool)
-    idx = np.floor((local - lo) / voxel).astype(np.int64)
+    idx = floor_cells(local, lo, voxel)
     occupied[idx[:, 0], idx[:, 1], idx[:, 2]] = True
     occupied[[0, -1], :, :] = occupied[:, [0, -1], :] = True
     occupied[:, :, [0, -1]] = True
