@@ -119,3 +119,19 @@ def test_negative_camera_count_is_an_error_not_a_default(room_ply, tmp_path, cap
     assert info.value.code == 2
     assert "--cameras: -5 is negative" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+def test_a_reader_that_leaves_early_gets_no_traceback(room_ply):
+    """`perch mesh info FILE | head -1`: the pipe closes before the output is written (issue 22)."""
+    import os
+    import subprocess
+    import sys
+
+    read_end, write_end = os.pipe()
+    os.close(read_end)   # the reader is gone before perch writes: every write fails with EPIPE
+    try:
+        done = subprocess.run([sys.executable, "-m", "perch_common.cli", "mesh", "info", str(room_ply)],
+                              stdout=write_end, stderr=subprocess.PIPE, text=True, timeout=120)
+    finally:
+        os.close(write_end)
+    assert done.returncode == 1 and done.stderr == "", done.stderr

@@ -86,7 +86,12 @@ def main(argv: list[str] | None = None) -> int:
         return 0 if args.command is None else 2
     try:
         with report_errors():  # expected errors exit 1 with one line
-            return int(args.func(args) or 0)
+            code = int(args.func(args) or 0)
+            sys.stdout.flush()   # a closed pipe shows here, not in the interpreter's exit
+            return code
+    except BrokenPipeError:   # `perch ... | head`: the reader left; stop quietly (Python docs, "Note on SIGPIPE")
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())   # the exit's flush must not fail again
+        return 1
     except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM/SIGHUP in commands that start nodes
         print(f"perch: interrupted{f' ({exc})' if str(exc) else ''}", file=sys.stderr)
         return 130
