@@ -9,6 +9,7 @@ from typing import Iterator
 import numpy as np
 
 from perch_common.errors import PerchError
+from perch_common.ros import bag_format
 from perch_reconstruction import images, msgdefs
 from perch_reconstruction.bag_write import PERCH_METADATA, TF_STATIC_TOPIC, TF_TOPIC, BagTopics
 from perch_reconstruction.frames import Intrinsics, RGBDFrame
@@ -63,11 +64,28 @@ def bag_info(path: str | Path) -> dict:
                                  "count": int(scan.counts.get(cid, 0))}
     duration = (scan.end_ns - scan.start_ns) / 1e9 if scan.messages else 0.0
     gravity = scan.metadata.get(PERCH_METADATA, {}).get("gravity")
+    lost = None if scan.intact else bag_format.lost_message_counts(scan)
     return {"path": str(path), "messages": int(scan.messages), "start_ns": int(scan.start_ns),
             "duration_s": duration, "topics": dict(sorted(topics.items())),
             "gravity": None if gravity is None else [float(v) for v in gravity.split()],
             "metadata": sorted(scan.metadata), "problems": list(scan.problems), "recovered": not scan.intact,
-            "damage": scan.damage()}
+            "damage": scan.damage(), "lost": lost}
+
+
+def frames_damage(info: dict, topics: BagTopics = BagTopics()) -> str:
+    """What a damaged bag (bag_info) lost, in frames: '' for an intact one. A frame needs its colour and
+    its depth image, so the frames lost are the larger of the two topics' losses."""
+    if not info["recovered"]:
+        return ""
+    present = info["topics"]
+    count = min(present.get(topics.color, {}).get("count", 0), present.get(topics.depth, {}).get("count", 0))
+    lost = info["lost"]
+    if lost is None:
+        told = f"{count} frame(s) recovered; how many were lost is unknown (the bag was never closed)"
+    else:
+        frames = max(lost.get(topics.color, 0), lost.get(topics.depth, 0))
+        told = f"{count} frame(s) recovered, {frames} lost" if frames else f"{count} frame(s) recovered, none lost"
+    return f"damaged bag, read as far as it goes ({told}): " + "; ".join(info["problems"])
 
 
 def iter_raw(path: str | Path, topics: list[str] | None = None) -> Iterator[RawMessage]:
@@ -174,10 +192,8 @@ def read_bag_frames(path: str | Path, topics: BagTopics = BagTopics(), depth_sca
             yield frame
 
     count = min(present[topics.color]["count"], present[topics.depth]["count"])
-    damage = ""
-    if info["recovered"]:
-        damage = (f"damaged bag, read as far as it goes ({count} frame(s) recovered): " + "; ".join(info["problems"]))
-    return BagFrames(intrinsics, gravity, count, has_poses, frames(), assembler, pose_frame_id, damage)
+    return BagFrames(intrinsics, gravity, count, has_poses, frames(), assembler, pose_frame_id,
+                     frames_damage(info, topics))
 
 
 def _tf_poses(path, present: dict, topics: BagTopics, decode, world: str, camera: str,

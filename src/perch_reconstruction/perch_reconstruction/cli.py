@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -216,6 +217,7 @@ def register_reconstruct(sub) -> None:
 def _reconstruct(args) -> int:
     from perch_common.mesh import save_mesh
     from perch_common.viewpoints import write_viewpoints_beside
+    from perch_reconstruction.bag_read import bag_info, frames_damage
     from perch_reconstruction.core import reconstruct_bag, reconstruct_frames
 
     refuse_overwriting_inputs([args.output, args.raw], [args.bag, args.frames, args.config])
@@ -241,5 +243,9 @@ def _reconstruct(args) -> int:
         save_mesh(partial, mesh)
     if mesh.viewpoints is not None:   # mesh formats cannot hold them: beside the file, for planning from it
         write_viewpoints_beside(args.output, mesh.vertices, mesh.faces, mesh.viewpoints)
-    print(json.dumps({"output": str(Path(args.output)), **stats.summary(), "faces": mesh.num_faces}, indent=2))
+    damage = frames_damage(bag_info(args.bag), _topics(args)) if args.bag else ""   # the scan is cached
+    print(json.dumps({"output": str(Path(args.output)), **stats.summary(), "faces": mesh.num_faces,
+                      **({"damage": damage} if damage else {})}, indent=2))
+    if damage:   # last, where it is seen: the frame counts above are of what could be read
+        print(f"perch: warning: {damage}", file=sys.stderr, flush=True)
     return 0

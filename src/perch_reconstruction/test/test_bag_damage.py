@@ -41,7 +41,31 @@ def test_4_kb_corrupted_mid_file_loses_that_chunk_and_says_so(synthetic_bag, tmp
     bag = read_bag_frames(path)
     frames = list(bag.frames)
     assert 0 < len(frames) < FRAMES   # used to be "40 of 40 frames"
-    assert bag.damage.startswith(f"damaged bag, read as far as it goes ({bag.frame_count} frame(s) recovered)")
+    lost = FRAMES - bag.frame_count
+    assert lost > 0 and info["lost"]["/camera/color/image_raw"] <= lost   # counted from the bag's rosbag2 record
+    assert bag.damage.startswith(f"damaged bag, read as far as it goes ({bag.frame_count} frame(s) recovered, "
+                                 f"{lost} lost)")
+
+
+def test_reconstruct_cli_warns_of_the_frames_a_damaged_bag_lost(synthetic_bag, tmp_path, capsys):
+    """It used to print "N/N frames integrated" and exit 0 without a word of the lost chunk."""
+    from perch_common.cli import main
+
+    def corrupt(data: bytearray) -> bytes:
+        middle = len(data) // 2
+        data[middle:middle + 4096] = bytes(4096)
+        return bytes(data)
+
+    path = _damaged(synthetic_bag, tmp_path, "corrupt", corrupt)
+    recovered = read_bag_frames(path).frame_count
+    assert main(["reconstruct", "--bag", str(path), "-o", str(tmp_path / "mesh.ply")]) == 0
+    captured = capsys.readouterr()
+    warning = (f"perch: warning: damaged bag, read as far as it goes ({recovered} frame(s) recovered, "
+               f"{FRAMES - recovered} lost): chunk at byte ")
+    assert captured.err.splitlines()[-1].startswith(warning), captured.err
+    assert f'"damage": "damaged bag, read as far as it goes ({recovered} frame(s) recovered' in captured.out
+    assert main(["reconstruct", "--bag", str(synthetic_bag), "-o", str(tmp_path / "whole.ply")]) == 0
+    assert "warning" not in capsys.readouterr().err
 
 
 def test_a_chunk_failing_its_crc_is_detected(tmp_path):

@@ -100,3 +100,31 @@ def add_rosbag2_metadata(writer, topics: list[TopicRecord], start_ns: int, end_n
     """Write the `rosbag2` metadata record to an open `mcap.writer.Writer`."""
     writer.add_metadata(ROSBAG2_METADATA,
                         {SERIALIZED_METADATA: serialized_metadata(topics, start_ns, end_ns, file_name)})
+
+
+def recorded_message_counts(metadata_records: dict) -> dict[str, int] | None:
+    """topic -> messages written, from the `rosbag2` metadata record (name -> its dict, as
+    McapScan.metadata holds them); None when the bag has no such record (its writer never closed it)."""
+    text = metadata_records.get(ROSBAG2_METADATA, {}).get(SERIALIZED_METADATA)
+    if not text:
+        return None
+    try:
+        described = yaml.safe_load(text)
+        return {t["topic_metadata"]["name"]: int(t["message_count"]) for t in described["topics_with_message_count"]}
+    except (yaml.YAMLError, KeyError, TypeError, ValueError):   # a foreign or garbled record: counts unknown
+        return None
+
+
+def lost_message_counts(scan) -> dict[str, int] | None:
+    """topic -> messages the bag recorded but a damaged read could not recover (a perch_common.mcap_read
+    McapScan; messages whose channel record was lost count as lost); None when the recorded counts are
+    unknown (no `rosbag2` record: a recorder killed before closing the file)."""
+    recorded = recorded_message_counts(scan.metadata)
+    if recorded is None:
+        return None
+    read: dict[str, int] = {}
+    for channel_id, count in scan.counts.items():
+        if channel_id in scan.channels:
+            topic = scan.channels[channel_id].topic
+            read[topic] = read.get(topic, 0) + count
+    return {topic: count - read.get(topic, 0) for topic, count in recorded.items() if count > read.get(topic, 0)}
