@@ -46,9 +46,11 @@ def refuse_overwriting_inputs(outputs: Iterable[str | Path], inputs: Iterable[st
 def refuse_folder_holding_inputs(out_dir: str | Path, inputs: Iterable[str | Path | None]) -> None:
     """Raise PerchError when an output folder is, or lies above, one of the inputs."""
     folder = Path(out_dir).resolve()
+    folders = {folder, Path(os.path.abspath(out_dir))}
     for source in (Path(p) for p in inputs if p):
-        resolved = source.resolve()
-        if resolved == folder or folder in resolved.parents:
+        # The input as given and its real file: a link inside the folder to a file elsewhere counts too.
+        places = {source.resolve(), Path(os.path.abspath(source))}
+        if any(place == f or f in place.parents for place in places for f in folders):
             raise PerchError(f"-o {out_dir}: holds the input {source}; give the outputs a folder of their own "
                              f"(e.g. -o {folder / 'perch_out'})")
 
@@ -158,17 +160,48 @@ MANIFEST_NAME = ".perch-outputs.json"   # the names Perch wrote into an output f
 _LEGACY_FILES = ("waypoints.yaml", "run.mcap", "run.rrd", "report.html", "FAILED")
 
 
-def written_by_perch(out_dir: str | Path) -> set[str]:
-    """The names in out_dir that Perch wrote there (its manifest). A folder written before manifests
-    existed: its mission files, and report_files/ when every file in it is one report.html shows."""
-    out_dir = Path(out_dir)
+def _manifest_entries(out_dir: Path) -> set[str] | None:
+    """The manifest's entries: top-level names, and `folder/file` for each file in a folder Perch wrote
+    (None: no manifest)."""
     try:
         names = json.loads((out_dir / MANIFEST_NAME).read_text()).get("written", [])
     except (FileNotFoundError, NotADirectoryError):
-        return _legacy_outputs(out_dir)
+        return None
     except (ValueError, AttributeError):
         return set()
-    return {n for n in names if isinstance(n, str) and "/" not in n and n not in ("", ".", "..")}
+    return {n for n in names if isinstance(n, str) and n and ".." not in n.split("/") and not n.startswith("/")}
+
+
+def _files_in(folder: Path) -> list[str]:
+    """The files (and links) under a folder, relative to it."""
+    return sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*") if not p.is_dir() or p.is_symlink())
+
+
+def foreign_files(out_dir: str | Path, name: str) -> list[str]:
+    """Files in the folder out_dir/name that Perch did not write there (a user's own, put inside it)."""
+    out_dir = Path(out_dir)
+    folder = out_dir / name
+    if not folder.is_dir() or folder.is_symlink():
+        return []
+    entries = _manifest_entries(out_dir)
+    recorded = {e.split("/", 1)[1] for e in entries or () if e.startswith(f"{name}/")}
+    if entries is None or not recorded:   # written before manifests listed files: what report.html shows is Perch's
+        html = out_dir / "report.html"
+        shown = html.read_text(errors="replace") if html.is_file() else ""
+        return [f for f in _files_in(folder) if f"{name}/{f}" not in shown]
+    return [f for f in _files_in(folder) if f not in recorded]
+
+
+def written_by_perch(out_dir: str | Path) -> set[str]:
+    """The names in out_dir that Perch wrote there (its manifest); a folder only while every file in it
+    is one Perch wrote. A folder written before manifests existed: its mission files, and
+    report_files/ when every file in it is one report.html shows."""
+    out_dir = Path(out_dir)
+    entries = _manifest_entries(out_dir)
+    if entries is None:
+        return _legacy_outputs(out_dir)
+    names = {n for n in entries if "/" not in n and n not in (".",)}
+    return {n for n in names if not foreign_files(out_dir, n)}
 
 
 def _legacy_outputs(out_dir: Path) -> set[str]:
@@ -182,8 +215,17 @@ def _legacy_outputs(out_dir: Path) -> set[str]:
 
 
 def _record_written(out_dir: Path, added: Iterable[str], removed: Iterable[str] = ()) -> None:
-    names = (written_by_perch(out_dir) | set(added)) - set(removed)
-    names = sorted(n for n in names if (out_dir / n).exists() or os.path.islink(out_dir / n))
+    entries = _manifest_entries(out_dir)
+    entries = _legacy_outputs(out_dir) if entries is None else entries
+    added, removed = set(added), set(removed)
+    names = ({n for n in entries if "/" not in n} | added) - removed
+    names = {n for n in names if (out_dir / n).exists() or os.path.islink(out_dir / n)}
+    # A folder's files are listed too (a file the user puts in it later is then known not to be Perch's);
+    # a folder not written now keeps its earlier list (a user's file in it is never adopted).
+    files = {e for e in entries if "/" in e and e.split("/", 1)[0] in names - added}
+    files |= {f"{n}/{f}" for n in added & names if (out_dir / n).is_dir() and not (out_dir / n).is_symlink()
+              for f in _files_in(out_dir / n)}
+    names = sorted(names | files)
     with atomic_path(out_dir / MANIFEST_NAME) as path:
         path.write_text(json.dumps({"written": names}, indent=1) + "\n")
 
@@ -198,6 +240,14 @@ def foreign_outputs(out_dir: str | Path, names: Iterable[str]) -> list[str]:
 def refuse_foreign_outputs(out_dir: str | Path, names: Iterable[str]) -> None:
     """Raise PerchError when out_dir holds, under a name Perch writes, something Perch did not write."""
     foreign = foreign_outputs(out_dir, names)
+    entries = _manifest_entries(Path(out_dir)) or set()
+    for name in foreign:
+        inside = foreign_files(out_dir, name) if name in entries else []
+        if inside:   # Perch's folder, with the user's files put inside it
+            shown = ", ".join(inside[:3]) + (f" and {len(inside) - 3} more" if len(inside) > 3 else "")
+            raise PerchError(f"-o {out_dir}: {name}/ holds {shown}, not written by Perch; Perch replaces only what "
+                             f"it wrote: move {'it' if len(inside) == 1 else 'them'} out of {name}/, or choose "
+                             "another folder")
     if foreign:
         shown = ", ".join(n + ("/" if (Path(out_dir) / n).is_dir() else "") for n in foreign)
         raise PerchError(f"-o {out_dir}: holds {shown}, not written by Perch (not in its {MANIFEST_NAME}); Perch "

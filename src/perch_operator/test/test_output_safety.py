@@ -216,3 +216,53 @@ def test_the_dispatchers_waypoints_file_is_replaced_atomically_with_the_umask(tm
     with mock.patch.object(Path, "write_text", half_then_fail), pytest.raises(OSError):
         write_waypoints_yaml(path, [])
     assert path.read_text() == before and sorted(p.name for p in tmp_path.iterdir()) == ["dispatch.yaml"]
+
+
+def test_a_users_file_put_inside_perchs_report_files_is_never_removed(tmp_path):
+    """--overwrite replaces report_files/ only while it holds only what Perch wrote (issue 22 finding 2)."""
+    from perch_operator.cli.plan import check_output_folder
+    from perch_operator.cli.runner import OUTPUT_NAMES
+
+    out = tmp_path / "run"
+    _good_mission(out, "first")
+    assert "report_files/overview.png" in (out / MANIFEST_NAME).read_text()
+    (out / "report_files" / "my_annotations.txt").write_text("the user's")
+    refused = r"report_files/ holds my_annotations.txt, not written by Perch; .* move it out of report_files/"
+    for overwrite in (True, False):
+        with pytest.raises(PerchError, match=refused):
+            check_output_folder(out, overwrite, [])
+    with pytest.raises(PerchError, match=refused):   # and at the swap, should it appear during the mission
+        _good_mission(out, "second")
+    staged = staging_folder(out)
+    (staged / "FAILED").write_text("why")
+    replace_outputs(staged, out, ["FAILED"], OUTPUT_NAMES)   # stale names: the folder is not removed either
+    assert (out / "report_files" / "my_annotations.txt").read_text() == "the user's"
+    (out / "report_files" / "my_annotations.txt").unlink()
+    _good_mission(out, "third")   # once it is moved away, the folder is Perch's again
+    assert (out / "report.html").read_text() == "report third"
+
+
+def test_the_advice_for_a_users_own_report_files_matches_what_overwrite_does(tmp_path):
+    """Without --overwrite the reply must not advise --overwrite when that would be refused (finding 8)."""
+    from perch_operator.cli.plan import check_output_folder
+
+    (tmp_path / "report_files").mkdir()
+    for overwrite in (False, True):
+        with pytest.raises(PerchError, match=r"holds report_files/, not written by Perch") as info:
+            check_output_folder(tmp_path, overwrite, [])
+        assert "--overwrite" not in str(info.value)
+
+
+def test_a_link_to_the_input_inside_the_output_folder_is_refused(tmp_path):
+    """The input reached through a symlink in -o counts as held by -o (finding 9)."""
+    mesh = tmp_path / "scans" / "room.ply"
+    mesh.parent.mkdir()
+    mesh.write_text("ply")
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "room.ply").symlink_to(mesh)
+    with pytest.raises(PerchError, match="holds the input"):
+        refuse_folder_holding_inputs(out, [out / "room.ply"])
+    (tmp_path / "scans_link").symlink_to(mesh.parent, target_is_directory=True)
+    with pytest.raises(PerchError, match="holds the input"):   # -o given through a link to the input's folder
+        refuse_folder_holding_inputs(tmp_path / "scans_link", [mesh])

@@ -210,11 +210,12 @@ def check_output_folder(out: Path, overwrite: bool, inputs) -> None:
         raise PerchError(f"-o {out}: is a file; give a folder for the mission outputs")
     refuse_overwriting_inputs([out] + [out / n for n in OUTPUT_NAMES], inputs)
     refuse_folder_holding_inputs(out, inputs)
+    # What Perch did not write is refused first, with or without --overwrite (which would not replace it).
+    refuse_foreign_outputs(out, OUTPUT_NAMES)
     earlier = [n for n in OUTPUT_NAMES if (out / n).exists()]
     if earlier and not overwrite:
         raise PerchError(f"-o {out}: holds the outputs of an earlier mission ({', '.join(earlier)}); "
                          "add --overwrite to replace them, or choose another folder")
-    refuse_foreign_outputs(out, OUTPUT_NAMES)   # --overwrite replaces only what Perch wrote
     check_writable_folder(out)
 
 
