@@ -67,22 +67,36 @@ def check_writable_folder(out_dir: str | Path) -> None:
     existing = out_dir if out_dir.exists() else next((p for p in out_dir.parents if p.exists()), Path("."))
     if out_dir.exists() and not out_dir.is_dir():
         raise PerchError(f"-o {out_dir}: is a file; give a folder for the outputs")
-    for folder in {existing, out_dir.parent if out_dir.parent.exists() else existing}:
+    _check_can_create(f"-o {out_dir}", {existing, out_dir.parent if out_dir.parent.exists() else existing},
+                      "choose a folder you can write, or fix its permissions, before the mission runs")
+
+
+def check_writable_file(path: str | Path, option: str, example: str) -> Path:
+    """Raise PerchError (one line naming `option`, the path and the fix) unless `path` can be written
+    atomically: not an existing folder, and its folder (or the nearest existing ancestor) writable.
+    Checked when a command starts, not when its first output arrives; returns the path."""
+    path = refuse_directory(path, option, example)
+    folder = next((p for p in path.parents if p.exists()), Path("."))
+    _check_can_create(f"{option} {path}", {folder}, "choose a file in a folder you can write, or fix the "
+                      "folder's permissions")
+    return path
+
+
+def _check_can_create(what: str, folders: Iterable[Path], fix: str) -> None:
+    for folder in folders:
         if not os.access(folder, os.W_OK | os.X_OK):
-            raise PerchError(f"-o {out_dir}: cannot write into {folder} (permission denied); choose a folder you "
-                             "can write, or fix its permissions, before the mission runs")
-    try:   # os.access passes for root, and on a read-only file system mounted writable-looking
-        os.rmdir(tempfile.mkdtemp(prefix=f".{out_dir.name}.probe-", dir=existing))
-    except OSError as exc:
-        raise PerchError(f"-o {out_dir}: cannot write into {existing} ({exc.strerror}); choose a folder you can "
-                         "write before the mission runs") from None
+            raise PerchError(f"{what}: cannot write into {folder} (permission denied); {fix}")
+        try:   # os.access passes for root, and on a read-only file system mounted writable-looking
+            os.rmdir(tempfile.mkdtemp(prefix=".perch.probe-", dir=folder))
+        except OSError as exc:
+            raise PerchError(f"{what}: cannot write into {folder} ({exc.strerror}); {fix}") from None
 
 
-def refuse_directory(path: str | Path, what: str = "output") -> Path:
+def refuse_directory(path: str | Path, what: str = "output", example: str = "out.mcap") -> Path:
     """A file output must not be an existing folder; returns the path."""
     path = Path(path)
     if path.is_dir():
-        raise PerchError(f"{what} {path} is an existing folder; give a file path (e.g. {path / 'out.mcap'})")
+        raise PerchError(f"{what} {path} is an existing folder; give a file path (e.g. {path / example})")
     return path
 
 

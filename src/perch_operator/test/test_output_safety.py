@@ -266,3 +266,56 @@ def test_a_link_to_the_input_inside_the_output_folder_is_refused(tmp_path):
     (tmp_path / "scans_link").symlink_to(mesh.parent, target_is_directory=True)
     with pytest.raises(PerchError, match="holds the input"):   # -o given through a link to the input's folder
         refuse_folder_holding_inputs(tmp_path / "scans_link", [mesh])
+
+
+def _dispatch(*argv: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "perch_common.cli", "dispatch", *argv], capture_output=True,
+                          text=True, timeout=60)
+
+
+def test_perch_dispatch_checks_its_output_file_when_it_starts(tmp_path):
+    """A folder, or a file in an unwritable folder, is refused with one line before any waypoint set
+    arrives (no graph runs here: the command would otherwise wait for one) (issue 22 findings 1, 11)."""
+    done = _dispatch("--output", str(tmp_path))
+    assert done.returncode == 1, done.stderr
+    assert done.stderr == (f"perch: error: --output {tmp_path} is an existing folder; give a file path "
+                           f"(e.g. {tmp_path / 'waypoints.yaml'})\n")
+    # Root may write into any folder of an ordinary file system; /proc takes no new files from anyone.
+    locked = Path("/proc") if os.getuid() == 0 else tmp_path / "locked"
+    if os.getuid() != 0:
+        locked.mkdir()
+        locked.chmod(0o555)
+    try:
+        done = _dispatch("--output", str(locked / "wp.yaml"))
+    finally:
+        if os.getuid() != 0:
+            locked.chmod(0o755)
+    assert done.returncode == 1, done.stderr
+    line = done.stderr.strip()
+    assert "\n" not in line and line.startswith(f"perch: error: --output {locked / 'wp.yaml'}: cannot write into "
+                                                f"{locked} ("), line
+    assert line.endswith("choose a file in a folder you can write, or fix the folder's permissions"), line
+
+
+def test_a_one_thread_node_runs_on_the_single_threaded_executor():
+    """`perch dispatch` (threads=1) printed rclpy's 'MultiThreadedExecutor is used with a single thread'."""
+    import warnings
+
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+
+    from perch_common.ros import testing
+    from perch_common.ros.node_main import make_executor
+
+    testing.use_isolated_ros_env()
+    context = Context()
+    context.init()
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            for threads in (1, 2):
+                executor = make_executor(threads, context)
+                assert isinstance(executor, SingleThreadedExecutor) == (threads == 1)
+                executor.shutdown()
+    finally:
+        context.try_shutdown()

@@ -7,7 +7,7 @@ import sys
 from typing import Callable, Iterator
 
 import rclpy
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
 from rclpy.node import Node
 
 from perch_common.config import ConfigError
@@ -27,6 +27,13 @@ def ros_context(args: list[str] | None = None) -> Iterator[None]:
         rclpy.try_shutdown()
 
 
+def make_executor(threads: int, context=None):
+    """The executor for `threads` threads (rclpy warns about a MultiThreadedExecutor with one)."""
+    if threads == 1:
+        return SingleThreadedExecutor(context=context)
+    return MultiThreadedExecutor(num_threads=threads, context=context)
+
+
 def run_node(factory: Callable[[], Node], args: list[str] | None = None, threads: int = 2) -> int:
     """Create the node inside an rclpy context and spin it; returns the process exit code.
 
@@ -43,7 +50,7 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None, threads
             return 2
         PROCESS_CACHE.hosts.add(node.get_name())   # requests it reads may name this process's meshes by id
         freeze_startup_objects()
-        executor = MultiThreadedExecutor(num_threads=threads)
+        executor = make_executor(threads)
         executor.add_node(node)
         try:
             executor.spin()

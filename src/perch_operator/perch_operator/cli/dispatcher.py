@@ -108,15 +108,22 @@ class Dispatcher(Node):
             log.info(f"  drone {waypoint['drone_index']}: perch at ({x:.2f}, {y:.2f}, {z:.2f}) in "
                      f"{waypoint['frame_id']} (proposal {waypoint['proposal_id']})")
         if self.output is not None:
-            write_waypoints_yaml(self.output, self.received)
+            try:
+                write_waypoints_yaml(self.output, self.received)
+            except OSError as exc:   # e.g. the disk filled up since the start: said, and the dispatcher goes on
+                log.error(f"could not write --output {self.output} ({exc.strerror or exc}); its previous "
+                          "content is kept")
 
 
 def main(output: Path | None = None) -> int:
     """Run the dispatcher until Ctrl-C."""
     from perch_common import namespace
     from perch_common.launch import use_perch_dds
+    from perch_common.outputs import check_writable_file
     from perch_common.ros.node_main import run_node
 
+    if output is not None:   # checked now, not when the first waypoint set arrives
+        check_writable_file(output, "--output", "waypoints.yaml")
     use_perch_dds()   # host-only like the graph, unless PERCH_NETWORK=1
 
     # the graph's namespace (perch --namespace N dispatch) for the relative topic name
