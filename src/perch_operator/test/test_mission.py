@@ -134,6 +134,23 @@ def test_bag_goal_reconstructs_instead_of_cleaning(goal):
     assert stages.requests[0][1].bag_path == "/data/kitchen.mcap" and result.success
 
 
+def test_what_a_damaged_bag_lost_is_in_the_result_and_the_feedback(goal):
+    """It used to be only in the reconstruct node's log (bad-input finding 3)."""
+    damage = "damaged bag, read as far as it goes (54 frame(s) recovered, 6 lost): chunk at byte 5339176 fails its CRC"
+
+    class Reconstructing(ScriptedStages):
+        def call(self, stage, request, cancelled=lambda: False):
+            if stage == "reconstruct":
+                return srv.Reconstruct.Response(success=True, mesh=self.mesh_msg, seconds=2.0,
+                                                message=f"900 faces from 54 of 54 frames; {damage}",
+                                                alignment=alignment_to_msg(Alignment("world", np.eye(3))))
+            return super().call(stage, request, cancelled)
+
+    _, result, feedback, _, _ = run(Reconstructing(goal.mesh), PlanPerches.Goal(bag_path="/k.mcap", auto_accept=True))
+    assert result.success and f"perch(es) accepted; {damage}" in result.message
+    assert any(damage in str(f) for f in feedback)
+
+
 def test_replan_keeps_the_other_slots_and_sends_every_exclusion(goal):
     stages = ScriptedStages(goal.mesh)
     _, _, _, _, [operator] = run(stages, goal)

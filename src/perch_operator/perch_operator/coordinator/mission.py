@@ -193,6 +193,9 @@ class Mission:
                 # The bag records no poses: track the camera instead (RGB-D odometry).
                 self.feedback("reconstruct", self._fraction(), "no poses in the bag: reconstructing with odometry")
                 reply = self._call("reconstruct", srv.Reconstruct.Request(bag_path=goal.bag_path, use_poses=False))
+            if "damaged bag" in reply.message:   # what the bag lost: in the result and on the terminal, not only the log
+                self.notes.append(reply.message[reply.message.index("damaged bag"):])
+                self.feedback("reconstruct", self._fraction(), self.notes[-1])
             # The reconstruction is gravity-aligned; outputs go back to the frame of the bag's poses.
             self.alignment = alignment_from_msg(reply.alignment, reply.up_source, reply.up_confidence)
             return reply.mesh
