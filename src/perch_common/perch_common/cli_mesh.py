@@ -26,7 +26,7 @@ def mesh_summary(path: str, scale: float = 1.0) -> dict:
     """Size, bounds, up estimate (with evidence and confidence) and problems (incl. implausible units) of a mesh file."""
     mesh = load_mesh(path, validate=False, scale=scale)
     problems = inspect_mesh(mesh)
-    health = [] if problems.fatal else inspect_health(mesh).lines()   # soup, duplicates, windings, slivers
+    health = [] if problems.fatal else inspect_health(mesh, path=path).lines()   # soup, duplicates, windings, slivers
     summary = {"file": str(path), "vertices": mesh.num_vertices, "faces": mesh.num_faces,
                "vertex_colors": mesh.vertex_colors is not None,
                "problems": problems.fatal + [w for w in problems.warnings if "duplicate faces" not in w] + health}

@@ -15,6 +15,7 @@ Everything is vectorised (numpy, scipy.sparse); about 0.3 s per 100k faces.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -23,6 +24,9 @@ from perch_common.mesh import Mesh
 NEEDLE_ASPECT = 1e-3        # altitude / longest edge below this: a sliver
 NEEDLE_LENGTH = 10.0        # ... and longer than this many median edge lengths: a needle across space
 SOUP_SHARE = 0.5            # more than this share of faces without a neighbour: a triangle soup
+# More than this share of vertices used by no face: faces were lost (an OBJ cut at a line break keeps
+# all its `v` lines and a part of its `f` lines). Real scans in the data: 0 % to 7.8 %.
+UNREFERENCED_SHARE = 0.2
 
 
 @dataclass
@@ -36,6 +40,8 @@ class MeshHealth:
     flipped_faces: int = 0           # faces to turn over for a consistent winding (per piece, the minority)
     needle_slivers: int = 0
     soup: bool = False               # most faces share no vertex index with another (before welding)
+    vertices: int = 0                # in the file (an OBJ's `v` lines) or the mesh
+    unreferenced_vertices: int = 0   # of those, used by no face
     notes: list[str] = field(default_factory=list)
 
     def lines(self) -> list[str]:
@@ -52,6 +58,9 @@ class MeshHealth:
         if self.needle_slivers:
             out.append(f"{self.needle_slivers:,} needle slivers (triangles over {NEEDLE_LENGTH:g}x the median edge "
                        f"long and under 1/{1 / NEEDLE_ASPECT:g} of that wide)")
+        line = unreferenced_line(self.unreferenced_vertices, self.vertices)
+        if line:
+            out.append(line)
         if self.isolated_faces > SOUP_SHARE * self.faces and not self.soup:
             out.append(f"{self.isolated_faces:,} of {self.faces:,} faces share no edge with another")
         return out + self.notes
@@ -159,9 +168,53 @@ def winding_flips(faces: np.ndarray, at_least: float = 0) -> tuple[np.ndarray, i
     return flips, inconsistent
 
 
-def inspect_health(mesh: Mesh, weld_distance: float = 1e-5) -> MeshHealth:
-    """Count the problems of `mesh` (its arrays are not changed)."""
+def unreferenced_line(unreferenced: int, vertices: int) -> str:
+    """The warning for a large share of vertices used by no face ('' below UNREFERENCED_SHARE)."""
+    if not vertices or unreferenced <= UNREFERENCED_SHARE * vertices:
+        return ""
+    return (f"{unreferenced:,} of {vertices:,} vertices ({100 * unreferenced / vertices:.0f} %) are used by no "
+            "face: the file may be cut short or faces lost")
+
+
+def unreferenced_vertices(mesh: Mesh, path: str | Path | None = None) -> tuple[int, int]:
+    """(vertices used by no face, vertices). For an OBJ file, counted in the file: its loader keeps only
+    the vertices faces use, so a file that lost faces looks whole once loaded."""
+    if path is not None and Path(path).suffix.lower() == ".obj":
+        counted = obj_vertex_use(path)
+        if counted is not None:
+            return counted
+    if mesh.num_vertices == 0:
+        return 0, 0
+    used = np.bincount(mesh.faces.ravel(), minlength=mesh.num_vertices) if mesh.num_faces else np.zeros(0)
+    return int(mesh.num_vertices - np.count_nonzero(used[:mesh.num_vertices])), mesh.num_vertices
+
+
+def obj_vertex_use(path: str | Path) -> tuple[int, int] | None:
+    """(`v` lines no face uses, `v` lines) of an OBJ file; None when its faces use relative (negative)
+    indices, whose vertex depends on the line's position."""
+    import re
+
+    data = Path(path).read_bytes()
+    vertices = len(re.findall(rb"(?m)^[ \t]*v[ \t]", data))
+    faces = re.findall(rb"(?m)^[ \t]*f[ \t]+([^\r\n#]*)", data)
+    if not vertices:
+        return 0, 0
+    tokens = b" ".join(faces).split()
+    try:
+        indices = np.array([int(t.split(b"/", 1)[0]) for t in tokens], np.int64)
+    except ValueError:   # a malformed face: the loader says what is wrong with the file
+        return None
+    if (indices < 0).any():
+        return None
+    used = np.unique(indices[(indices >= 1) & (indices <= vertices)])
+    return vertices - len(used), vertices
+
+
+def inspect_health(mesh: Mesh, weld_distance: float = 1e-5, path: str | Path | None = None) -> MeshHealth:
+    """Count the problems of `mesh` (its arrays are not changed); `path`, the file it was loaded from,
+    for what only the file shows (an OBJ's vertices no face uses)."""
     health = MeshHealth(mesh.num_faces)
+    health.unreferenced_vertices, health.vertices = unreferenced_vertices(mesh, path)
     if mesh.num_faces == 0:
         return health
     faces = mesh.faces

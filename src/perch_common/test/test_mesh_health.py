@@ -65,3 +65,37 @@ def test_mesh_info_prints_the_health(room, tmp_path, capsys):
     assert main(["mesh", "info", str(path)]) == 0
     problems = [line for line in capsys.readouterr().out.splitlines() if "problems:" in line][0]
     assert "30 duplicate faces" in problems and "inconsistent windings" in problems
+
+
+def _obj_text(vertices: np.ndarray, faces: np.ndarray) -> str:
+    return "".join(f"v {x:.6f} {y:.6f} {z:.6f}\n" for x, y, z in vertices) + "".join(
+        f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in faces)
+
+
+def test_an_obj_cut_at_a_line_break_shows_its_unused_vertices(room, tmp_path, capsys):
+    """All `v` lines kept, part of the `f` lines lost: the OBJ loader keeps only the vertices faces use,
+    so only the file tells (issue 22 finding 10)."""
+    from perch_common.cli import main
+    from perch_common.mesh import load_mesh
+
+    whole = tmp_path / "whole.obj"
+    whole.write_text(_obj_text(room.vertices, room.faces))
+    cut = tmp_path / "cut.obj"
+    kept = room.faces[: room.num_faces // 5]
+    cut.write_text(_obj_text(room.vertices, kept))
+    unused = room.num_vertices - len(np.unique(kept))
+    assert unused > 0.2 * room.num_vertices
+    assert inspect_health(load_mesh(whole), path=whole).lines() == []
+    health = inspect_health(load_mesh(cut), path=cut)
+    assert (health.unreferenced_vertices, health.vertices) == (unused, room.num_vertices)
+    share = round(100 * unused / room.num_vertices)
+    expected = (f"{unused:,} of {room.num_vertices:,} vertices ({share} %) are used by no face: the file may be "
+                "cut short or faces lost")
+    assert expected in health.lines()
+    assert main(["mesh", "info", str(cut)]) == 0
+    assert expected in capsys.readouterr().out
+    # A mesh (a PLY, a stage request) that kept its unused vertices shows them without a file.
+    assert expected in inspect_health(Mesh(room.vertices, kept)).lines()
+    # A few unused vertices, as real scans have (up to 7.8 %), are not a problem.
+    extra = room.vertices[: room.num_vertices // 10]
+    assert inspect_health(Mesh(np.vstack([room.vertices, extra]), room.faces)).lines() == []

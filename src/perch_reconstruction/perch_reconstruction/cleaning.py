@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from perch_common.mesh import Mesh, MeshError, validate_mesh
+from perch_common.mesh_health import unreferenced_line, unreferenced_vertices
 from perch_common.up_axis import UpEstimate, estimate_mesh_up
 from perch_reconstruction.config import ReconstructionConfig
 from perch_reconstruction.mesh_ops import cluster_vertices, remove_small_pieces, weld_close_vertices, weld_vertices
@@ -61,6 +62,9 @@ def clean_mesh_with_report(mesh: Mesh, gravity: np.ndarray | None, config: Recon
         if np.linalg.norm(gravity) < 1e-9:
             gravity = None
     report = CleanReport(faces_in=mesh.num_faces, faces_out=0)
+    lost = unreferenced_line(*unreferenced_vertices(mesh))   # faces lost on the way (the clean drops the rest)
+    if lost:
+        report.warnings.append(lost)
     cleaned = _decimated_clean(mesh, config, report).with_viewpoints_of(mesh)
     if cleaned.num_faces == 0:
         raise MeshError(f"mesh to clean: nothing left after removing pieces smaller than "

@@ -74,3 +74,12 @@ def test_the_clean_stage_says_when_the_mesh_falls_apart(room):
         assert "min_piece_diameter" in str(exc)
         return
     assert any("falls apart into fragments" in w for w in report.warnings), report.warnings
+
+
+def test_the_clean_stage_says_when_most_vertices_lost_their_faces(room):
+    """A mesh that lost faces (a file cut short) keeps vertices no face uses: the clean report says so."""
+    kept = room.faces[: room.num_faces // 5]
+    unused = room.num_vertices - len(np.unique(kept))
+    _, report = clean_mesh_with_report(Mesh(room.vertices, kept), None, CONFIG)
+    assert any(w.startswith(f"{unused:,} of {room.num_vertices:,} vertices") and "used by no face" in w
+               for w in report.warnings), report.warnings

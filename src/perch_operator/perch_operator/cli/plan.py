@@ -175,8 +175,13 @@ def _plan(args) -> int:
     describe = {"cameras_asked": args.cameras, "seed": args.seed}
     if args.mesh:
         from perch_common.mesh import load_mesh
+        from perch_common.mesh_health import unreferenced_line, unreferenced_vertices
 
-        goal.mesh = mesh_to_msg(load_mesh(args.mesh, scale=args.scale))
+        mesh = load_mesh(args.mesh, scale=args.scale)
+        lost = unreferenced_line(*unreferenced_vertices(mesh, args.mesh))   # only the file shows it for an OBJ
+        if lost:
+            print(f"perch: warning: {args.mesh}: {lost}", file=sys.stderr)
+        goal.mesh = mesh_to_msg(mesh)
         describe["source"] = f"mesh {args.mesh}"
         describe["up"] = args.up
     elif args.bag:
