@@ -151,6 +151,31 @@ def test_what_a_damaged_bag_lost_is_in_the_result_and_the_feedback(goal):
     assert any(damage in str(f) for f in feedback)
 
 
+def test_a_failed_mission_from_a_damaged_bag_says_what_the_bag_lost(goal):
+    """A damaged bag's mission that failed later (the filter found nothing on a partial scan) used to say
+    nothing of the damage."""
+    from perch_operator.coordinator.node import OperatorNode
+
+    damage = "damaged bag, read as far as it goes (54 frame(s) recovered, 6 lost): chunk at byte 5339176 fails its CRC"
+
+    class Reconstructing(ScriptedStages):
+        def call(self, stage, request, cancelled=lambda: False):
+            if stage == "reconstruct":
+                return srv.Reconstruct.Response(success=True, mesh=self.mesh_msg, seconds=2.0,
+                                                message=f"900 faces from 54 of 54 frames; {damage}",
+                                                alignment=alignment_to_msg(Alignment("world", np.eye(3))))
+            if stage == "filter":
+                raise ValueError("filter left no perch regions on 6 surface(s)")
+            return super().call(stage, request, cancelled)
+
+    mission = Mission(Reconstructing(goal.mesh), options(True), 5, lambda *f: None, lambda: False,
+                      lambda *ps: None, lambda *o: None)
+    with pytest.raises(ValueError) as failure:
+        mission.run(PlanPerches.Goal(bag_path="/k.mcap", auto_accept=True))
+    result = OperatorNode._failed(mission, str(failure.value))
+    assert not result.success and result.message == f"filter left no perch regions on 6 surface(s); {damage}"
+
+
 def test_replan_keeps_the_other_slots_and_sends_every_exclusion(goal):
     stages = ScriptedStages(goal.mesh)
     _, _, _, _, [operator] = run(stages, goal)

@@ -341,6 +341,8 @@ class OperatorNode(Node):
 
     @staticmethod
     def _failed(mission: Mission, message: str) -> PlanPerches.Result:
+        # What the mission noted on the way (what a damaged bag lost) may be why it failed: said with it.
+        message += "".join(f"; {note}" for note in mission.notes if note)
         return PlanPerches.Result(success=False, message=message, stage_names=mission.stage_names,
                                   stage_seconds=mission.stage_seconds)
 
