@@ -206,3 +206,14 @@ def test_a_recording_that_lost_only_its_index_passes_plainly(tmp_path, monkeypat
     outcomes = replay(None, path, check=True, out=io.StringIO())
     assert summary_line(outcomes, True) == ("replay check passed: 6 stage call(s) match the recording (damaged "
                                             "recording: no stage call was lost)")
+
+
+def test_replay_check_exits_nonzero_when_a_damaged_recording_left_calls_unchecked():
+    from perch_operator.cli.commands import check_exit_code
+
+    assert check_exit_code("replay check passed: 5 stage call(s) match the recording") == 0
+    assert check_exit_code("replay check passed: 5 stage call(s) match the recording (damaged recording: "
+                           "no stage call was lost)") == 0
+    assert check_exit_code("replay check INCOMPLETE, damaged recording: passed for the 3 stage call(s) that "
+                           "survived; 2 stage call(s) lost to the damage (crop, segment)") == 3
+    assert check_exit_code("replay check FAILED: 1 of 3 stage call(s) differ") == 1

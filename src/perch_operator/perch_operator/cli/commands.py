@@ -233,7 +233,8 @@ def register_replay(sub) -> None:
     p = sub.add_parser("replay", help="re-send a recorded mission's stage requests to the live graph")
     p.add_argument("recording", type=Path, help="run.mcap written by perch plan / perch demo")
     p.add_argument("--check", action="store_true", help="compare every reply with the recorded one; "
-                                                        "exit 1 on any difference")
+                                                        "exit 1 on any difference, 3 when a damaged recording "
+                                                        "left calls unchecked")
     p.add_argument("--stages", help="comma-separated subset (clean,crop,segment,filter,optimise,reconstruct)")
     p.add_argument("--rtol", type=float, default=1e-4, help="relative tolerance for numbers")
     p.add_argument("--atol", type=float, default=1e-5, help="absolute tolerance for numbers")
@@ -242,6 +243,14 @@ def register_replay(sub) -> None:
     p.add_argument("-p", "--param", action="append", default=[], metavar="NODE:PARAM:=VALUE",
                    help="parameter override for --launch (repeatable)")
     p.set_defaults(func=_replay)
+
+
+def check_exit_code(summary: str) -> int:
+    """`perch replay --check`'s exit code for its summary line: 1 on a difference, 3 when a damaged
+    recording left calls unchecked (what survived matched), else 0."""
+    if "FAILED" in summary:
+        return 1
+    return 3 if "INCOMPLETE" in summary else 0
 
 
 def _replay(args) -> int:
@@ -263,7 +272,7 @@ def _replay(args) -> int:
                 graph.stop()
         line = summary_line(outcomes, args.check)
         print(line)
-        return 1 if args.check and "FAILED" in line else 0
+        return check_exit_code(line) if args.check else 0
 
     return _with_node("perch_replay", body)
 
