@@ -1,4 +1,12 @@
-"""Calling the stage services from the coordinator: waits, timeouts, vanished servers, failures.
+"""Calling the stages from the coordinator: waits, timeouts, vanished servers, failures.
+
+Reconstruct, segment, filter and optimise are called through their actions (same names as their
+services; perch_common.ros.service.create_stage_action): the goal's feedback reaches the caller's
+`progress`, and a call abandoned (mission cancelled, no reply in time) is stopped with the standard
+action cancel, or on a networked graph, which refuses that cancel, with the signed StageCancel naming
+the call's request_id. The stage's action publishes its service's introspection events for each goal,
+so recordings, `perch replay --check` and the report read these calls as service calls. Clean and crop
+are quick and stay service calls.
 
 Every failure becomes a StageError whose message names the stage and its service, so the
 mission result says which stage to look at. Each call carries its own request_id, so abandoning it
@@ -30,25 +38,30 @@ from perch_common.errors import PerchError
 from perch_common.mesh_cache import PROCESS_CACHE, MeshBook, is_mesh_not_cached
 from perch_common.ros.conversions import id_only_msg, is_id_only, msg_content_id
 from perch_common.ros.servers import server_endpoints
-from perch_interfaces import srv
+from perch_common.ros.service import copy_fields
+from perch_interfaces import action, srv
+
+ACTION_GOAL_SERVICE = "/_action/send_goal"   # an action's goal service, under the action's name
 
 
 @dataclass(frozen=True)
 class Stage:
-    """One pipeline stage: its name, its service (relative to the graph's namespace) and type."""
+    """One pipeline stage: its name, its service (relative to the graph's namespace) and type, and the
+    type of the action served under the same name (None: called as a service)."""
 
     name: str
     service: str
     srv_type: type
+    action_type: type | None = None
 
 
 STAGES = {s.name: s for s in (
-    Stage("reconstruct", STAGE_SERVICES["reconstruct"], srv.Reconstruct),
+    Stage("reconstruct", STAGE_SERVICES["reconstruct"], srv.Reconstruct, action.Reconstruct),
     Stage("clean", STAGE_SERVICES["clean"], srv.CleanMesh),
     Stage("crop", STAGE_SERVICES["crop"], srv.Crop),
-    Stage("segment", STAGE_SERVICES["segment"], srv.Segment),
-    Stage("filter", STAGE_SERVICES["filter"], srv.Filter),
-    Stage("optimise", STAGE_SERVICES["optimise"], srv.Optimise),
+    Stage("segment", STAGE_SERVICES["segment"], srv.Segment, action.Segment),
+    Stage("filter", STAGE_SERVICES["filter"], srv.Filter, action.Filter),
+    Stage("optimise", STAGE_SERVICES["optimise"], srv.Optimise, action.Optimise),
 )}
 SERVICE_NODES = {service: node for node, services in NODE_SERVICES.items() for service in services}
 
@@ -68,15 +81,25 @@ class MissionCancelled(PerchError):
 
 
 class StageCaller:
-    """One client per stage service on `node`; `call` blocks the calling thread (not the executor)."""
+    """One client per stage (action client where the stage has an action) on `node`; `call` blocks the
+    calling thread (not the executor)."""
 
     def __init__(self, node, callback_group, service_wait: float, timeout: float, gone_grace: float):
         self.node = node
         self.service_wait = service_wait
         self.timeout = timeout
         self.gone_grace = gone_grace
+        from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+
+        from perch_operator.coordinator.action_client import RegisteringActionClient
+
         self.clients = {name: node.create_client(s.srv_type, s.service, callback_group=callback_group)
-                        for name, s in STAGES.items()}
+                        for name, s in STAGES.items() if s.action_type is None}
+        # Each action client in a group of its own: the executor never handles two batches of one client's
+        # responses at once (its bookkeeping is unlocked), while the stages' clients stay independent.
+        self.actions = {name: RegisteringActionClient(node, s.action_type, s.service,
+                                                      callback_group=MutuallyExclusiveCallbackGroup())
+                        for name, s in STAGES.items() if s.action_type is not None}
         self.services = {name: node.resolve_service_name(s.service) for name, s in STAGES.items()}
         from perch_common.ros.service import CANCEL_TOPIC
         from perch_interfaces.msg import StageCancel
@@ -89,20 +112,41 @@ class StageCaller:
         self._calls = itertools.count(1)
 
     def _abandon(self, stage: str, client, future, request_id: str, reason: str) -> None:
-        """Stop waiting for a call and tell the stage to stop that call's work (it checks between steps)."""
+        """Stop waiting for a service call and tell the stage to stop that call's work (it checks between steps)."""
+        client.remove_pending_request(future)
+        self._signed_cancel(stage, request_id, reason)
+
+    def _abandon_goal(self, stage: str, goal_future, request_id: str, reason: str) -> None:
+        """Stop a goal's work: the standard action cancel (sent once the goal is accepted, if it is not yet);
+        a networked graph refuses that, and takes the signed StageCancel naming the call's request_id."""
+        from perch_common.network_auth import networked
+
+        if networked():
+            self._signed_cancel(stage, request_id, reason)
+            return
+
+        def cancel(future) -> None:
+            handle = None if future.exception() is not None else future.result()
+            if handle is not None and handle.accepted:
+                handle.cancel_goal_async()
+
+        goal_future.add_done_callback(cancel)
+
+    def _signed_cancel(self, stage: str, request_id: str, reason: str) -> None:
         from perch_common.network_auth import sign_if_networked
 
-        client.remove_pending_request(future)
         message = self._cancel_msg(service=STAGES[stage].service, request_id=request_id, reason=reason)
         if hasattr(message, "auth"):   # a networked graph's stages stop calls for signed cancels only
             message.auth = sign_if_networked("stage_cancel", message.service, request_id, reason)
         self.cancel_pub.publish(message)
 
-    def call(self, stage: str, request, cancelled: Callable[[], bool] = lambda: False):
+    def call(self, stage: str, request, cancelled: Callable[[], bool] = lambda: False,
+             progress: Callable[[str, float, str], None] | None = None):
         """The stage's successful reply; raises StageError (or MissionCancelled).
 
         The request's mesh (when it has one) travels by content id when the service holds it, and
-        each sending gets a fresh request_id; the request object itself is left as given."""
+        each sending gets a fresh request_id; the request object itself is left as given.
+        progress(stage, fraction, phase): the feedback of a stage called as an action."""
         service = STAGES[stage].service
         full = getattr(request, "mesh", None)
         given_id = request.request_id
@@ -113,12 +157,12 @@ class StageCaller:
         try:
             if key and (self.meshes.send_id_only(service, key) or self._shares_cache(stage, key)):
                 request.mesh = id_only_msg(full)
-                response = self._send(stage, request, cancelled)
+                response = self._send(stage, request, cancelled, progress)
                 if response.success or not is_mesh_not_cached(response.message):
                     return self._accepted(stage, response, key, full)
                 self.meshes.missed(service, key)
                 request.mesh = full
-            return self._accepted(stage, self._send(stage, request, cancelled), key, full)
+            return self._accepted(stage, self._send(stage, request, cancelled, progress), key, full)
         finally:
             request.request_id = given_id
             if full is not None:
@@ -142,8 +186,10 @@ class StageCaller:
                 response.mesh = sent   # the stage named the mesh it was sent instead of echoing it
         return response
 
-    def _send(self, stage: str, request, cancelled: Callable[[], bool]):
+    def _send(self, stage: str, request, cancelled: Callable[[], bool], progress=None):
         """One call of the stage's service; its reply, successful or not."""
+        if stage in self.actions:
+            return self._send_goal(stage, request, cancelled, progress)
         client = self.clients[stage]
         if not client.wait_for_service(timeout_sec=self.service_wait):
             raise StageError(stage, f"service not available within {self.service_wait:.0f} s; is its node "
@@ -169,6 +215,48 @@ class StageCaller:
         if response is None:
             raise StageError(stage, "the call ended without a reply", self.services[stage])
         return response
+
+    def _send_goal(self, stage: str, request, cancelled: Callable[[], bool], progress):
+        """One goal of the stage's action; the result as the service's reply, successful or not."""
+        client = self.actions[stage]
+        if not client.wait_for_server(timeout_sec=self.service_wait):
+            raise StageError(stage, f"action not available within {self.service_wait:.0f} s; is its node "
+                                    "running? (`perch launch` starts the graph)", self.services[stage])
+        request.request_id = f"{self.caller_id}/{stage}/{next(self._calls)}"
+        goal = copy_fields(request, STAGES[stage].action_type.Goal())
+        done = threading.Event()
+        results: list = []   # the result future, once the goal is accepted
+
+        def on_goal(future) -> None:
+            handle = None if future.exception() is not None else future.result()
+            if handle is None or not handle.accepted:
+                done.set()
+                return
+            results.append(handle.get_result_async())
+            results[0].add_done_callback(lambda _: done.set())
+
+        feedback = None if progress is None else \
+            (lambda message: progress(stage, message.feedback.fraction, message.feedback.phase))
+        goal_future = client.send_goal_async(goal, feedback_callback=feedback)
+        goal_future.add_done_callback(on_goal)
+        del goal
+        servers = ServerWatch(self.node, self.services[stage] + ACTION_GOAL_SERVICE, self.gone_grace)
+        deadline = time.monotonic() + self.timeout
+        while not done.wait(0.05):
+            if cancelled():
+                self._abandon_goal(stage, goal_future, request.request_id, "mission cancelled")
+                raise MissionCancelled(f"mission cancelled during stage {stage}")
+            if servers.gone():
+                raise StageError(stage, servers.describe(), self.services[stage])
+            if time.monotonic() > deadline:
+                self._abandon_goal(stage, goal_future, request.request_id, "no reply within stage_timeout")
+                raise StageError(stage, f"no reply within {self.timeout:.0f} s (parameter stage_timeout)", self.services[stage])
+        if not results:
+            raise StageError(stage, "the action refused the goal", self.services[stage])
+        answer = results[0].result()
+        if answer is None:
+            raise StageError(stage, "the goal ended without a result", self.services[stage])
+        return copy_fields(answer.result, STAGES[stage].srv_type.Response())
 
 
 class ServerWatch:
