@@ -249,3 +249,94 @@ def test_stage_calls_survive_responses_that_overtake_their_registration():
         for executor in executors:
             executor.shutdown()
         rclpy.shutdown(context=context)
+
+
+class Lossy:
+    """An action client's rcl handle that loses the messages named in `losses` (method -> how many), as
+    DDS may: a request not sent (a sequence number that no response will ever carry), or a response
+    taken and dropped."""
+
+    def __init__(self, handle, losses: dict[str, int]):
+        self._handle, self.losses = handle, dict(losses)
+        self.lost: dict[str, int] = {}
+        self._fake_sequence = 10 ** 9
+
+    def _lossy(self, name, method):
+        def call(*args):
+            if self.losses.get(name, 0) <= 0:
+                return method(*args)
+            self.losses[name] = self.losses.get(name, 0) - 1
+            self.lost[name] = self.lost.get(name, 0) + 1
+            if name.startswith("send_"):
+                self._fake_sequence += 1
+                return self._fake_sequence
+            method(*args)    # taken from the reader, then dropped
+            return (None, None)
+        return call
+
+    def __getattr__(self, name):
+        attribute = getattr(self._handle, name)
+        return self._lossy(name, attribute) if name in self.losses else attribute
+
+
+@pytest.mark.parametrize("losses", [
+    {"send_goal_request": 1},                     # the goal request lost (issue 22: a server just started)
+    {"take_goal_response": 1},                    # the acceptance lost: the goal runs all the same
+    {"take_result_response": 1},                  # the result lost once
+    {"send_result_request": 1},                   # the result request lost
+    {"take_result_response": 3},                  # results lost for a while (a killed client's aftermath)
+], ids=["goal-request", "goal-response", "result", "result-request", "results-for-a-while"])
+def test_a_stage_call_survives_a_lost_message(losses):
+    """Each message of a goal lost in turn (and results lost several times over, as while a SIGKILLed
+    mission client was still listed in the kill soak): the call still ends with its reply within
+    seconds, and the stage ran the work once (a goal sent again supersedes the lost one; an adopted
+    goal is not sent twice)."""
+    import time
+
+    import rclpy
+    from rclpy.callback_groups import ReentrantCallbackGroup
+    from rclpy.executors import MultiThreadedExecutor
+
+    from perch_common.ros.service import create_stage_action
+    from perch_common.ros.testing import use_isolated_ros_env
+    from perch_interfaces import action, srv
+    from perch_operator.coordinator.stages import StageCaller
+
+    use_isolated_ros_env()
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    executors = []
+    try:
+        server = rclpy.create_node("fake_filter", namespace="stage_loss", context=context)
+        ran: list[str] = []
+
+        def work(request, response):
+            ran.append(request.request_id)
+            time.sleep(0.3)
+            response.success, response.message = True, f"done {request.request_id}"
+            return response
+
+        create_stage_action(server, action.Filter, srv.Filter, "perch/filter", work, introspection=False)
+        coordinator = rclpy.create_node("loss_coordinator", namespace="stage_loss", context=context)
+        caller = StageCaller(coordinator, ReentrantCallbackGroup(), service_wait=30.0, timeout=60.0, gone_grace=5.0)
+        lossy = Lossy(caller.actions["filter"]._client_handle, losses)
+        caller.actions["filter"]._client_handle = lossy
+        for node, threads in ((server, 2), (coordinator, 2)):
+            executor = MultiThreadedExecutor(num_threads=threads, context=context)
+            executor.add_node(node)
+            threading.Thread(target=executor.spin, daemon=True).start()
+            executors.append(executor)
+        started = time.monotonic()
+        reply = caller.call("filter", srv.Filter.Request())
+        seconds = time.monotonic() - started
+        assert reply.success, reply.message
+        assert lossy.lost, "no message was lost: the test proves nothing"
+        assert seconds < 30.0, seconds
+        assert reply.message == f"done {ran[-1]}"
+        # A lost goal request never ran; an adopted goal ran once: the work ran exactly once either way.
+        poll_until(lambda: len(ran) >= 1, 5, "the work")
+        assert len(ran) == 1, ran
+    finally:
+        for executor in executors:
+            executor.shutdown()
+        rclpy.shutdown(context=context)

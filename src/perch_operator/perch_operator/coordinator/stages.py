@@ -4,7 +4,11 @@ Reconstruct, segment, filter and optimise are called through their actions (same
 services; perch_common.ros.service.create_stage_action): the goal's feedback reaches the caller's
 `progress`, and a call abandoned (mission cancelled, no reply in time) is stopped with the standard
 action cancel, or on a networked graph, which refuses that cancel, with the signed StageCancel naming
-the call's request_id. The stage's action publishes its service's introspection events for each goal,
+the call's request_id (the one place the coordinator still sends StageCancel for these stages: the
+action cancel carries no signature). A goal survives a lost message (action_client.GoalCall): a goal
+not accepted within seconds is adopted if its server lists it, else sent again; a result that does not
+come once the status says the goal ended is asked for again.
+The stage's action publishes its service's introspection events for each goal,
 so recordings, `perch replay --check` and the report read these calls as service calls. Clean and crop
 are quick and stay service calls.
 
@@ -89,17 +93,13 @@ class StageCaller:
         self.service_wait = service_wait
         self.timeout = timeout
         self.gone_grace = gone_grace
-        from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 
-        from perch_operator.coordinator.action_client import RegisteringActionClient
 
         self.clients = {name: node.create_client(s.srv_type, s.service, callback_group=callback_group)
                         for name, s in STAGES.items() if s.action_type is None}
         # Each action client in a group of its own: the executor never handles two batches of one client's
         # responses at once (its bookkeeping is unlocked), while the stages' clients stay independent.
-        self.actions = {name: RegisteringActionClient(node, s.action_type, s.service,
-                                                      callback_group=MutuallyExclusiveCallbackGroup())
-                        for name, s in STAGES.items() if s.action_type is not None}
+        self.actions = {name: self._action_client(name) for name, s in STAGES.items() if s.action_type is not None}
         self.services = {name: node.resolve_service_name(s.service) for name, s in STAGES.items()}
         from perch_common.ros.service import CANCEL_TOPIC
         from perch_interfaces.msg import StageCancel
@@ -116,21 +116,30 @@ class StageCaller:
         client.remove_pending_request(future)
         self._signed_cancel(stage, request_id, reason)
 
-    def _abandon_goal(self, stage: str, goal_future, request_id: str, reason: str) -> None:
-        """Stop a goal's work: the standard action cancel (sent once the goal is accepted, if it is not yet);
-        a networked graph refuses that, and takes the signed StageCancel naming the call's request_id."""
+    def _action_client(self, stage: str):
+        """A new action client for the stage, in a mutually exclusive group of its own: the executor never
+        handles two batches of one client's responses at once (its bookkeeping is unlocked), while the
+        stages' clients stay independent."""
+        from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+
+        from perch_operator.coordinator.action_client import RegisteringActionClient
+
+        return RegisteringActionClient(self.node, STAGES[stage].action_type, STAGES[stage].service,
+                                       callback_group=MutuallyExclusiveCallbackGroup())
+
+    def _stop_goal(self, stage: str, goal_id, request_id: str, reason: str) -> None:
+        """Stop one goal's work: the standard action cancel by goal id (a goal the server never took makes
+        it a no-op); a networked graph refuses that and takes the signed StageCancel naming its request_id."""
+        from rclpy.action.client import ClientGoalHandle
+
         from perch_common.network_auth import networked
 
         if networked():
             self._signed_cancel(stage, request_id, reason)
             return
-
-        def cancel(future) -> None:
-            handle = None if future.exception() is not None else future.result()
-            if handle is not None and handle.accepted:
-                handle.cancel_goal_async()
-
-        goal_future.add_done_callback(cancel)
+        client = self.actions[stage]
+        accepted = STAGES[stage].action_type.Impl.SendGoalService.Response(accepted=True)
+        ClientGoalHandle(client, goal_id, accepted).cancel_goal_async()
 
     def _signed_cancel(self, stage: str, request_id: str, reason: str) -> None:
         from perch_common.network_auth import sign_if_networked
@@ -217,46 +226,53 @@ class StageCaller:
         return response
 
     def _send_goal(self, stage: str, request, cancelled: Callable[[], bool], progress):
-        """One goal of the stage's action; the result as the service's reply, successful or not."""
+        """One goal of the stage's action (GoalCall: sent again, adopted or its result asked again when a
+        message is lost); the result as the service's reply, successful or not."""
+        from perch_operator.coordinator.action_client import TERMINAL, GoalCall
+
         client = self.actions[stage]
         if not client.wait_for_server(timeout_sec=self.service_wait):
             raise StageError(stage, f"action not available within {self.service_wait:.0f} s; is its node "
                                     "running? (`perch launch` starts the graph)", self.services[stage])
-        request.request_id = f"{self.caller_id}/{stage}/{next(self._calls)}"
-        goal = copy_fields(request, STAGES[stage].action_type.Goal())
-        done = threading.Event()
-        results: list = []   # the result future, once the goal is accepted
+        action_type = STAGES[stage].action_type
+        stop_reason = ["sent again (an earlier attempt was lost)"]
 
-        def on_goal(future) -> None:
-            handle = None if future.exception() is not None else future.result()
-            if handle is None or not handle.accepted:
-                done.set()
-                return
-            results.append(handle.get_result_async())
-            results[0].add_done_callback(lambda _: done.set())
+        def make_goal(attempt: int):
+            request.request_id = f"{self.caller_id}/{stage}/{next(self._calls)}"
+            return copy_fields(request, action_type.Goal()), request.request_id
 
-        feedback = None if progress is None else \
-            (lambda message: progress(stage, message.feedback.fraction, message.feedback.phase))
-        goal_future = client.send_goal_async(goal, feedback_callback=feedback)
-        goal_future.add_done_callback(on_goal)
-        del goal
+        def feedback(message) -> None:
+            if progress is not None and not call_over.is_set():
+                progress(stage, message.feedback.fraction, message.feedback.phase)
+
+        call_over = threading.Event()
         servers = ServerWatch(self.node, self.services[stage] + ACTION_GOAL_SERVICE, self.gone_grace)
+        call = GoalCall(client, make_goal, feedback,
+                        lambda goal_id, request_id: self._stop_goal(stage, goal_id, request_id, stop_reason[0]),
+                        self.node.get_logger())
         deadline = time.monotonic() + self.timeout
-        while not done.wait(0.05):
-            if cancelled():
-                self._abandon_goal(stage, goal_future, request.request_id, "mission cancelled")
-                raise MissionCancelled(f"mission cancelled during stage {stage}")
-            if servers.gone():
-                raise StageError(stage, servers.describe(), self.services[stage])
-            if time.monotonic() > deadline:
-                self._abandon_goal(stage, goal_future, request.request_id, "no reply within stage_timeout")
-                raise StageError(stage, f"no reply within {self.timeout:.0f} s (parameter stage_timeout)", self.services[stage])
-        if not results:
+        try:
+            while not call.done.wait(0.05):
+                call.poll()
+                if cancelled():
+                    stop_reason[0] = "mission cancelled"
+                    call.abandon()
+                    raise MissionCancelled(f"mission cancelled during stage {stage}")
+                if servers.gone():
+                    raise StageError(stage, servers.describe(), self.services[stage])
+                if time.monotonic() > deadline:
+                    stop_reason[0] = "no reply within stage_timeout"
+                    call.abandon()
+                    raise StageError(stage, f"no reply within {self.timeout:.0f} s (parameter stage_timeout)",
+                                     self.services[stage])
+        finally:
+            call_over.set()
+            call.close()
+        if call.refused:
             raise StageError(stage, "the action refused the goal", self.services[stage])
-        answer = results[0].result()
-        if answer is None:
-            raise StageError(stage, "the goal ended without a result", self.services[stage])
-        return copy_fields(answer.result, STAGES[stage].srv_type.Response())
+        if call.answer.status not in TERMINAL:   # STATUS_UNKNOWN: the server no longer knew the goal
+            raise StageError(stage, f"the goal's result was lost (status {call.answer.status})", self.services[stage])
+        return copy_fields(call.answer.result, STAGES[stage].srv_type.Response())
 
 
 class ServerWatch:
