@@ -285,11 +285,12 @@ class Lossy:
     {"take_result_response": 1},                  # the result lost once
     {"send_result_request": 1},                   # the result request lost
     {"take_result_response": 3},                  # results lost for a while (a killed client's aftermath)
-], ids=["goal-request", "goal-response", "result", "result-request", "results-for-a-while"])
+    {"take_result_response": 10 ** 6},            # a result reader that never takes one again
+], ids=["goal-request", "goal-response", "result", "result-request", "results-for-a-while", "result-reader-dead"])
 def test_a_stage_call_survives_a_lost_message(losses):
     """Each message of a goal lost in turn (and results lost several times over, as while a SIGKILLed
-    mission client was still listed in the kill soak): the call still ends with its reply within
-    seconds, and the stage ran the work once (a goal sent again supersedes the lost one; an adopted
+    mission client was still listed in the kill soak, or for good: asked through a new client): the
+    call still ends with its reply within seconds, and the stage ran the work once (a goal sent again supersedes the lost one; an adopted
     goal is not sent twice)."""
     import time
 

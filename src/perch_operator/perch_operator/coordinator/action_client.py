@@ -16,6 +16,8 @@ from unique_identifier_msgs.msg import UUID
 TERMINAL = (GoalStatus.STATUS_SUCCEEDED, GoalStatus.STATUS_CANCELED, GoalStatus.STATUS_ABORTED)
 ACCEPT_WAIT = 3.0   # s without a goal response before the status topic is asked whether the goal arrived
 RESULT_WAIT = 3.0   # s the status may say "ended" without the result arriving before it is asked for again
+RESULT_WAIT_MAX = 6.0   # s at most between asks
+RENEW_EVERY = 3     # unanswered result asks before the next goes through a new client
 
 
 class RegisteringActionClient(ActionClient):
@@ -89,15 +91,22 @@ class GoalCall:
     - the status says the goal ended but no result came within `result_wait`: the result is asked again,
       the wait doubling each time (seen in a kill soak: while a SIGKILLed mission client was still
       listed, ~30 s, a stage's result responses to the coordinator were lost, though its small goal
-      responses and status got through; the result asked again arrived once the dead client was gone);
+      responses and status got through); every RENEW_EVERY-th ask goes through a new client from
+      `renew()` (a result reader that stays broken after that window: the only ask it must not take);
+    - a goal is sent again only while `may_resend()` (the servers the call went to are the ones listed:
+      a goal is never moved to a respawned node; ServerWatch fails that call);
     - once one attempt is adopted, every other one is stopped (`stop(goal_id, request_id)`), now if it
       is listed or later if its acceptance arrives late, so no forgotten goal holds the stage.
     `done` is set with the result (`answer`, GetResult's response) or when the goal is refused."""
 
     def __init__(self, client: RegisteringActionClient, make_goal: Callable[[int], tuple[object, str]],
                  feedback: Callable | None, stop: Callable[[UUID, str], None], log,
+                 may_resend: Callable[[], bool] = lambda: True,
+                 renew: Callable[[], RegisteringActionClient] | None = None,
                  accept_wait: float = ACCEPT_WAIT, result_wait: float = RESULT_WAIT):
         self.client = client
+        self.may_resend = may_resend
+        self.renew = renew
         self._result_asks = 0
         self.make_goal = make_goal
         self.feedback = feedback
@@ -161,8 +170,20 @@ class GoalCall:
         self._result_asks += 1
         self.handle.get_result_async().add_done_callback(self._on_result)
 
+    def _renew_client(self) -> None:
+        """Carry the goal over to a new client of the same server."""
+        old, self.client = self.client, self.renew()
+        goal_id = bytes(self.handle.goal_id.uuid)
+        self.client.watch(goal_id)
+        self.client._watched[goal_id] = old.status_of(goal_id)
+        if self.feedback is not None:
+            self.client._feedback_callbacks[goal_id] = self.feedback
+        self.handle = ClientGoalHandle(self.client, self.handle.goal_id, self.handle._goal_response)
+
     def _on_result(self, future) -> None:
         answer = None if future.exception() is not None else future.result()
+        if answer is not None and answer.status == GoalStatus.STATUS_UNKNOWN:
+            return   # a server that does not know the goal (another one): ServerWatch or the timeout ends the call
         if answer is not None and not self.done.is_set():
             self.answer = answer
             self.done.set()
@@ -189,6 +210,8 @@ class GoalCall:
                     response = self.client._action_type.Impl.SendGoalService.Response(accepted=True)
                     self._adopt(ClientGoalHandle(self.client, goal_id, response))
                     return
+                if not self.may_resend():
+                    return
                 self.log.warning(f"{self.client._action_name}: goal {request_id} got no answer in "
                                  f"{now - self._sent_at:.1f} s and its server does not list it (lost): sending it again")
                 self._send()
@@ -198,10 +221,14 @@ class GoalCall:
                 self._ended_since = None
                 return
             self._ended_since = self._ended_since or now
-            wait = self.result_wait * 2 ** max(0, self._result_asks - 1)
+            wait = min(RESULT_WAIT_MAX, self.result_wait * 2 ** max(0, self._result_asks - 1))
             if now - max(self._ended_since, self._result_asked_at) > wait:
+                renew = self.renew is not None and self._result_asks % RENEW_EVERY == 0
                 self.log.warning(f"{self.client._action_name}: goal {self.request_id} ended "
-                                 f"{now - self._ended_since:.1f} s ago but its result never arrived (lost): asking again")
+                                 f"{now - self._ended_since:.1f} s ago but its result never arrived (lost): asking again"
+                                 + (" through a new client" if renew else ""))
+                if renew:
+                    self._renew_client()
                 self._ask_result()
 
     def abandon(self) -> None:

@@ -127,6 +127,14 @@ class StageCaller:
         return RegisteringActionClient(self.node, STAGES[stage].action_type, STAGES[stage].service,
                                        callback_group=MutuallyExclusiveCallbackGroup())
 
+    def _renew_action_client(self, stage: str):
+        """Replace the stage's action client (GoalCall: its results stopped arriving)."""
+        old, self.actions[stage] = self.actions[stage], self._action_client(stage)
+        if not old._pending_goal_requests and len(set(map(bytes, (g.uuid for g in
+                                                                  old._result_sequence_number_to_goal_id.values())))) <= 1:
+            old.destroy()   # only the renewing call's goal was on it (else it stays, with its callers)
+        return self.actions[stage]
+
     def _stop_goal(self, stage: str, goal_id, request_id: str, reason: str) -> None:
         """Stop one goal's work: the standard action cancel by goal id (a goal the server never took makes
         it a no-op); a networked graph refuses that and takes the signed StageCancel naming its request_id."""
@@ -249,7 +257,8 @@ class StageCaller:
         servers = ServerWatch(self.node, self.services[stage] + ACTION_GOAL_SERVICE, self.gone_grace)
         call = GoalCall(client, make_goal, feedback,
                         lambda goal_id, request_id: self._stop_goal(stage, goal_id, request_id, stop_reason[0]),
-                        self.node.get_logger())
+                        self.node.get_logger(), may_resend=servers.unchanged,
+                        renew=lambda: self._renew_action_client(stage))
         deadline = time.monotonic() + self.timeout
         try:
             while not call.done.wait(0.05):
@@ -306,6 +315,11 @@ class ServerWatch:
             return False
         self._absent_since = self._absent_since or now
         return now - self._absent_since > self.grace
+
+    def unchanged(self) -> bool:
+        """The servers listed now are exactly those the call went to (none left, none new)."""
+        self.gone()
+        return bool(self.servers) and set(self.current) == set(self.servers)
 
     def describe(self) -> str:
         """Why the call ended: which node died or restarted, and whether a new one serves now."""
