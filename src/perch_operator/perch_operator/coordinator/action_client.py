@@ -14,7 +14,11 @@ from rclpy.action.client import ClientGoalHandle
 from unique_identifier_msgs.msg import UUID
 
 TERMINAL = (GoalStatus.STATUS_SUCCEEDED, GoalStatus.STATUS_CANCELED, GoalStatus.STATUS_ABORTED)
-ACCEPT_WAIT = 3.0   # s without a goal response before the status topic is asked whether the goal arrived
+# s without a goal response before the status topic is asked whether the goal arrived. Longer than the
+# DDS lease + ServerWatch's grace (3 + 2 s): a dead or frozen stage fails the call first, and never gets
+# the goal (a mesh of megabytes) again, which it would hold in shared memory (the first fault soak with
+# 3 s: after a frozen-then-killed filter node, the soak's client lost sight of the coordinator).
+ACCEPT_WAIT = 8.0
 RESULT_WAIT = 3.0   # s the status may say "ended" without the result arriving before it is asked for again
 RESULT_WAIT_MAX = 6.0   # s at most between asks
 RENEW_EVERY = 3     # unanswered result asks before the next goes through a new client
@@ -85,7 +89,7 @@ class GoalCall:
     DDS can drop a request sent just after a server (re)started (wait_for_server says only that the
     client's request writer matched the server's reader, not the reverse), and any of the four messages
     of a call may be lost. Signs of life decide what to do:
-    - no goal response within `accept_wait`: if the status topic lists the goal, the server took it and
+    - no goal response within `accept_wait` (8 s): if the status topic lists the goal, the server took it and
       its response was lost: the goal is adopted as accepted; else it is sent again under a new goal id
       and request_id (`make_goal(attempt)`), the wait doubling each time;
     - the status says the goal ended but no result came within `result_wait`: the result is asked again,
