@@ -167,6 +167,17 @@ def test_a_big_request_leaves_no_copy_of_itself_in_the_node(segmentation):
     assert kept < 0.25 * size, f"the node kept {kept / 2**20:.1f} MB after a {size / 2**20:.1f} MB request"
 
 
+def _service_caller(node):
+    """A StageCaller that calls segment through its service, as it calls clean and crop (segment is
+    otherwise called through its action, whose lost messages action_client.GoalCall handles)."""
+    from perch_interfaces.srv import Segment
+
+    caller = _caller(node)
+    caller.actions.pop("segment").destroy()
+    caller.clients["segment"] = node.create_client(Segment, SERVICE)
+    return caller
+
+
 def _small_segment_request():
     from perch_common.ros.conversions import mesh_to_msg
     from perch_common.scene_generator import generate_scene
@@ -184,7 +195,7 @@ def test_a_request_lost_on_its_way_is_sent_again(segmentation):
     from perch_operator.coordinator.stages import RESEND_AFTER
 
     _, (_, node) = segmentation   # node a was taken off the spinning executor by call_service's spin_once
-    caller = _caller(node)
+    caller = _service_caller(node)
     client = caller.clients["segment"]
     deliver, sent = client.call_async, []
 
@@ -214,7 +225,7 @@ def test_a_resend_of_a_call_that_arrived_is_answered_as_a_duplicate(segmentation
     events: list = []
     node.create_subscription(Segment.Event, SERVICE + "/_service_event", events.append, qos_profile_services_default)
     monkeypatch.setattr(stages, "RESEND_AFTER", 0.0)   # resend at once, RESENDS times
-    caller = _caller(node)
+    caller = _service_caller(node)
     caller._heard_of = lambda call_id: False
     reply = caller.call("segment", _small_segment_request())
     assert reply.success and len(reply.surfaces) > 10, reply.message

@@ -23,7 +23,7 @@ def _mission():
     from perch_operator.coordinator.mission import Mission, MissionOptions
 
     class NoStages:
-        def call(self, stage, request, cancelled):
+        def call(self, stage, request, cancelled, progress=None):
             raise AssertionError(f"a refused goal reached the {stage} stage")
 
     options = MissionOptions(auto_accept=True, exclusion_radius=0.5, clean_given_mesh=True,

@@ -28,7 +28,7 @@ class ScriptedStages:
         self.mesh_msg, self.fail, self.regions = mesh_msg, fail, regions
         self.requests: list[tuple[str, object]] = []
 
-    def call(self, stage, request, cancelled=lambda: False):
+    def call(self, stage, request, cancelled=lambda: False, progress=None):
         self.requests.append((stage, request))
         if stage == self.fail:
             raise StageError(stage, "failed: boom")
@@ -120,7 +120,7 @@ def test_goal_needs_exactly_one_source(goal):
 
 def test_bag_goal_reconstructs_instead_of_cleaning(goal):
     class Reconstructing(ScriptedStages):
-        def call(self, stage, request, cancelled=lambda: False):
+        def call(self, stage, request, cancelled=lambda: False, progress=None):
             if stage == "reconstruct":
                 self.requests.append((stage, request))
                 return srv.Reconstruct.Response(success=True, mesh=self.mesh_msg, seconds=2.0,
@@ -139,7 +139,7 @@ def test_what_a_damaged_bag_lost_is_in_the_result_and_the_feedback(goal):
     damage = "damaged bag, read as far as it goes (54 frame(s) recovered, 6 lost): chunk at byte 5339176 fails its CRC"
 
     class Reconstructing(ScriptedStages):
-        def call(self, stage, request, cancelled=lambda: False):
+        def call(self, stage, request, cancelled=lambda: False, progress=None):
             if stage == "reconstruct":
                 return srv.Reconstruct.Response(success=True, mesh=self.mesh_msg, seconds=2.0,
                                                 message=f"900 faces from 54 of 54 frames; {damage}",
@@ -159,7 +159,7 @@ def test_a_failed_mission_from_a_damaged_bag_says_what_the_bag_lost(goal):
     damage = "damaged bag, read as far as it goes (54 frame(s) recovered, 6 lost): chunk at byte 5339176 fails its CRC"
 
     class Reconstructing(ScriptedStages):
-        def call(self, stage, request, cancelled=lambda: False):
+        def call(self, stage, request, cancelled=lambda: False, progress=None):
             if stage == "reconstruct":
                 return srv.Reconstruct.Response(success=True, mesh=self.mesh_msg, seconds=2.0,
                                                 message=f"900 faces from 54 of 54 frames; {damage}",
@@ -283,7 +283,7 @@ def test_surfaces_under_review_are_shown_in_the_input_frame(meshes):
     goal, up, _ = rotated_room_goal(meshes, review_surfaces=1)
 
     class FloorSurface(ScriptedStages):
-        def call(self, stage, request, cancelled=lambda: False):
+        def call(self, stage, request, cancelled=lambda: False, progress=None):
             if stage == "segment":  # a floor in the gravity-aligned frame: normal +z
                 surface = pm.Surface(id=7, area=4.0)
                 surface.frame.normal.z = surface.frame.axis_u.x = surface.frame.axis_v.y = 1.0

@@ -1,6 +1,6 @@
 """One PlanPerches mission: (reconstruct | clean) -> crop -> segment -> filter -> optimise -> confirm.
 
-Each stage is called through its service (StageCaller), so stages can live in other processes
+Each stage is called through its action or service (StageCaller), so stages can live in other processes
 or hosts. The operator part (proposals, decisions, re-optimising one slot) lives in `Operator`,
 which outlives the mission so that a perch failing in flight can still be re-planned.
 """
@@ -109,7 +109,9 @@ class Mission:
         self.feedback(stage, self._fraction(), f"running {stage}")
         self.running_stage = stage
         try:
-            reply = self.caller.call(stage, request, self.cancelled)
+            # Reconstruction's frame counters (perch/reconstruct/progress) say more than its feedback.
+            progress = None if stage == "reconstruct" else self.stage_progress
+            reply = self.caller.call(stage, request, self.cancelled, progress)
         finally:
             self.running_stage = ""
         self._finish(stage, float(reply.seconds))
@@ -117,7 +119,7 @@ class Mission:
 
     def stage_progress(self, stage: str, within: float, message: str) -> None:
         """Feedback from inside the running stage (reconstruction frames; segment, filter and optimise
-        phases from perch/stage_progress): the mission's fraction moves by the stage's share, and
+        phases from their actions' feedback): the mission's fraction moves by the stage's share, and
         `stage_fraction` says how far the stage is. Ignored for any stage but the running one."""
         if stage != self.running_stage or (stage, message) == self._last_progress:
             return   # the progress topic repeats itself every period; feedback only says what changed

@@ -63,7 +63,6 @@ VIEWS_LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=16, reliabilit
                            durability=DurabilityPolicy.TRANSIENT_LOCAL)
 LATCHED_LAST = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
                           durability=DurabilityPolicy.TRANSIENT_LOCAL)
-SERVICE_STAGES = {service: stage for stage, service in STAGE_SERVICES.items()}  # perch/filter -> filter
 
 
 class OperatorNode(Node):
@@ -75,7 +74,7 @@ class OperatorNode(Node):
         self.static_transforms = StaticTransformPublisher(self)
         group = ReentrantCallbackGroup()
         self.stages = StageCaller(self, group, self.config.service_wait, self.config.stage_timeout,
-                                  self.config.gone_grace, on_progress=self._on_stage_progress)
+                                  self.config.gone_grace)
         self.crop_service = create_stage_service(self, srv.Crop, STAGE_SERVICES["crop"], self._crop,
                                                  self.config.introspection, callback_group=group)
         self.confirm_service = self.create_service(srv.Confirm, CONFIRM_SERVICE, self._confirm,
@@ -126,8 +125,6 @@ class OperatorNode(Node):
         self._running_mission: Mission | None = None
         self.create_subscription(pm.ReconstructionProgress, "perch/reconstruct/progress",
                                  self._on_reconstruct_progress, 10, callback_group=group)
-        # ... and the other stages' phases (perch_common.work) of this coordinator's own calls: self.stages
-        # hears them (they are also its calls' signs of life) and passes them to _on_stage_progress.
         self._mission_state = ""   # the current mission's: running, succeeded, failed or cancelled
         self._busy = threading.Lock()
         self._next_proposal_id = 1
@@ -329,15 +326,6 @@ class OperatorNode(Node):
             mission.stage_progress("reconstruct", msg.frames_received / msg.frames_total,
                                    f"frames {msg.frames_received}/{msg.frames_total} read, "
                                    f"{msg.frames_integrated} integrated")
-
-    def _on_stage_progress(self, msg: pm.StageProgress) -> None:
-        mission = self._running_mission
-        stage = SERVICE_STAGES.get(msg.service)
-        # Reconstruction's frame counters say more (above); another coordinator's calls are not ours.
-        if mission is None or stage in (None, "reconstruct") or \
-                not msg.request_id.startswith(f"{self.stages.caller_id}/{stage}/"):
-            return
-        mission.stage_progress(stage, msg.fraction, msg.phase or stage)
 
     @staticmethod
     def _failed(mission: Mission, message: str) -> PlanPerches.Result:

@@ -1,4 +1,16 @@
-"""Calling the stage services from the coordinator: waits, timeouts, vanished servers, failures.
+"""Calling the stages from the coordinator: waits, timeouts, vanished servers, failures.
+
+Reconstruct, segment, filter and optimise are called through their actions (same names as their
+services; perch_common.ros.service.create_stage_action): the goal's feedback reaches the caller's
+`progress`, and a call abandoned (mission cancelled, no reply in time) is stopped with the standard
+action cancel, or on a networked graph, which refuses that cancel, with the signed StageCancel naming
+the call's request_id (the one place the coordinator still sends StageCancel for these stages: the
+action cancel carries no signature). A goal survives a lost message (action_client.GoalCall): a goal
+not accepted within seconds is adopted if its server lists it, else sent again; a result that does not
+come once the status says the goal ended is asked for again.
+The stage's action publishes its service's introspection events for each goal,
+so recordings, `perch replay --check` and the report read these calls as service calls. Clean and crop
+are quick and stay service calls.
 
 Every failure becomes a StageError whose message names the stage and its service, so the
 mission result says which stage to look at. Each call carries its own request_id, so abandoning it
@@ -16,8 +28,9 @@ so the call fails as soon as every server it was sent to has left the graph for 
 be the input's doing, and the user gets a clear reason at once instead of a second wait.
 
 A request can be lost on its way (DDS drops data a server's reader gets before it has matched the
-writer, and nothing on the caller's side shows that match): a call of which nothing is heard (no reply,
-no progress: a stage announces every call it starts) is sent again after RESEND_AFTER seconds, then after
+writer, and nothing on the caller's side shows that match). A goal's losses are GoalCall's; a service
+call (clean, crop) of which nothing is heard (no reply, no progress: a stage announces every call it
+starts) is sent again after RESEND_AFTER seconds, then after
 twice that, ... (RESENDS times), under the same call's id (perch_common.ros.service.resent_id); the stage
 runs a resend only if the first never arrived, and answers it as a duplicate otherwise. A call is resent
 only while the service's servers are the ones it went to: a respawned node does not take up a call
@@ -38,8 +51,10 @@ from perch_common.errors import PerchError
 from perch_common.mesh_cache import PROCESS_CACHE, MeshBook, is_mesh_not_cached
 from perch_common.ros.conversions import id_only_msg, is_id_only, msg_content_id
 from perch_common.ros.servers import server_endpoints
-from perch_common.ros.service import PROGRESS_TOPIC, first_call_id, is_duplicate_reply, resent_id
-from perch_interfaces import srv
+from perch_common.ros.service import PROGRESS_TOPIC, copy_fields, first_call_id, is_duplicate_reply, resent_id
+from perch_interfaces import action, srv
+
+ACTION_GOAL_SERVICE = "/_action/send_goal"   # an action's goal service, under the action's name
 
 RESEND_AFTER = 3.0   # s without a sign of a call before it is sent again (doubling after each resend)
 RESENDS = 3
@@ -47,20 +62,22 @@ RESENDS = 3
 
 @dataclass(frozen=True)
 class Stage:
-    """One pipeline stage: its name, its service (relative to the graph's namespace) and type."""
+    """One pipeline stage: its name, its service (relative to the graph's namespace) and type, and the
+    type of the action served under the same name (None: called as a service)."""
 
     name: str
     service: str
     srv_type: type
+    action_type: type | None = None
 
 
 STAGES = {s.name: s for s in (
-    Stage("reconstruct", STAGE_SERVICES["reconstruct"], srv.Reconstruct),
+    Stage("reconstruct", STAGE_SERVICES["reconstruct"], srv.Reconstruct, action.Reconstruct),
     Stage("clean", STAGE_SERVICES["clean"], srv.CleanMesh),
     Stage("crop", STAGE_SERVICES["crop"], srv.Crop),
-    Stage("segment", STAGE_SERVICES["segment"], srv.Segment),
-    Stage("filter", STAGE_SERVICES["filter"], srv.Filter),
-    Stage("optimise", STAGE_SERVICES["optimise"], srv.Optimise),
+    Stage("segment", STAGE_SERVICES["segment"], srv.Segment, action.Segment),
+    Stage("filter", STAGE_SERVICES["filter"], srv.Filter, action.Filter),
+    Stage("optimise", STAGE_SERVICES["optimise"], srv.Optimise, action.Optimise),
 )}
 SERVICE_NODES = {service: node for node, services in NODE_SERVICES.items() for service in services}
 
@@ -80,17 +97,19 @@ class MissionCancelled(PerchError):
 
 
 class StageCaller:
-    """One client per stage service on `node`; `call` blocks the calling thread (not the executor)."""
+    """One client per stage (action client where the stage has an action) on `node`; `call` blocks the
+    calling thread (not the executor)."""
 
-    def __init__(self, node, callback_group, service_wait: float, timeout: float, gone_grace: float,
-                 on_progress: Callable | None = None):
-        """on_progress(msg): each perch_interfaces/StageProgress of this caller's calls."""
+    def __init__(self, node, callback_group, service_wait: float, timeout: float, gone_grace: float):
         self.node = node
         self.service_wait = service_wait
         self.timeout = timeout
         self.gone_grace = gone_grace
         self.clients = {name: node.create_client(s.srv_type, s.service, callback_group=callback_group)
-                        for name, s in STAGES.items()}
+                        for name, s in STAGES.items() if s.action_type is None}
+        # Each action client in a group of its own: the executor never handles two batches of one client's
+        # responses at once (its bookkeeping is unlocked), while the stages' clients stay independent.
+        self.actions = {name: self._action_client(name) for name, s in STAGES.items() if s.action_type is not None}
         self.services = {name: node.resolve_service_name(s.service) for name, s in STAGES.items()}
         from perch_common.ros.service import CANCEL_TOPIC
         from perch_interfaces.msg import StageCancel, StageProgress
@@ -101,7 +120,7 @@ class StageCaller:
         # Request ids: this caller's own prefix (unique across processes and restarts), then a count.
         self.caller_id = f"{node.get_fully_qualified_name()}/{uuid.uuid4().hex[:12]}"
         self._calls = itertools.count(1)
-        self.on_progress = on_progress
+        # Service calls' signs of life: a stage announces each call it starts (action goals have theirs).
         self._heard: dict[str, bool] = {}   # calls in flight (first ids): whether a stage announced them
         self._heard_lock = threading.Lock()
         node.create_subscription(StageProgress, PROGRESS_TOPIC, self._on_progress, 10, callback_group=callback_group)
@@ -113,15 +132,49 @@ class StageCaller:
         with self._heard_lock:
             if call_id in self._heard:   # not a late message of a finished call
                 self._heard[call_id] = True
-        if self.on_progress is not None:
-            self.on_progress(msg)
 
     def _heard_of(self, request_id: str) -> bool:
         with self._heard_lock:
             return self._heard.get(request_id, False)
 
     def _abandon(self, stage: str, request_id: str, reason: str) -> None:
-        """Tell the stage to stop the work of a call no longer waited for (it checks between steps)."""
+        """Tell the stage to stop the work of a service call no longer waited for (it checks between steps)."""
+        self._signed_cancel(stage, request_id, reason)
+
+    def _action_client(self, stage: str):
+        """A new action client for the stage, in a mutually exclusive group of its own: the executor never
+        handles two batches of one client's responses at once (its bookkeeping is unlocked), while the
+        stages' clients stay independent."""
+        from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+
+        from perch_operator.coordinator.action_client import RegisteringActionClient
+
+        return RegisteringActionClient(self.node, STAGES[stage].action_type, STAGES[stage].service,
+                                       callback_group=MutuallyExclusiveCallbackGroup())
+
+    def _renew_action_client(self, stage: str):
+        """Replace the stage's action client (GoalCall: its results stopped arriving)."""
+        old, self.actions[stage] = self.actions[stage], self._action_client(stage)
+        if not old._pending_goal_requests and len(set(map(bytes, (g.uuid for g in
+                                                                  old._result_sequence_number_to_goal_id.values())))) <= 1:
+            old.destroy()   # only the renewing call's goal was on it (else it stays, with its callers)
+        return self.actions[stage]
+
+    def _stop_goal(self, stage: str, goal_id, request_id: str, reason: str) -> None:
+        """Stop one goal's work: the standard action cancel by goal id (a goal the server never took makes
+        it a no-op); a networked graph refuses that and takes the signed StageCancel naming its request_id."""
+        from rclpy.action.client import ClientGoalHandle
+
+        from perch_common.network_auth import networked
+
+        if networked():
+            self._signed_cancel(stage, request_id, reason)
+            return
+        client = self.actions[stage]
+        accepted = STAGES[stage].action_type.Impl.SendGoalService.Response(accepted=True)
+        ClientGoalHandle(client, goal_id, accepted).cancel_goal_async()
+
+    def _signed_cancel(self, stage: str, request_id: str, reason: str) -> None:
         from perch_common.network_auth import sign_if_networked
 
         message = self._cancel_msg(service=STAGES[stage].service, request_id=request_id, reason=reason)
@@ -129,11 +182,13 @@ class StageCaller:
             message.auth = sign_if_networked("stage_cancel", message.service, request_id, reason)
         self.cancel_pub.publish(message)
 
-    def call(self, stage: str, request, cancelled: Callable[[], bool] = lambda: False):
+    def call(self, stage: str, request, cancelled: Callable[[], bool] = lambda: False,
+             progress: Callable[[str, float, str], None] | None = None):
         """The stage's successful reply; raises StageError (or MissionCancelled).
 
         The request's mesh (when it has one) travels by content id when the service holds it, and
-        each sending gets a fresh request_id; the request object itself is left as given."""
+        each sending gets a fresh request_id; the request object itself is left as given.
+        progress(stage, fraction, phase): the feedback of a stage called as an action."""
         service = STAGES[stage].service
         full = getattr(request, "mesh", None)
         given_id = request.request_id
@@ -144,12 +199,12 @@ class StageCaller:
         try:
             if key and (self.meshes.send_id_only(service, key) or self._shares_cache(stage, key)):
                 request.mesh = id_only_msg(full)
-                response = self._send(stage, request, cancelled)
+                response = self._send(stage, request, cancelled, progress)
                 if response.success or not is_mesh_not_cached(response.message):
                     return self._accepted(stage, response, key, full)
                 self.meshes.missed(service, key)
                 request.mesh = full
-            return self._accepted(stage, self._send(stage, request, cancelled), key, full)
+            return self._accepted(stage, self._send(stage, request, cancelled, progress), key, full)
         finally:
             request.request_id = given_id
             if full is not None:
@@ -173,8 +228,10 @@ class StageCaller:
                 response.mesh = sent   # the stage named the mesh it was sent instead of echoing it
         return response
 
-    def _send(self, stage: str, request, cancelled: Callable[[], bool]):
+    def _send(self, stage: str, request, cancelled: Callable[[], bool], progress=None):
         """One call of the stage's service; its reply, successful or not."""
+        if stage in self.actions:
+            return self._send_goal(stage, request, cancelled, progress)
         client = self.clients[stage]
         if not client.wait_for_service(timeout_sec=self.service_wait):
             raise StageError(stage, f"service not available within {self.service_wait:.0f} s; is its node "
@@ -233,6 +290,56 @@ class StageCaller:
             with self._heard_lock:
                 del self._heard[call_id]
 
+    def _send_goal(self, stage: str, request, cancelled: Callable[[], bool], progress):
+        """One goal of the stage's action (GoalCall: sent again, adopted or its result asked again when a
+        message is lost); the result as the service's reply, successful or not."""
+        from perch_operator.coordinator.action_client import TERMINAL, GoalCall
+
+        client = self.actions[stage]
+        if not client.wait_for_server(timeout_sec=self.service_wait):
+            raise StageError(stage, f"action not available within {self.service_wait:.0f} s; is its node "
+                                    "running? (`perch launch` starts the graph)", self.services[stage])
+        action_type = STAGES[stage].action_type
+        stop_reason = ["sent again (an earlier attempt was lost)"]
+
+        def make_goal(attempt: int):
+            request.request_id = f"{self.caller_id}/{stage}/{next(self._calls)}"
+            return copy_fields(request, action_type.Goal()), request.request_id
+
+        def feedback(message) -> None:
+            if progress is not None and not call_over.is_set():
+                progress(stage, message.feedback.fraction, message.feedback.phase)
+
+        call_over = threading.Event()
+        servers = ServerWatch(self.node, self.services[stage] + ACTION_GOAL_SERVICE, self.gone_grace)
+        call = GoalCall(client, make_goal, feedback,
+                        lambda goal_id, request_id: self._stop_goal(stage, goal_id, request_id, stop_reason[0]),
+                        self.node.get_logger(), may_resend=servers.unchanged,
+                        renew=lambda: self._renew_action_client(stage))
+        deadline = time.monotonic() + self.timeout
+        try:
+            while not call.done.wait(0.05):
+                call.poll()
+                if cancelled():
+                    stop_reason[0] = "mission cancelled"
+                    call.abandon()
+                    raise MissionCancelled(f"mission cancelled during stage {stage}")
+                if servers.gone():
+                    raise StageError(stage, servers.describe(), self.services[stage])
+                if time.monotonic() > deadline:
+                    stop_reason[0] = "no reply within stage_timeout"
+                    call.abandon()
+                    raise StageError(stage, f"no reply within {self.timeout:.0f} s (parameter stage_timeout)",
+                                     self.services[stage])
+        finally:
+            call_over.set()
+            call.close()
+        if call.refused:
+            raise StageError(stage, "the action refused the goal", self.services[stage])
+        if call.answer.status not in TERMINAL:   # STATUS_UNKNOWN: the server no longer knew the goal
+            raise StageError(stage, f"the goal's result was lost (status {call.answer.status})", self.services[stage])
+        return copy_fields(call.answer.result, STAGES[stage].srv_type.Response())
+
 
 class ServerWatch:
     """`gone()` turns True when every server of `service` present as the call went out has left the
@@ -267,7 +374,8 @@ class ServerWatch:
         return now - self._absent_since > self.grace
 
     def unchanged(self) -> bool:
-        """The service's servers are still exactly those present as the call went out (at the last check)."""
+        """The servers listed now are exactly those the call went to (none left, none new)."""
+        self.gone()
         return bool(self.servers) and set(self.current) == set(self.servers)
 
     def describe(self) -> str:
