@@ -14,8 +14,7 @@ from typing import Callable
 
 import numpy as np
 from action_msgs.msg import GoalStatus, GoalStatusArray
-from rclpy.action import ActionClient
-from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_action_status_default
@@ -28,6 +27,7 @@ from perch_console.state import MissionPicture, shortfall_of
 from perch_interfaces import msg as pm
 from perch_interfaces import srv
 from perch_interfaces.action import PlanPerches
+from perch_operator.coordinator.action_client import RegisteringActionClient
 from perch_operator.coordinator.node import LATCHED, LATCHED_LAST
 from tf2_msgs.msg import TFMessage
 
@@ -62,7 +62,11 @@ class ConsoleGraph:
         sub(srv.Filter.Event, "perch/filter/_service_event", self._on_filter_event, EVENTS, callback_group=group)
         sub(srv.Optimise.Event, "perch/optimise/_service_event", self._on_optimise_event, EVENTS,
             callback_group=group)
-        self.mission = ActionClient(self.node, PlanPerches, MISSION_ACTION, callback_group=group)
+        # rclpy Jazzy's ActionClient drops an answer that overtakes its request's registration (rclpy#1123);
+        # the console sends from the UI thread while the executor spins (a CI rehearsal waited 180 s for an
+        # acceptance so dropped): one lock over each send and its registration, in a group of its own.
+        self.mission = RegisteringActionClient(self.node, PlanPerches, MISSION_ACTION,
+                                               callback_group=MutuallyExclusiveCallbackGroup())
         self.confirm = self.node.create_client(srv.Confirm, CONFIRM_SERVICE, callback_group=group)
         self.review = self.node.create_client(srv.ReviewSurfaces, "perch/review_surfaces", callback_group=group)
         self.executor = MultiThreadedExecutor(num_threads=3)
