@@ -134,21 +134,25 @@ def test_bag_goal_reconstructs_instead_of_cleaning(goal):
     assert stages.requests[0][1].bag_path == "/data/kitchen.mcap" and result.success
 
 
+DAMAGE = "damaged bag, read as far as it goes (54 frame(s) recovered, 6 lost): chunk at byte 5339176 fails its CRC"
+
+
+class DamagedBagStages(ScriptedStages):
+    """Stages whose reconstruction read a damaged bag: its reply says what was lost."""
+
+    def call(self, stage, request, cancelled=lambda: False, progress=None):
+        if stage == "reconstruct":
+            return srv.Reconstruct.Response(success=True, mesh=self.mesh_msg, seconds=2.0,
+                                            message=f"900 faces from 54 of 54 frames; {DAMAGE}",
+                                            alignment=alignment_to_msg(Alignment("world", np.eye(3))))
+        return super().call(stage, request, cancelled)
+
+
 def test_what_a_damaged_bag_lost_is_in_the_result_and_the_feedback(goal):
     """It used to be only in the reconstruct node's log (bad-input finding 3)."""
-    damage = "damaged bag, read as far as it goes (54 frame(s) recovered, 6 lost): chunk at byte 5339176 fails its CRC"
-
-    class Reconstructing(ScriptedStages):
-        def call(self, stage, request, cancelled=lambda: False, progress=None):
-            if stage == "reconstruct":
-                return srv.Reconstruct.Response(success=True, mesh=self.mesh_msg, seconds=2.0,
-                                                message=f"900 faces from 54 of 54 frames; {damage}",
-                                                alignment=alignment_to_msg(Alignment("world", np.eye(3))))
-            return super().call(stage, request, cancelled)
-
-    _, result, feedback, _, _ = run(Reconstructing(goal.mesh), PlanPerches.Goal(bag_path="/k.mcap", auto_accept=True))
-    assert result.success and f"perch(es) accepted; {damage}" in result.message
-    assert any(damage in str(f) for f in feedback)
+    _, result, feedback, _, _ = run(DamagedBagStages(goal.mesh), PlanPerches.Goal(bag_path="/k.mcap", auto_accept=True))
+    assert result.success and f"perch(es) accepted; {DAMAGE}" in result.message
+    assert any(DAMAGE in str(f) for f in feedback)
 
 
 def test_a_failed_mission_from_a_damaged_bag_says_what_the_bag_lost(goal):
@@ -156,24 +160,12 @@ def test_a_failed_mission_from_a_damaged_bag_says_what_the_bag_lost(goal):
     nothing of the damage."""
     from perch_operator.coordinator.node import OperatorNode
 
-    damage = "damaged bag, read as far as it goes (54 frame(s) recovered, 6 lost): chunk at byte 5339176 fails its CRC"
-
-    class Reconstructing(ScriptedStages):
-        def call(self, stage, request, cancelled=lambda: False, progress=None):
-            if stage == "reconstruct":
-                return srv.Reconstruct.Response(success=True, mesh=self.mesh_msg, seconds=2.0,
-                                                message=f"900 faces from 54 of 54 frames; {damage}",
-                                                alignment=alignment_to_msg(Alignment("world", np.eye(3))))
-            if stage == "filter":
-                raise ValueError("filter left no perch regions on 6 surface(s)")
-            return super().call(stage, request, cancelled)
-
-    mission = Mission(Reconstructing(goal.mesh), options(True), 5, lambda *f: None, lambda: False,
-                      lambda *ps: None, lambda *o: None)
-    with pytest.raises(ValueError) as failure:
+    mission = Mission(DamagedBagStages(goal.mesh, fail="filter"), options(True), 5, lambda *f: None,
+                      lambda: False, lambda *ps: None, lambda *o: None)
+    with pytest.raises(StageError) as failure:
         mission.run(PlanPerches.Goal(bag_path="/k.mcap", auto_accept=True))
     result = OperatorNode._failed(mission, str(failure.value))
-    assert not result.success and result.message == f"filter left no perch regions on 6 surface(s); {damage}"
+    assert not result.success and result.message == f"{failure.value}; {DAMAGE}"
 
 
 def test_replan_keeps_the_other_slots_and_sends_every_exclusion(goal):
