@@ -137,10 +137,6 @@ class StageCaller:
         with self._heard_lock:
             return self._heard.get(request_id, False)
 
-    def _abandon(self, stage: str, request_id: str, reason: str) -> None:
-        """Tell the stage to stop the work of a service call no longer waited for (it checks between steps)."""
-        self._signed_cancel(stage, request_id, reason)
-
     def _action_client(self, stage: str):
         """A new action client for the stage, in a mutually exclusive group of its own: the executor never
         handles two batches of one client's responses at once (its bookkeeping is unlocked), while the
@@ -175,6 +171,8 @@ class StageCaller:
         ClientGoalHandle(client, goal_id, accepted).cancel_goal_async()
 
     def _signed_cancel(self, stage: str, request_id: str, reason: str) -> None:
+        """Tell the stage to stop the work of call `request_id` (it checks between steps): StageCancel, signed
+        on a networked graph."""
         from perch_common.network_auth import sign_if_networked
 
         message = self._cancel_msg(service=STAGES[stage].service, request_id=request_id, reason=reason)
@@ -265,12 +263,12 @@ class StageCaller:
                             return response
                 now = time.monotonic()
                 if cancelled():
-                    self._abandon(stage, call_id, "mission cancelled")
+                    self._signed_cancel(stage, call_id, "mission cancelled")
                     raise MissionCancelled(f"mission cancelled during stage {stage}")
                 if servers.gone():
                     raise StageError(stage, servers.describe(), self.services[stage])
                 if now > deadline:
-                    self._abandon(stage, call_id, "no reply within stage_timeout")
+                    self._signed_cancel(stage, call_id, "no reply within stage_timeout")
                     raise StageError(stage, f"no reply within {self.timeout:.0f} s (parameter stage_timeout)",
                                      self.services[stage])
                 # Resent only to the servers it went to: a node that replaced them (respawned) must not take
