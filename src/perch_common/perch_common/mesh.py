@@ -58,9 +58,10 @@ class Mesh:
         """Number of vertices."""
         return int(self.vertices.shape[0])
 
-    def triangles(self) -> np.ndarray:
-        """(F,3,3) corner coordinates."""
-        return self.vertices[self.faces]
+    def triangles(self, faces: np.ndarray | None = None) -> np.ndarray:
+        """(F,3,3) corner coordinates (of the faces indexed or masked by `faces` only: a surface's few
+        faces of a building cost a gather of those, not of every face)."""
+        return self.vertices[self.faces if faces is None else self.faces[faces]]
 
     def derived(self, key: str, build: Callable[[], T]) -> T:
         """Data derived from this mesh, built on first use and kept with it: every copy a request

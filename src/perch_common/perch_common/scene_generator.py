@@ -129,7 +129,7 @@ class GeneratedScene:
                 id=len(surfaces), frame=frame, area=float(areas[faces].sum()), face_indices=faces,
                 surface_class=SurfaceClass.UNKNOWN, rms_distance=0.0,
                 mean_color=np.average(colors[faces], axis=0, weights=areas[faces]),
-                boundary=faces_outline(frame, self.mesh.triangles()[faces])))
+                boundary=faces_outline(frame, self.mesh.triangles(faces))))
         return surfaces
 
 

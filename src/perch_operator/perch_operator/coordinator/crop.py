@@ -108,7 +108,7 @@ def floor_target(mesh: Mesh, config: CropConfig | None = None) -> TargetVolume:
         raise ValueError(f"crop: target_height must be positive, got {config.target_height}")
     level, floor = floor_level(mesh, config)
     try:
-        footprint, area = raster_outline(mesh.triangles()[floor][:, :, :2], config.grid_resolution,
+        footprint, area = raster_outline(mesh.triangles(floor)[:, :, :2], config.grid_resolution,
                                          config.close_radius)
     except ValueError as exc:
         raise MeshError(f"crop: floor outline: {exc} (raise grid_resolution or give a target)") from None
