@@ -25,11 +25,12 @@ def test_repeated_bench_reports_medians_and_exits_cleanly(graph_parts):
     result = json.loads(done.stdout)
     assert result["repeat"] == 2 and len(result["runs"]) == 2 and len(result["load_average_1min"]) == 2
     median = result["median"]
-    for figure in ("wall_s", "startup_s", "mission_s", "transport_s", "peak_rss_mb"):
+    for figure in ("wall_s", "input_s", "startup_s", "mission_s", "transport_s", "peak_rss_mb"):
         values = sorted(r[figure] for r in result["runs"])
         assert median[figure] == pytest.approx(sum(values) / 2, abs=1e-3)   # the median of two
     assert set(median["stages"]) == {"clean", "crop", "segment", "filter", "optimise", "confirm"}
     assert median["wall_s"] > median["mission_s"] > median["stages"]["segment"] > 0 and median["startup_s"] > 0
+    assert 0 < median["input_s"] < median["wall_s"] - median["mission_s"]   # the scene is made before the mission
     # Seeded: both runs plan the same cameras.
     fitness = [r["fitness"] for r in result["runs"]]
     # Each run in a namespace of its own on the user's domain (never beside or inside another graph).
