@@ -25,7 +25,8 @@ CENTROID_TOL = 0.02   # m
 NORMAL_TOL = 1e-4
 EVIDENCE_TOL = 1e-3
 
-GENERATED = ["room-1", "l_shaped-2", "two_rooms-3", "apartment-4", "apartment-5:holes", "building-1"]
+GENERATED = ["room-1", "l_shaped-2", "two_rooms-3", "apartment-4", "apartment-5:holes", "building-1",
+             "building-1:mission"]
 REAL = ["apartment.ply:+z", "icl_livingroom_kt2.obj:-y", "icl_office_kt2.obj:-y", "scans/quest_phanto_room.obj:+z"]
 
 
@@ -84,7 +85,8 @@ def compare(base: dict, new: dict) -> list[str]:
 
 
 def generated_case(name: str, cache: str | None = None):
-    """(mesh, surfaces, target, up) of 'kind-seed[:holes]' on its ground-truth surfaces (as bench filter);
+    """(mesh, surfaces, target, up) of 'kind-seed[:holes]' on its ground-truth surfaces (as bench filter), or
+    of 'kind-seed:mission' on the surfaces a mission segments from the cleaned mesh;
     kept in `cache` (a folder) when given: a building takes minutes to generate on a loaded machine."""
     import pickle
     from pathlib import Path
@@ -101,9 +103,17 @@ def generated_case(name: str, cache: str | None = None):
     spec, _, extra = name.partition(":")
     kind, _, seed = spec.rpartition("-")
     scene = generate_scene(int(seed), kind, holes=3 if extra == "holes" else 0)
-    case = scene.mesh, filter_input_surfaces(scene), scene.target, scene.up
+    if extra == "mission":  # what a mission's filter gets: the cleaned mesh, segmented
+        from perch_reconstruction.cleaning import clean_mesh
+        from perch_reconstruction.config import ReconstructionConfig
+        from perch_segmentation.core import SegmentationConfig, segment_mesh
+
+        mesh = clean_mesh(scene.mesh, -scene.up, ReconstructionConfig())  # generated scenes are z-up: no turn
+        case = mesh, segment_mesh(mesh, SegmentationConfig()).surfaces, scene.target, scene.up
+    else:
+        case = scene.mesh, filter_input_surfaces(scene), scene.target, scene.up
     if path is not None:
-        path.write_bytes(pickle.dumps((scene.mesh.vertices, scene.mesh.faces, *case[1:])))
+        path.write_bytes(pickle.dumps((case[0].vertices, case[0].faces, *case[1:])))
     return case
 
 
