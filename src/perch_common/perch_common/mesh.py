@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import threading
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, TypeVar
@@ -10,6 +11,24 @@ from typing import Callable, TypeVar
 import numpy as np
 
 T = TypeVar("T")
+_BUILDING = "building"   # Mesh._cache keys (_BUILDING, key) hold the lock of a derived value's build
+_BUILD_LOCKS_LOCK = threading.Lock()
+
+
+class _BuildLock:
+    """The lock of one derived value's build; a pickled mesh gets a fresh one (locks do not pickle)."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+
+    def __enter__(self) -> None:
+        self._lock.acquire()
+
+    def __exit__(self, *exc) -> None:
+        self._lock.release()
+
+    def __reduce__(self):
+        return _BuildLock, ()
 
 
 class MeshError(ValueError):
@@ -65,9 +84,16 @@ class Mesh:
 
     def derived(self, key: str, build: Callable[[], T]) -> T:
         """Data derived from this mesh, built on first use and kept with it: every copy a request
-        gets of a held mesh shares it (see mesh_cache), so stages in one process build it once."""
-        if key not in self._cache:
-            self._cache[key] = build()
+        gets of a held mesh shares it (see mesh_cache), so stages in one process build it once. A
+        caller asking while another thread builds it waits for that build (mesh_cache.prepare builds
+        a held mesh's data in the background while stages run)."""
+        if key in self._cache:
+            return self._cache[key]
+        with _BUILD_LOCKS_LOCK:   # the lock lives in the shared dict: copies of the mesh share it too
+            lock = self._cache.setdefault((_BUILDING, key), _BuildLock())
+        with lock:
+            if key not in self._cache:
+                self._cache[key] = build()
         return self._cache[key]
 
     def _cross(self) -> np.ndarray:

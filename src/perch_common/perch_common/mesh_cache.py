@@ -12,9 +12,12 @@ processes a stage gets each mesh's arrays once and its id afterwards (re-plans, 
 from __future__ import annotations
 
 import hashlib
+import logging
 import os
 import threading
 from collections import OrderedDict
+from concurrent.futures import Future, ThreadPoolExecutor
+from typing import Callable
 
 import numpy as np
 
@@ -134,6 +137,52 @@ def _budget_from_env() -> int:
 
 
 PROCESS_CACHE = MeshCache(_budget_from_env())
+
+
+# --- preparing held meshes -------------------------------------------------------------------------
+# In a one-process graph a stage's reply mesh (the cleaned or cropped scan) is what the next stages
+# work on. A node that derives costly data from it (the filter: its ray-cast BVH and surface samples,
+# ~2 s on a 2.3 M-face building) registers a preparer; the data is then built on a background thread
+# while the stages before it run (segmentation uses one core), and the stage finds it built, or waits
+# for the build under way (Mesh.derived). A failed preparation is left for the stage to meet itself.
+
+_preparers: list[Callable[[Mesh], object]] = []
+_preparers_lock = threading.Lock()
+_prepare_pool: ThreadPoolExecutor | None = None
+
+
+def add_preparer(preparer: Callable[[Mesh], object]) -> None:
+    """Run `preparer(mesh)` on every mesh a stage of this process replies with (until removed)."""
+    with _preparers_lock:
+        _preparers.append(preparer)
+
+
+def remove_preparer(preparer: Callable[[Mesh], object]) -> None:
+    """Stop preparing meshes with `preparer` (its node is destroyed)."""
+    with _preparers_lock:
+        if preparer in _preparers:
+            _preparers.remove(preparer)
+
+
+def prepare(mesh: Mesh) -> Future | None:
+    """Start the registered preparers on `mesh` on this process's one background thread (in order of
+    registration); None when no node registered one."""
+    global _prepare_pool
+    with _preparers_lock:
+        preparers = list(_preparers)
+        if not preparers:
+            return None
+        if _prepare_pool is None:
+            _prepare_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="perch-prepare")
+    return _prepare_pool.submit(_run_preparers, preparers, mesh)
+
+
+def _run_preparers(preparers: list[Callable[[Mesh], object]], mesh: Mesh) -> None:
+    for preparer in preparers:
+        try:
+            preparer(mesh)
+        except Exception as exc:   # the stage builds it again and reports a real problem itself
+            logging.getLogger(__name__).debug("preparing a held mesh failed: %s", exc)
 
 
 class MeshBook:

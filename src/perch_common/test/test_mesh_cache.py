@@ -119,3 +119,60 @@ def test_not_cached_error_names_the_fix_and_is_recognised_inside_a_stage_error()
     assert is_mesh_not_cached(str(error))
     assert is_mesh_not_cached(f"stage segment (/perch/segment): failed: {error}")
     assert not is_mesh_not_cached("mesh is empty")
+
+
+def test_a_derived_value_asked_by_two_threads_at_once_is_built_once():
+    """The background preparation and a stage may ask for the same derived data at once: the second
+    waits for the first build instead of building it again (copies of a held mesh share it)."""
+    import copy
+    import threading
+    from concurrent.futures import ThreadPoolExecutor
+
+    mesh = _mesh(50)
+    started, release, builds = threading.Event(), threading.Event(), []
+
+    def build():
+        builds.append(1)
+        started.set()
+        assert release.wait(30)
+        return np.arange(3)
+
+    with ThreadPoolExecutor(2) as pool:
+        first = pool.submit(mesh.derived, "thing", build)
+        assert started.wait(30)
+        second = pool.submit(copy.copy(mesh).derived, "thing", build)   # a request's copy of the held mesh
+        release.set()
+        assert first.result(30) is second.result(30)
+    assert len(builds) == 1
+    import pickle
+    assert np.array_equal(pickle.loads(pickle.dumps(mesh)).derived("thing", lambda: None), np.arange(3))
+
+
+def test_a_reply_mesh_is_prepared_in_the_background_for_the_stages_that_get_it_by_id(monkeypatch):
+    """In a one-process graph a stage's reply mesh (the cleaned scan) is prepared by the registered
+    preparers (the filter's samples and ray scene) while the next stages run; the stage that then gets
+    the mesh by id finds the data built; a removed preparer no longer runs."""
+    import threading
+
+    import perch_common.mesh_cache
+    from perch_common.mesh_cache import add_preparer, remove_preparer
+    from perch_common.ros.conversions import cached_mesh_to_msg, id_only_msg, mesh_from_request
+
+    monkeypatch.setattr(perch_common.mesh_cache, "PROCESS_CACHE", MeshCache(10**9))
+    prepared, done = [], threading.Event()
+
+    def preparer(mesh):
+        prepared.append(mesh.derived("prepared", lambda: mesh.num_faces))
+        done.set()
+
+    add_preparer(preparer)
+    try:
+        reply = cached_mesh_to_msg(_mesh(300, 3.0))
+        assert done.wait(30) and prepared == [600]
+        stage_mesh = mesh_from_request(id_only_msg(reply))
+        assert stage_mesh.derived("prepared", lambda: -1) == 600   # built by the preparer, shared
+    finally:
+        remove_preparer(preparer)
+    done.clear()
+    cached_mesh_to_msg(_mesh(200, 4.0))
+    assert perch_common.mesh_cache.prepare(_mesh(10)) is None and prepared == [600]

@@ -117,6 +117,9 @@ class FilterNodeConfig(FilterConfig, StageNodeConfig[FilterConfig]):
     """The perch_filtering node's parameters: the filter settings plus the node's own."""
 
     up_axis: str = param("+z", "up axis when a request leaves `up` zero")
+    prepare_meshes: bool = param(True, "build the ray scene and surface samples of a mesh another stage of this "
+                                 "process replies with (one-process graph) while the stages before the filter run",
+                                 read_only=True)
 
     def validate(self) -> "FilterNodeConfig":
         """Raise ValueError naming every absurd value, the up axis included."""

@@ -176,6 +176,13 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
     return result
 
 
+def prepare_mesh(mesh: Mesh, voxel_size: float) -> None:
+    """Build what filter_surfaces derives from `mesh` whatever its request: the surface samples at
+    `voxel_size` (config.voxel_size) and the ray scene, kept with the mesh (Mesh.derived)."""
+    mesh_samples(mesh, voxel_size)
+    shared_ray_scene(mesh)
+
+
 def _surface_threads() -> int:
     """Threads the per-surface phases run on: as many as the ray casts get (OMP_NUM_THREADS, at most 2
     from Perch's entry points)."""

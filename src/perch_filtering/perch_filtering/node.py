@@ -10,6 +10,7 @@ import numpy as np
 from rclpy.node import Node
 
 from perch_common.conventions import STAGE_SERVICES
+from perch_common.mesh_cache import add_preparer, remove_preparer
 from perch_common.ros.conversions import (
     mesh_from_request,
     region_to_msg,
@@ -24,7 +25,7 @@ from perch_common.ros.params import declare_config, read_config
 from perch_common.ros.service import answering, create_stage_action, create_stage_service, set_work_budget
 from perch_common.transforms import parse_up_axis
 from perch_filtering.config import FilterConfig, FilterNodeConfig
-from perch_filtering.core import filter_surfaces
+from perch_filtering.core import filter_surfaces, prepare_mesh
 from perch_interfaces import action, srv
 from perch_interfaces import msg as pm
 
@@ -51,6 +52,10 @@ class FilterNode(Node):
         super().__init__("perch_filtering")
         config = declare_config(self, FilterNodeConfig, check=FilterNodeConfig.validate)
         self._warm_up()
+        self._preparer = None
+        if config.prepare_meshes:
+            self._preparer = self._prepare_mesh
+            add_preparer(self._preparer)
         self.service = create_stage_service(self, srv.Filter, STAGE_SERVICES["filter"], self._filter, config.introspection)
         self.action = create_stage_action(self, action.Filter, srv.Filter, STAGE_SERVICES["filter"], self._filter)
         self.get_logger().info(f"ready: {STAGE_SERVICES['filter']}")
@@ -62,6 +67,17 @@ class FilterNode(Node):
         from perch_common.raycast import RayScene
 
         RayScene(Mesh(np.eye(3), np.array([[0, 1, 2]]))).occluded(np.zeros((1, 3)), np.ones((1, 3)))
+
+    def _prepare_mesh(self, mesh) -> None:
+        """What the filter derives from a mesh before knowing its request: the ray scene and the
+        surface samples at the configured voxel size (kept with the mesh, see mesh_cache.prepare)."""
+        prepare_mesh(mesh, float(self.get_parameter("voxel_size").value))
+
+    def destroy_node(self) -> None:
+        if self._preparer is not None:
+            remove_preparer(self._preparer)
+            self._preparer = None
+        super().destroy_node()
 
     @answering
     def _filter(self, request: srv.Filter.Request, response: srv.Filter.Response) -> srv.Filter.Response:

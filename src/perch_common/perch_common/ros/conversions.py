@@ -175,9 +175,13 @@ def held_mesh(msg: pm.TriangleMesh, hashed: bool = False) -> Mesh | None:
 def cached_mesh_to_msg(mesh: Mesh, stamp=None) -> pm.TriangleMesh:
     """mesh_to_msg with its content id, and kept in this process's mesh cache, for a reply whose
     mesh later requests (to this or another node in this process) may name by id."""
+    from perch_common.mesh_cache import PROCESS_CACHE, prepare
+
     msg = mesh_to_msg(mesh, stamp)
     msg.content_id = msg_content_id(msg)
-    _keep(msg, "reply mesh")
+    kept = _keep(msg, "reply mesh")
+    if msg.content_id in PROCESS_CACHE:   # the next stages here work on it: their data is built meanwhile
+        prepare(kept)
     return msg
 
 
