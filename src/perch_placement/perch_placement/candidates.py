@@ -23,9 +23,14 @@ from perch_placement.perches import Perch, Perches
 
 @dataclass
 class CandidateSet:
-    """Candidate perches with their visibility and information, grouped by position."""
+    """Candidate perches with their visibility and information, grouped by position (A orientations
+    each). The candidates' poses are made on demand (`take`): a set holds hundreds of thousands of
+    candidates and a search poses a few of them."""
 
-    perch: Perch            # C = P * A candidates, grouped by position (A orientations each)
+    perches: Perches        # poses the candidates
+    region: np.ndarray      # (P,) region index of each position
+    points: np.ndarray      # (P,3) drone position (on the surface) of each position
+    mounts: tuple           # drone rotations (P,3,3), camera positions (P,3), gimbal windows (P,4)
     gimbal: np.ndarray      # (A,2) pan/tilt coordinates in [0,1] of each orientation
     visible: np.ndarray     # (P,A,N) bool, occlusion and range included
     info: np.ndarray        # (P,N,6) scaled information of a camera at each position (zoom 1)
@@ -33,6 +38,7 @@ class CandidateSet:
     parent: "CandidateSet | None" = None   # the set this one is a subset of (shares its derived masks)
     kept: np.ndarray | None = None         # (P,) indices of this set's positions in the parent
     _undominated: np.ndarray | None = None
+    _live: np.ndarray | None = None
 
     @property
     def positions(self) -> int:
@@ -49,14 +55,29 @@ class CandidateSet:
 
     def drone_positions(self) -> np.ndarray:
         """(P,3) drone position of each candidate position."""
-        return self.perch.drone_position[::self.orientations]
+        return self.points
+
+    def take(self, index) -> Perch:
+        """The perches of candidates `index` (candidate c is orientation c % A at position c // A)."""
+        p, o = np.divmod(np.asarray(index, np.int64).reshape(-1), self.orientations)
+        return self.perches.pose(self.region[p], self.points[p], self.gimbal[o], mounts=tuple(m[p] for m in self.mounts))
+
+    @property
+    def perch(self) -> Perch:
+        """Every candidate's perch, in candidate order (posed now: prefer `take`)."""
+        return self.take(np.arange(len(self)))
+
+    def live(self) -> np.ndarray:
+        """Indices of the positions that see some point (every other position's gains are 0)."""
+        if self._live is None:
+            self._live = np.flatnonzero(self.reach.any(axis=1))
+        return self._live
 
     def subset(self, keep: np.ndarray) -> "CandidateSet":
         """The candidates at the positions where `keep` (P,) is true."""
-        index = (np.flatnonzero(keep)[:, None] * self.orientations + np.arange(self.orientations)).reshape(-1)
         root, kept = (self, np.flatnonzero(keep)) if self.parent is None else (self.parent, self.kept[keep])
-        return CandidateSet(self.perch.take(index), self.gimbal, self.visible[keep], self.info[keep],
-                            self.reach[keep], root, kept)
+        return CandidateSet(self.perches, self.region[keep], self.points[keep], tuple(m[keep] for m in self.mounts),
+                            self.gimbal, self.visible[keep], self.info[keep], self.reach[keep], root, kept)
 
     def undominated(self) -> np.ndarray:
         """(P,A) orientations whose view is not inside another's at the same position (the certificate's
@@ -83,8 +104,9 @@ def cached_candidates(perches: Perches, evaluator: Evaluator, spacing: float, an
         full = build()
     else:
         full = cache.candidates(_candidate_key(perches, evaluator, spacing, angles, scene_key), build)
-    probe = full.perch.take(np.arange(0, len(full), full.orientations))
-    return full.subset(perches.feasible(probe, fixed, exclusions))
+    probe = full.take(np.arange(0, len(full), full.orientations))
+    keep = perches.feasible(probe, fixed, exclusions)
+    return full if keep.all() else full.subset(keep)  # the whole set is never modified: no copy
 
 
 def _candidate_key(perches: Perches, evaluator: Evaluator, spacing: float, angles: int, scene_key: str) -> str:
@@ -113,27 +135,27 @@ def build_candidates(perches: Perches, evaluator: Evaluator, spacing: float, ang
     probe = perches.pose(region, points, np.full((len(region), 2), 0.5))
     keep = perches.feasible(probe, fixed, exclusions)
     region, points = region[keep], points[keep]
-    mounts = tuple(np.repeat(m[keep], a, axis=0) for m in perches.mounts(probe.region, probe.drone_position))
-    perch = perches.pose(np.repeat(region, a), np.repeat(points, a, axis=0), np.tile(gimbal, (len(region), 1)),
-                         mounts=mounts)
-    cam = evaluator.camera
+    mounts = tuple(m[keep] for m in perches.mounts(probe.region, probe.drone_position))
     targets = evaluator.points
-    cam_pos = perch.camera_position[::a]
-    reach, delta, distance, unit = evaluator.reach(cam_pos)
-    # Frustum tests for every orientation at a position as one matrix product:
-    # local[p, n, a, j] = sum_k delta[p, n, k] R[p, a, k, j] (row-vector R^T d).
+    reach, delta, distance, unit = evaluator.reach(mounts[1])
     visible = np.zeros((len(region), a, len(targets)), bool)
-    rotations = perch.camera_rotation.reshape(-1, a, 3, 3).transpose(0, 2, 1, 3).reshape(-1, 3, a * 3)
+    cands = CandidateSet(perches, region, points, mounts, gimbal, visible, np.zeros(distance.shape + (6,)), reach)
+    # Only positions that reach a point can see one: their orientations' frustum tests are one matrix
+    # product per position, local[p, n, a, j] = sum_k delta[p, n, k] R[p, a, k, j] (row-vector R^T d),
+    # read at the reached points only (about 1 in 25 on a building).
+    live = cands.live()
     per_chunk = max(1, chunk // (a * len(targets)))
-    for start in range(0, len(region), per_chunk):
-        sl = slice(start, start + per_chunk)
-        local = np.matmul(delta[sl].astype(np.float32), rotations[sl].astype(np.float32))
-        in_frame = on_sensor(cam, local.reshape(local.shape[0], len(targets), a, 3))
-        visible[sl] = (in_frame & reach[sl, :, None]).transpose(0, 2, 1)
-    reach = visible.any(axis=1)
-    info = np.zeros(distance.shape + (6,))
-    info[reach] = evaluator.information(distance[reach], unit[reach])
-    return CandidateSet(perch, gimbal, visible, info, reach)
+    for start in range(0, len(live), per_chunk):
+        rows = live[start:start + per_chunk]
+        rotations = cands.take((rows[:, None] * a + np.arange(a)).reshape(-1)).camera_rotation
+        rotations = rotations.reshape(-1, a, 3, 3).transpose(0, 2, 1, 3).reshape(-1, 3, a * 3)
+        local = np.matmul(delta[rows].astype(np.float32), rotations.astype(np.float32))
+        p, n = np.nonzero(reach[rows])
+        visible[rows[p], :, n] = on_sensor(evaluator.camera, local[p, n].reshape(len(p), a, 3))
+    cands.reach = reach = visible.any(axis=1)
+    cands._live = None
+    cands.info[reach] = evaluator.information(distance[reach], unit[reach])
+    return cands
 
 
 @dataclass
@@ -218,14 +240,15 @@ class CandidateGreedy:
             gains.append(picked[1])
         return GreedyPick(chosen, gains, self.evaluations)
 
-    def online_bound(self, k: int) -> float:
+    def online_bound(self, k: int, gains: np.ndarray | None = None) -> float:
         """f(S) + the k largest marginal gains over the candidate set (spacing among the new cameras
         ignored), at most one per position when drones must be apart (an optimal set then holds at
         most one camera per position). An upper bound on the best k-subset only if f is submodular,
-        which covariance fusion is not (see perch_placement.optimality)."""
+        which covariance fusion is not (see perch_placement.optimality). `gains`: every candidate's
+        gain on this state when already known (GainMemo)."""
         if self.c.positions == 0 or k <= 0:
             return self.fitness
-        return min(1.0, self.fitness + self._top_sum(self.gains(), k))  # f <= 1 always
+        return min(1.0, self.fitness + self._top_sum(self.gains() if gains is None else gains, k))  # f <= 1 always
 
     def coverage_bound(self, k: int) -> float:
         """The same bound for coverage g(S) (fraction of points seen), which is submodular and
@@ -240,3 +263,35 @@ class CandidateGreedy:
     def _top_sum(self, gains: np.ndarray, k: int) -> float:
         g = gains.max(axis=1) if self.min_spacing > 0 else gains.reshape(-1)
         return float(np.maximum(np.sort(g)[::-1][:k], 0).sum())
+
+
+class GainMemo:
+    """Every candidate's marginal gain on a base state that changes between calls (a search's committed
+    cameras), as CandidateGreedy.gains computes it. A position's gains depend only on the state of the
+    points it reaches: they are recomputed only where one of those changed since the last call (the
+    others are the same numbers), and are 0 at positions that reach no point."""
+
+    def __init__(self, cands: CandidateSet):
+        self.c = cands
+        self.values = np.zeros((cands.positions, cands.orientations))
+        self.fresh = np.zeros(cands.positions, bool)   # values[p] hold for the last state
+        self.live = np.zeros(cands.positions, bool)
+        self.live[cands.live()] = True
+        self.info: np.ndarray | None = None
+        self.seen: np.ndarray | None = None
+
+    def gains(self, info: np.ndarray, seen: np.ndarray, positions: np.ndarray | None = None) -> np.ndarray:
+        """(P',A) marginal gains of the candidates at `positions` (default: all) on the state (info, seen)."""
+        positions = np.arange(self.c.positions) if positions is None else np.asarray(positions)
+        if self.info is None:
+            changed = np.arange(len(seen))
+        else:
+            changed = np.flatnonzero((info != self.info).any(axis=1) | (seen != self.seen))
+        if len(changed):
+            self.fresh &= ~self.c.reach[:, changed].any(axis=1)
+            self.info, self.seen = info.copy(), seen.copy()
+        need = positions[self.live[positions] & ~self.fresh[positions]]
+        if len(need):
+            self.values[need] = CandidateGreedy(self.c, info, seen, 0.0).gains(need)
+            self.fresh[need] = True
+        return self.values[positions]

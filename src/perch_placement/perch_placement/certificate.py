@@ -126,9 +126,6 @@ def coverage_certificate(cands: CandidateSet, base_seen: np.ndarray, k: int, min
     LP bound, or (given the answer's seen points `answer_seen`) first the bounds that need no
     program (cheap_bound), enough when the answer reaches them; the smallest bound found.
     `time_limit` is in seconds of `clock` (CPU seconds of the process)."""
-    from scipy.optimize import linprog
-    from scipy.sparse import coo_matrix, csr_matrix, vstack
-
     start, wall_start = clock(), time.perf_counter()
 
     def done(bound: float, columns: int, status: str) -> Certificate:
@@ -146,6 +143,11 @@ def coverage_certificate(cands: CandidateSet, base_seen: np.ndarray, k: int, min
         cheap = cheap_bound(cands, base_seen, answer_seen, k, min_spacing)
         if float(np.mean(np.asarray(answer_seen, bool) | base_seen)) >= cheap - 1e-12:
             return done(cheap, 0, "tight: the answer reaches the bound")
+    # Imported here: an answer that reaches the cheap bound (most) needs no program, and the import
+    # costs ~0.2 CPU s.
+    from scipy.optimize import linprog
+    from scipy.sparse import coo_matrix, csr_matrix, vstack
+
     visible = cands.visible[:, :, open_points]
     # Dominance on every point holds on the open ones too (columns dominated only there are kept:
     # the bound is the same, the program a little larger); computed once per candidate set.

@@ -152,9 +152,11 @@ class Evaluator:
         out[keep] = self.score(self.info[None] + info, self.seen[None] | mask).fitness
         return out
 
-    def commit(self, position: np.ndarray, rotation: np.ndarray, zoom=1.0) -> None:
-        """Add one camera (position (3,)) or several (positions (B,3), one batched ray cast)."""
-        mask, info = self.views(position, rotation, zoom)
+    def commit(self, position: np.ndarray, rotation: np.ndarray, zoom=1.0,
+               views: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+        """Add one camera (position (3,)) or several (positions (B,3), one batched ray cast); `views`:
+        their `views(...)` when already known."""
+        mask, info = self.views(position, rotation, zoom) if views is None else views
         self.set_state(self.info + info.sum(axis=0), self.seen | mask.any(axis=0))
 
     def set_state(self, info: np.ndarray, seen: np.ndarray) -> None:

@@ -11,7 +11,7 @@ import numpy as np
 from perch_common.types import ExclusionZone
 from perch_common.work import steps
 from perch_placement.cache import PlacementCache
-from perch_placement.candidates import CandidateGreedy, CandidateSet, cached_candidates
+from perch_placement.candidates import CandidateGreedy, CandidateSet, GainMemo, cached_candidates
 from perch_placement.config import PlacementConfig
 from perch_placement.fitness import Evaluator
 from perch_placement.perches import Perch, Perches
@@ -35,6 +35,9 @@ class SearchContext:
     fixed_cameras: Arrangement | None = None     # the fixed cameras (the robust and k-view objectives use them)
     placed: list = field(default_factory=list)   # Perch of each camera committed by the search, in order
     _candidates: CandidateSet | None = None
+    _gains: GainMemo | None = None
+    _views: dict = field(default_factory=dict)   # id(perch) -> (perch, its views): re-commits cast no rays
+    _spaced: dict = field(default_factory=dict)  # drone position bytes -> candidate positions far enough
     _plane: Perches | None = None
 
     @property
@@ -56,11 +59,39 @@ class SearchContext:
                                                  self.cache, self.scene_key)
         return self._candidates
 
+    def candidate_gains(self, positions: np.ndarray | None = None) -> np.ndarray:
+        """(P',A) marginal gains of the candidates at `positions` (default: all) on the committed cameras
+        (kept between calls: only positions whose points changed are scored again)."""
+        if self._gains is None:
+            self._gains = GainMemo(self.candidates())
+        return self._gains.gains(self.evaluator.info, self.evaluator.seen, positions)
+
+    def perch_views(self, perch: Perch) -> tuple[np.ndarray, np.ndarray]:
+        """The evaluator's views of a decoded perch (kept while the context lives: searches that restore
+        a state commit the same perches again)."""
+        hit = self._views.get(id(perch))
+        if hit is None or hit[0] is not perch:
+            hit = self._views[id(perch)] = (perch, self.evaluator.views(perch.camera_position, perch.camera_rotation,
+                                                                        perch.zoom))
+        return hit[1]
+
+    def spaced_candidates(self, drones: np.ndarray) -> np.ndarray:
+        """(P,) candidate positions at least min_spacing from every drone position in `drones` (K,3)
+        (each drone's test kept: the greedy loop asks again with one more drone per camera)."""
+        where = self.candidates().drone_positions()
+        valid = np.ones(len(where), bool)
+        for drone in np.asarray(drones, np.float64).reshape(-1, 3):
+            key = drone.tobytes()
+            if key not in self._spaced:
+                self._spaced[key] = np.linalg.norm(where - drone, axis=-1) >= self.config.drone.min_spacing
+            valid &= self._spaced[key]
+        return valid
+
     def online_bound(self, k: int) -> float:
         """The greedy online bound for k cameras on the candidate set, from the committed cameras."""
         state = CandidateGreedy(self.candidates(), self.evaluator.info, self.evaluator.seen,
                                 self.config.drone.min_spacing)
-        return state.online_bound(k)
+        return state.online_bound(k, self.candidate_gains() if self.candidates().positions else None)
 
     def arrangement(self) -> Arrangement:
         """The committed cameras (fixed, then placed) as one arrangement."""
@@ -221,7 +252,7 @@ def _restore(ctx: SearchContext, base: tuple, placed: list[Perch]) -> None:
 
 def commit(ctx: SearchContext, perch: Perch) -> None:
     """Add a chosen camera to the evaluator and its drone to the spacing constraint."""
-    ctx.evaluator.commit(perch.camera_position, perch.camera_rotation, perch.zoom)
+    ctx.evaluator.commit(perch.camera_position, perch.camera_rotation, perch.zoom, views=ctx.perch_views(perch))
     ctx.others.append(perch.drone_position[0])
     ctx.placed.append(perch)
 
@@ -265,7 +296,7 @@ def polish(objective, x: np.ndarray, fitness: float, rng: np.random.Generator, r
 
 def candidate_encoding(plane: Perches, cands: CandidateSet, index: int) -> np.ndarray:
     """The plane encoding of candidate `index` (position, gimbal coordinates, no zoom)."""
-    region = int(cands.perch.region[index])
-    x = plane.encode_position(region, cands.perch.drone_position[index])
+    position = index // cands.orientations
+    x = plane.encode_position(int(cands.region[position]), cands.points[position])
     zoom = [0.0] if plane.max_zoom > 1 else []
     return np.concatenate([x, cands.gimbal[index % cands.orientations], zoom])

@@ -27,7 +27,7 @@ def exhaustive_reference(ctx: SearchContext, k: int, spacing: float | None = Non
         if picked is None:
             break
         fitness.append(greedy_set.fitness)
-        chosen.append(cands.perch.take([picked[0]]))
+        chosen.append(cands.take([picked[0]]))
     return fitness, chosen, len(cands), greedy_set.evaluations
 
 
@@ -57,8 +57,7 @@ def objective_reference(ctx: SearchContext, k: int, spacing: float, angles: int,
 def candidate_encodings(ctx: SearchContext, cands: CandidateSet) -> np.ndarray:
     """(C,D) plane encodings of every candidate (zoom 1)."""
     plane = ctx.plane
-    first = cands.perch.take(np.arange(0, len(cands), cands.orientations))
-    position = np.array([plane.encode_position(int(r), p) for r, p in zip(first.region, first.drone_position)])
+    position = np.array([plane.encode_position(int(r), p) for r, p in zip(cands.region, cands.points)])
     position = position.reshape(-1, 3)
     x = np.column_stack([np.repeat(position, cands.orientations, axis=0), np.tile(cands.gimbal, (cands.positions, 1))])
     return np.column_stack([x, np.zeros(len(x))]) if plane.max_zoom > 1 else x

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from perch_placement.candidates import CandidateGreedy
 from perch_placement.perches import Perch, Perches
 from perch_placement.robustness import KViewState
 from perch_placement.search.context import (
@@ -40,8 +39,9 @@ def refine(ctx: SearchContext, outcome: SearchOutcome, base: tuple) -> SearchOut
         return outcome
     plane, pso = ctx.perches, ctx.config.pso
     encodings = [encode_perch(plane, p) for p in outcome.perches]
+    perches = [plane.decode(e) for e in encodings]   # decoded once: their views are kept (perch_views)
     for i in range(len(encodings)):
-        _restore(ctx, base, [plane.decode(e) for n, e in enumerate(encodings) if n != i])
+        _restore(ctx, base, [p for n, p in enumerate(perches) if n != i])
         if ctx.config.objective == "fitness":
             objective = fitness_keeping_kview(ctx, encodings[i])
         else:
@@ -49,9 +49,9 @@ def refine(ctx: SearchContext, outcome: SearchOutcome, base: tuple) -> SearchOut
         start = float(objective(encodings[i][None])[0])
         encodings[i], _, _ = polish(objective, encodings[i], start, ctx.rng, REFINE_ROUNDS, REFINE_SAMPLES,
                                     pso.polish_step)
-    chosen = [plane.decode(e) for e in encodings]
-    _restore(ctx, base, chosen)
-    return SearchOutcome(chosen, outcome.stop_reason)
+        perches[i] = plane.decode(encodings[i])
+    _restore(ctx, base, perches)
+    return SearchOutcome(perches, outcome.stop_reason)
 
 
 def fitness_keeping_kview(ctx: SearchContext, current: np.ndarray):
@@ -117,20 +117,13 @@ def _seeds(ctx: SearchContext) -> np.ndarray | None:
     cands = ctx.candidates()
     if cands.positions == 0:
         return None
-    state = CandidateGreedy(cands, ctx.evaluator.info, ctx.evaluator.seen, 0.0)
-    where = cands.drone_positions()
-    placed = np.array(ctx.others[ctx.fixed_count:]).reshape(-1, 3)
-    valid = np.ones(len(where), bool)
-    if len(placed):
-        gap = np.linalg.norm(where[:, None] - placed[None], axis=-1).min(axis=1)
-        valid = gap >= ctx.config.drone.min_spacing
-    pos = np.flatnonzero(valid)
+    pos = np.flatnonzero(ctx.spaced_candidates(np.array(ctx.others[ctx.fixed_count:])))
     if len(pos) == 0:
         return None
-    gains = state.gains(pos)
-    ctx.evaluator.candidate_evaluations += state.evaluations
+    gains = ctx.candidate_gains(pos)
+    ctx.evaluator.candidate_evaluations += gains.size
     best_orientation = np.argmax(gains, axis=1)
-    order = _diverse_top(gains.max(axis=1), cands.perch.region[pos * cands.orientations], ctx.config.pso.seeded)
+    order = _diverse_top(gains.max(axis=1), cands.region[pos], ctx.config.pso.seeded)
     seeds = []
     for i in order:
         index = int(pos[i]) * cands.orientations + int(best_orientation[i])
