@@ -80,6 +80,10 @@ class Perches:
         self.cdf = np.cumsum(areas) / areas.sum()
         self.normals = np.array([r.frame.normal for r in self.regions], np.float64)
         self.axis_u = np.array([r.frame.axis_u for r in self.regions], np.float64)
+        self.axis_v = np.array([r.frame.axis_v for r in self.regions], np.float64)
+        self.origins = np.array([r.frame.origin for r in self.regions], np.float64)
+        self.shape_array = np.empty(len(self.shapes), object)
+        self.shape_array[:] = self.shapes
         # Drones on walls hang head-down; elsewhere they face the target (the class the filter gave).
         self.is_wall = np.array([r.surface_class == SurfaceClass.WALL for r in self.regions], bool)
         if encoding == "mesh":
@@ -107,24 +111,29 @@ class Perches:
 
     def surface_points(self, region: np.ndarray, a: np.ndarray, b: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         """World points on the regions and whether each lies inside its region."""
+        if self.encoding == "plane":
+            # Every region at once, as PlaneFrame.to_world (height 0) and _contains compute each.
+            lo = self.lo[region]
+            uv = lo + np.stack([a, b], -1) * (self.hi[region] - lo)
+            points = (self.origins[region] + uv[:, :1] * self.axis_u[region] + uv[:, 1:2] * self.axis_v[region]
+                      + 0.0 * self.normals[region])
+            return points, self._contains_many(region, uv)
         points = np.zeros((len(region), 3))
-        inside = np.ones(len(region), bool)
         for r in np.unique(region):
             sel = region == r
-            frame = self.regions[r].frame
-            if self.encoding == "mesh":
-                face = np.minimum(np.searchsorted(self.face_cdf[r], a[sel]), len(self.face_cdf[r]) - 1)
-                points[sel] = self.face_centroids[r][face]
-                continue
-            uv = self.lo[r] + np.stack([a[sel], b[sel]], -1) * (self.hi[r] - self.lo[r])
-            points[sel] = frame.to_world(uv)
-            inside[sel] = self._contains(r, uv)
-        return points, inside
+            face = np.minimum(np.searchsorted(self.face_cdf[r], a[sel]), len(self.face_cdf[r]) - 1)
+            points[sel] = self.face_centroids[r][face]
+        return points, np.ones(len(region), bool)
 
     def _contains(self, r: int, uv: np.ndarray) -> np.ndarray:
         import shapely
 
         return shapely.intersects_xy(self.shapes[r], uv[:, 0], uv[:, 1])
+
+    def _contains_many(self, region: np.ndarray, uv: np.ndarray) -> np.ndarray:
+        import shapely
+
+        return shapely.intersects_xy(self.shape_array[region], uv[:, 0], uv[:, 1])
 
     def packing(self, min_spacing: float) -> tuple[np.ndarray, np.ndarray]:
         """Region indices and world points of drones at least `min_spacing` apart on the regions (as
@@ -160,7 +169,10 @@ class Perches:
         forward = forward - (forward * normal).sum(-1, keepdims=True) * normal
         norm = np.linalg.norm(forward, axis=-1, keepdims=True)
         forward = np.where(norm > 1e-9, forward / np.maximum(norm, 1e-12), self.axis_u[region])
-        side = np.cross(normal, forward)
+        # normal x forward, as np.cross computes it (without its axis shuffling)
+        side = np.stack([normal[:, 1] * forward[:, 2] - normal[:, 2] * forward[:, 1],
+                         normal[:, 2] * forward[:, 0] - normal[:, 0] * forward[:, 2],
+                         normal[:, 0] * forward[:, 1] - normal[:, 1] * forward[:, 0]], axis=-1)
         return np.stack([forward, side, normal], axis=-1)
 
     def gimbal_window(self, camera_position: np.ndarray, drone_rotation: np.ndarray) -> np.ndarray:

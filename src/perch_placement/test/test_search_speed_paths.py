@@ -16,7 +16,7 @@ from placement_rooms import box_mesh, box_room
 import perch_placement.candidates as candidates_module
 from perch_common.mesh import Mesh
 from perch_common.target import TargetVolume
-from perch_common.types import ExclusionZone
+from perch_common.types import ExclusionZone, PerchRegion, PlaneFrame, SurfaceClass
 from perch_placement.camera import on_sensor
 from perch_placement.candidates import CandidateGreedy, CandidateSet, GainMemo, build_candidates
 from perch_placement.config import PlacementConfig, PsoConfig
@@ -117,6 +117,26 @@ def test_kept_gains_are_the_fresh_gains_as_cameras_come_and_go():
             fresh = CandidateGreedy(cands, info, seen, 0.0).gains(positions)
             assert np.array_equal(memo.gains(info, seen, positions), fresh)
     assert memo.fresh.sum() < cands.positions   # positions reaching no point are never scored
+
+
+def test_decoded_positions_and_drone_axes_are_each_regions_own():
+    """Decoding works on every region at once: the same points, inside flags and drone axes as region
+    by region (PlaneFrame.to_world, the region's own containment test, np.cross)."""
+    frame = PlaneFrame.from_normal(np.array([4.0, 5.0, 1.5]), np.array([0.0, -1.0, 0.0]), np.array([0.0, 0.0, 1.0]))
+    ring = np.array([[-2.0, -1.0], [2.0, -1.0], [2.0, 0.0], [0.0, 0.0], [0.0, 1.0], [-2.0, 1.0]])  # an L
+    l_shaped = PerchRegion(9, 9, SurfaceClass.WALL, frame, [[ring]], Mesh(np.zeros((0, 3)), np.zeros((0, 3), int)), 6.0)
+    perches = Perches(REGIONS + [l_shaped], TARGET.centroid(), CONFIG.drone, border_margin=0.05)
+    x = np.random.default_rng(4).random((600, perches.dims))
+    region = perches.region_of(x[:, 0])
+    points, inside = perches.surface_points(region, x[:, 1], x[:, 2])
+    assert 0 < inside.sum() < len(inside)
+    for r in np.unique(region):
+        sel = region == r
+        uv = perches.lo[r] + np.stack([x[sel, 1], x[sel, 2]], -1) * (perches.hi[r] - perches.lo[r])
+        assert np.array_equal(points[sel], perches.regions[r].frame.to_world(uv))
+        assert np.array_equal(inside[sel], perches._contains(r, uv))
+    rotation = perches.drone_rotations(region, points)
+    assert np.array_equal(rotation[:, :, 1], np.cross(rotation[:, :, 2], rotation[:, :, 0]))
 
 
 def _dense_paths(monkeypatch) -> None:
