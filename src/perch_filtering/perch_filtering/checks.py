@@ -46,26 +46,39 @@ def geometry_in_front(samples: MeshSamples, index: SampleIndex, raster: SurfaceR
     v_lo, v_hi = raster.v0 - margin, raster.v0 + (rows - 1) * raster.cell + margin
     corners = [f.to_world(np.array([[u, v]]), np.array([d]))[0]
                for u in (u_lo, u_hi) for v in (v_lo, v_hi) for d in (min_depth, max_depth)]
-    candidates = index.near_box(np.array(corners))
+    at = index.positions_near_box(np.array(corners))
     # Depth first, then the plane coordinates of the samples within the depth range only (the
     # buckets' box holds the surface's own samples and those behind it): the same sums, a third of them.
-    offsets = samples.points[candidates] - f.origin
-    depth = project(offsets, f.normal)[:, 0]
+    # Coordinates come from the index's bucket-ordered columns (runs, not scattered rows), and every
+    # sum is project's: (p - origin) . axis, term by term in x, y, z order.
+    ox, oy, oz = (np.subtract(column[at], f.origin[axis]) for axis, column in enumerate((index.x, index.y, index.z)))
+    depth = _dot(ox, oy, oz, f.normal)
     in_range = (depth > min_depth) & (depth <= max_depth)
-    candidates = candidates[in_range]
-    local = np.column_stack([depth[in_range], project(offsets[in_range], np.stack([f.axis_u, f.axis_v]))])
-    keep = (local[:, 1] >= u_lo) & (local[:, 1] <= u_hi) & (local[:, 2] >= v_lo) & (local[:, 2] <= v_hi)
+    at, depth, ox, oy, oz = at[in_range], depth[in_range], ox[in_range], oy[in_range], oz[in_range]
+    u, v = _dot(ox, oy, oz, f.axis_u), _dot(ox, oy, oz, f.axis_v)
+    keep = (u >= u_lo) & (u <= u_hi) & (v >= v_lo) & (v <= v_hi)
     if len(own_faces):
         own = np.zeros(int(own_faces.max()) + 1, bool)
         own[own_faces[own_faces < len(own)]] = True
         candidate = np.flatnonzero(keep)
-        face = samples.face[candidates[candidate]]
+        face = index.face[at[candidate]]
         inside = face < len(own)
         mine = candidate[inside][own[face[inside]]]
-        keep[mine] = local[mine, 0] > own_min_depth if own_min_depth is not None else False
-    sel = local[keep]
-    return NearbyGeometry(sel[:, 0], sel[:, 1:], project(samples.points[candidates[keep]], up)[:, 0],
-                          np.round(raster.to_pixels(sel[:, 1:])).astype(np.int64))
+        keep[mine] = depth[mine] > own_min_depth if own_min_depth is not None else False
+    at, depth, u, v = at[keep], depth[keep], u[keep], v[keep]
+    height = _dot(index.x[at], index.y[at], index.z[at], up)
+    pixels = np.empty((len(u), 2), np.int64)
+    pixels[:, 0] = np.round((u - raster.u0) / raster.cell)  # raster.to_pixels, rounded
+    pixels[:, 1] = np.round((v - raster.v0) / raster.cell)
+    return NearbyGeometry(depth, np.column_stack([u, v]), height, pixels)
+
+
+def _dot(x: np.ndarray, y: np.ndarray, z: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """x a0 + y a1 + z a2 in sampling.project's order of operations (the same float64 values)."""
+    out = x * axis[0]
+    out += y * axis[1]
+    out += z * axis[2]
+    return out
 
 
 def _in_image(pix: np.ndarray, shape: tuple[int, int]) -> np.ndarray:

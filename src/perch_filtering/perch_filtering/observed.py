@@ -58,6 +58,22 @@ def escape_shares(scene: RayScene, points: np.ndarray, directions: np.ndarray) -
     return (~hit).reshape(len(points), len(directions)).mean(axis=1)
 
 
+def escapes(scene: RayScene, points: np.ndarray, directions: np.ndarray, share: float) -> np.ndarray:
+    """escape_shares(scene, points, directions) > share, casting half the rays first: a point whose first
+    half already settles the comparison whatever the other half does (inside a scanned room: every ray of
+    the first half hits) gets no more rays."""
+    n = len(directions)
+    first, second = directions[0::2], directions[1::2]
+    count = np.rint(escape_shares(scene, points, first) * len(first))  # escapes among the first half
+    lowest, highest = count / n, (count + len(second)) / n
+    out = lowest > share
+    open_ = np.flatnonzero(~out & (highest > share))
+    if len(open_):
+        count = count[open_] + np.rint(escape_shares(scene, points[open_], second) * len(second))
+        out[open_] = count / n > share
+    return out
+
+
 def unobserved_share(scene: RayScene, raster: SurfaceRaster, alive: np.ndarray, u_range: tuple[float, float],
                      v_range: tuple[float, float], depth_range: tuple[float, float],
                      enclosed_escape_share: float, down: np.ndarray | None = None,
@@ -93,9 +109,10 @@ def unobserved_share(scene: RayScene, raster: SurfaceRaster, alive: np.ndarray, 
     if viewpoints is not None and len(viewpoints):
         escaped = ~seen_free(scene, viewpoints, points)
     else:
-        escaped = escape_shares(scene, points, sphere_directions(ESCAPE_DIRECTIONS)) > enclosed_escape_share
+        escaped = escapes(scene, points, sphere_directions(ESCAPE_DIRECTIONS), enclosed_escape_share)
     if down is not None:  # nothing scanned below: most of a narrow downward cone escapes (a hole lets a few out)
-        escaped |= escape_shares(scene, points, down_cone(down)) > 0.5
+        rest = np.flatnonzero(~escaped)  # a point already unobserved needs no floor test
+        escaped[rest] = escapes(scene, points[rest], down_cone(down), 0.5)
     unknown = np.zeros(shape, np.float64)
     unknown[nr, nc] = escaped.reshape(DEPTH_LAYERS, -1).mean(axis=0)  # the nodes are distinct
     # Box mean over each live node's volume (integral image; the grid covers every live volume).

@@ -31,15 +31,20 @@ def standoffs_clear(mesh: Mesh, surfaces: list[tuple[SurfaceRaster, np.ndarray, 
     `asked` selects: raster.cell_world(mask)[asked] + standoff * normal; `surfaces` holds
     (raster, mask, asked) for each."""
     nodes, owner = [], []
+    count = 0
     for raster, mask, asked in surfaces:
         rows, cols = np.nonzero(mask)
         rows, cols = rows[asked], cols[asked]
         half = NODE_STEP // 2
-        node = np.column_stack([(rows + half) // NODE_STEP, (cols + half) // NODE_STEP]) * NODE_STEP
-        unique, inverse = np.unique(node, axis=0, return_inverse=True)
-        uv = np.column_stack([raster.u0 + unique[:, 1] * raster.cell, raster.v0 + unique[:, 0] * raster.cell])
-        owner.append(inverse.reshape(-1) + sum(len(n) for n in nodes))
+        node_r, node_c = (rows + half) // NODE_STEP, (cols + half) // NODE_STEP
+        # Unique (row, col) nodes in row-major order, as one int key (np.unique of rows sorts slowly).
+        width = int(node_c.max()) + 1 if len(node_c) else 1
+        unique, inverse = np.unique(node_r * width + node_c, return_inverse=True)
+        unique_r, unique_c = (unique // width) * NODE_STEP, (unique % width) * NODE_STEP
+        uv = np.column_stack([raster.u0 + unique_c * raster.cell, raster.v0 + unique_r * raster.cell])
+        owner.append(inverse.reshape(-1) + count)
         nodes.append(raster.frame.to_world(uv) + standoff * raster.frame.normal)
+        count += len(uv)
     if not nodes:
         return np.ones(0, bool)
     node_distance = ray_scene(mesh).closest_points(np.concatenate(nodes))[2]
