@@ -33,12 +33,18 @@ class CandidateSet:
     mounts: tuple           # drone rotations (P,3,3), camera positions (P,3), gimbal windows (P,4)
     gimbal: np.ndarray      # (A,2) pan/tilt coordinates in [0,1] of each orientation
     visible: np.ndarray     # (P,A,N) bool, occlusion and range included
-    info: np.ndarray        # (P,N,6) scaled information of a camera at each position (zoom 1)
+    # (R,6) scaled information of a camera (zoom 1) at each reached (position, point), position by
+    # position, points ascending (np.nonzero(reach) order): a dense (P,N,6) array is ~25x larger and
+    # writing it cost more than the rest of the set (0.45 of 1.0 CPU s on a multi-storey building).
+    pair_info: np.ndarray
     reach: np.ndarray       # (P,N) bool: some orientation at the position sees the point
     parent: "CandidateSet | None" = None   # the set this one is a subset of (shares its derived masks)
     kept: np.ndarray | None = None         # (P,) indices of this set's positions in the parent
     _undominated: np.ndarray | None = None
     _live: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        self.pair_start = np.concatenate([[0], np.cumsum(self.reach.sum(axis=1))])  # position p's pairs begin here
 
     @property
     def positions(self) -> int:
@@ -57,10 +63,29 @@ class CandidateSet:
         """(P,3) drone position of each candidate position."""
         return self.points
 
+    def pair_index(self, positions: np.ndarray) -> np.ndarray:
+        """Indices into pair_info of the points reached from `positions`, in np.nonzero(reach[positions]) order."""
+        start = self.pair_start[positions]
+        counts = self.pair_start[np.asarray(positions) + 1] - start
+        return np.repeat(start - np.cumsum(counts) + counts, counts) + np.arange(counts.sum())
+
+    def info_rows(self, positions) -> np.ndarray:
+        """(..., N, 6) information of a camera at each of `positions` (an index array), 0 at unreached points."""
+        positions = np.asarray(positions)
+        flat = positions.reshape(-1)
+        out = np.zeros((len(flat), self.reach.shape[1], 6))
+        p, n = np.nonzero(self.reach[flat])
+        out[p, n] = self.pair_info[self.pair_index(flat)]
+        return out.reshape(positions.shape + out.shape[1:])
+
+    @property
+    def info(self) -> np.ndarray:
+        """(P,N,6) information of a camera at every position (made now: prefer info_rows)."""
+        return self.info_rows(np.arange(self.positions))
+
     def take(self, index) -> Perch:
         """The perches of candidates `index` (candidate c is orientation c % A at position c // A)."""
-        p, o = np.divmod(np.asarray(index, np.int64).reshape(-1), self.orientations)
-        return self.perches.pose(self.region[p], self.points[p], self.gimbal[o], mounts=tuple(m[p] for m in self.mounts))
+        return _pose(self.perches, self.region, self.points, self.mounts, self.gimbal, index)
 
     @property
     def perch(self) -> Perch:
@@ -77,7 +102,8 @@ class CandidateSet:
         """The candidates at the positions where `keep` (P,) is true."""
         root, kept = (self, np.flatnonzero(keep)) if self.parent is None else (self.parent, self.kept[keep])
         return CandidateSet(self.perches, self.region[keep], self.points[keep], tuple(m[keep] for m in self.mounts),
-                            self.gimbal, self.visible[keep], self.info[keep], self.reach[keep], root, kept)
+                            self.gimbal, self.visible[keep], self.pair_info[self.pair_index(np.flatnonzero(keep))],
+                            self.reach[keep], root, kept)
 
     def undominated(self) -> np.ndarray:
         """(P,A) orientations whose view is not inside another's at the same position (the certificate's
@@ -89,6 +115,13 @@ class CandidateSet:
 
             self._undominated = undominated(self.visible)
         return self._undominated
+
+
+def _pose(perches: Perches, region: np.ndarray, points: np.ndarray, mounts: tuple, gimbal: np.ndarray,
+          index) -> Perch:
+    """The perches of candidates `index` (orientation c % A at position c // A) of positions on a grid."""
+    p, o = np.divmod(np.asarray(index, np.int64).reshape(-1), len(gimbal))
+    return perches.pose(region[p], points[p], gimbal[o], mounts=tuple(m[p] for m in mounts))
 
 
 def cached_candidates(perches: Perches, evaluator: Evaluator, spacing: float, angles: int,
@@ -136,26 +169,29 @@ def build_candidates(perches: Perches, evaluator: Evaluator, spacing: float, ang
     keep = perches.feasible(probe, fixed, exclusions)
     region, points = region[keep], points[keep]
     mounts = tuple(m[keep] for m in perches.mounts(probe.region, probe.drone_position))
-    targets = evaluator.points
-    reach, delta, distance, unit = evaluator.reach(mounts[1])
+    targets, cam_pos = evaluator.points, mounts[1]
+    reach = evaluator.in_reach(cam_pos)
     visible = np.zeros((len(region), a, len(targets)), bool)
-    cands = CandidateSet(perches, region, points, mounts, gimbal, visible, np.zeros(distance.shape + (6,)), reach)
     # Only positions that reach a point can see one: their orientations' frustum tests are one matrix
     # product per position, local[p, n, a, j] = sum_k delta[p, n, k] R[p, a, k, j] (row-vector R^T d),
     # read at the reached points only (about 1 in 25 on a building).
-    live = cands.live()
+    live = np.flatnonzero(reach.any(axis=1))
     per_chunk = max(1, chunk // (a * len(targets)))
     for start in range(0, len(live), per_chunk):
         rows = live[start:start + per_chunk]
-        rotations = cands.take((rows[:, None] * a + np.arange(a)).reshape(-1)).camera_rotation
+        index = (rows[:, None] * a + np.arange(a)).reshape(-1)
+        rotations = _pose(perches, region, points, mounts, gimbal, index).camera_rotation
         rotations = rotations.reshape(-1, a, 3, 3).transpose(0, 2, 1, 3).reshape(-1, 3, a * 3)
-        local = np.matmul(delta[rows].astype(np.float32), rotations.astype(np.float32))
+        delta = targets[None] - cam_pos[rows][:, None]   # as Evaluator.reach computes it
+        local = np.matmul(delta.astype(np.float32), rotations.astype(np.float32))
         p, n = np.nonzero(reach[rows])
         visible[rows[p], :, n] = on_sensor(evaluator.camera, local[p, n].reshape(len(p), a, 3))
-    cands.reach = reach = visible.any(axis=1)
-    cands._live = None
-    cands.info[reach] = evaluator.information(distance[reach], unit[reach])
-    return cands
+    reach = visible.any(axis=1)
+    p, n = np.nonzero(reach)
+    delta = targets[n] - cam_pos[p]
+    distance = np.linalg.norm(delta, axis=-1)
+    info = evaluator.information(distance, delta / np.maximum(distance, 1e-12)[:, None])
+    return CandidateSet(perches, region, points, mounts, gimbal, visible, info, reach)
 
 
 @dataclass
@@ -188,7 +224,7 @@ class CandidateGreedy:
         """(P',N) score gain of each point if a camera at these positions saw it."""
         out = np.zeros((len(positions), len(self.scores)))
         p, n = np.nonzero(self.c.reach[positions])
-        new = point_score(self.info[n] + self.c.info[positions[p], n], np.ones(len(n), bool))[0]
+        new = point_score(self.info[n] + self.c.pair_info[self.c.pair_index(positions)], np.ones(len(n), bool))[0]
         out[p, n] = np.maximum(new - self.scores[n], 0.0)
         return out
 
@@ -209,7 +245,7 @@ class CandidateGreedy:
         p, o = divmod(int(index), self.c.orientations)
         before = self.fitness
         seen = self.c.visible[p, o]
-        self.info = self.info + self.c.info[p] * seen[:, None]
+        self.info = self.info + self.c.info_rows(p) * seen[:, None]
         self.seen = self.seen | seen
         self.scores = point_score(self.info, self.seen)[0]
         if self.min_spacing > 0:

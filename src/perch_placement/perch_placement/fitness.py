@@ -86,6 +86,17 @@ class Evaluator:
         self.occlude(positions, reach)
         return reach, delta, distance, unit
 
+    def in_reach(self, positions: np.ndarray, chunk: int = 1 << 20) -> np.ndarray:
+        """reach(positions)[0] without its (P,N,3) arrays (hundreds of MB on a building, most of the
+        candidate set's cost in fresh memory): ranges by blocks of positions, then one batch of rays."""
+        mask = np.empty((len(positions), self.count), bool)
+        per = max(1, chunk // max(self.count, 1))
+        for start in range(0, len(positions), per):
+            distance = np.linalg.norm(self.points[None] - positions[start:start + per, None], axis=-1)
+            mask[start:start + per] = (distance >= self.camera.min_range) & (distance <= self.camera.max_distance())
+        self.occlude(positions, mask)
+        return mask
+
     def occlude(self, positions: np.ndarray, mask: np.ndarray) -> None:
         """Clear mask[b, n] (in place) where the sight line from camera b to point n is blocked."""
         cam, pt = np.nonzero(mask)

@@ -61,7 +61,7 @@ def subset_fitness(cands: CandidateSet, subsets: np.ndarray, base_info: np.ndarr
         block = subsets[start:start + chunk]
         p, o = np.divmod(block, a)
         seen = cands.visible[p, o]                                  # (s,k,N)
-        info = base_info[None] + (cands.info[p] * seen[..., None]).sum(axis=1)
+        info = base_info[None] + (cands.info_rows(p) * seen[..., None]).sum(axis=1)
         out[start:start + chunk] = point_score(info, base_seen[None] | seen.any(axis=1))[0].mean(axis=1)
     return out
 

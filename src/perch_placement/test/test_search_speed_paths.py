@@ -70,8 +70,8 @@ def dense_candidates(perches: Perches, ev: Evaluator, spacing: float, angles: in
     reach = visible.any(axis=1)
     info = np.zeros(distance.shape + (6,))
     info[reach] = ev.information(distance[reach], unit[reach])
-    cands = CandidateSet(perches, region, points, mounts, gimbal, visible, info, reach)
-    cands.dense_perch = perch
+    cands = CandidateSet(perches, region, points, mounts, gimbal, visible, info[reach], reach)
+    cands.dense_perch, cands.dense_info = perch, info
     return cands
 
 
@@ -90,8 +90,10 @@ def test_candidate_set_is_the_dense_one(constrained):
     dense = dense_candidates(perches, ev, 0.4, 5, **extra)
     live = dense.reach.any(axis=1)
     assert 0 < live.sum() < len(live)   # the partition hides some positions completely
-    for name in ("visible", "info", "reach", "region", "points", "gimbal"):
+    for name in ("visible", "pair_info", "reach", "region", "points", "gimbal"):
         assert np.array_equal(getattr(fast, name), getattr(dense, name)), name
+    assert np.array_equal(fast.info, dense.dense_info)
+    assert np.array_equal(fast.info_rows(np.array([[3, 0], [5, 5]])), dense.dense_info[np.array([[3, 0], [5, 5]])])
     assert_same_perch(fast.perch, dense.dense_perch)
     index = np.array([0, 7, len(fast) - 1])
     assert_same_perch(fast.take(index), dense.dense_perch.take(index))
@@ -99,6 +101,7 @@ def test_candidate_set_is_the_dense_one(constrained):
     keep = np.arange(fast.positions) % 3 == 0
     index = (np.flatnonzero(keep)[:, None] * fast.orientations + np.arange(fast.orientations)).reshape(-1)
     assert_same_perch(fast.subset(keep).perch, dense.dense_perch.take(index))
+    assert np.array_equal(fast.subset(keep).info, dense.dense_info[keep])
 
 
 def test_kept_gains_are_the_fresh_gains_as_cameras_come_and_go():
