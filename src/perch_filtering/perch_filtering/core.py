@@ -50,13 +50,12 @@ from perch_filtering.raster import (
     disc_kernel,
     erode_window,
     rasterise,
-    turned_kernel,
     window_kernel,
 )
 from perch_filtering.regions import mask_polygons, triangulate
 from perch_filtering.sampling import SampleIndex, project
 from perch_filtering.standoff import standoffs_clear
-from perch_filtering.support import first_surface_depth, local_window_support, scan_noise
+from perch_filtering.support import first_surface_depth, local_window_support, scan_noise, turned_kernels
 from perch_filtering.validation import validate_inputs
 from perch_filtering.visibility import visible_shares
 from perch_filtering.voxels import FlightGrid, build_flight_grid, grid_rotation
@@ -280,8 +279,7 @@ def _turned_windows(kernel: np.ndarray, config: FilterConfig) -> list[np.ndarray
     """The window kernel turned by every ANY_YAW_STEP_DEG (after 0) up to the turn after which it repeats
     (a quarter turn for a square, half for a rectangle): support is asked in the worst yaw."""
     period = 90.0 if config.window_width == config.window_height else 180.0
-    return [turned_kernel(kernel, np.radians(yaw)) for yaw in np.arange(ANY_YAW_STEP_DEG, period - 1e-9,
-                                                                        ANY_YAW_STEP_DEG)]
+    return turned_kernels(kernel, tuple(np.radians(np.arange(ANY_YAW_STEP_DEG, period - 1e-9, ANY_YAW_STEP_DEG))))
 
 
 def any_yaw_window(config: FilterConfig) -> np.ndarray:
@@ -320,9 +318,12 @@ def _support(w: _Work, scene: RayScene, kernel: np.ndarray, config: FilterConfig
         rows, cols = np.nonzero(under)
         box = (slice(rows.min(), rows.max() + 1), slice(cols.min(), cols.max() + 1))
         depth = first_surface_depth(scene, w.raster, under, w.band + config.cell)[box]
+        # Only the live windows are judged (the others are gone whatever their support).
         local = local_window_support(depth, kernel, config.plane_tolerance + config.max_support_rms,
                                      config.plane_tolerance, SUPPORT_BIN * config.plane_tolerance,
-                                     _turned_windows(kernel, config) if w.window is not None else ())
+                                     _turned_windows(kernel, config) if w.window is not None else (),
+                                     centres=w.alive[box], min_share=config.min_support - 1e-6,
+                                     max_rms=config.max_support_rms)
         share[box], rms[box] = local.share, local.rms
     ok = (share >= config.min_support - 1e-6) & (rms <= config.max_support_rms)
     w.removal.support = float((w.alive & ~ok).sum() * w.raster.cell_area)
@@ -452,11 +453,12 @@ def _visibility(work: list[_Work], scene: RayScene, patches: RayScene | None, ta
     if not live:
         return
     # Start in front of the surface's own bumps: the configured offset plus three RMS deviations.
+    enough = config.min_visible_share - 1e-6
     shares = visible_shares([w.raster for w in live], [w.alive for w in live],
                             [config.los_offset + 3.0 * w.roughness for w in live], target_points, scene, patches,
-                            config.visibility_spacing, groups)
+                            config.visibility_spacing, groups, threshold=enough)
     for w, share in zip(live, shares):
-        seen = w.alive & (share >= config.min_visible_share - 1e-6)
+        seen = w.alive & (share >= enough)
         w.removal.line_of_sight = float((w.alive & ~seen).sum() * w.raster.cell_area)
         w.alive = seen
 

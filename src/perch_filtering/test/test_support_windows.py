@@ -1,0 +1,213 @@
+"""The support statistics read at the live window centres equal the whole-raster computation they replace.
+
+`reference_support` is the plain computation (every depth bin's window sums over the whole raster, the
+turned windows convolved bin by bin); `local_window_support` takes them only at the centres, the
+turned windows only where the upright one passes and, there, only where a turned window can hold a cell
+off the plane. Seeded random depth maps with holes, out-of-band cells, outliers and ties at the share
+threshold.
+"""
+
+import cv2
+import numpy as np
+import pytest
+
+from perch_common.types import PlaneFrame
+from perch_filtering.raster import SurfaceRaster, turned_kernel, window_kernel
+from perch_filtering.support import _near_limits, _ray_origins, local_window_support, turned_kernels
+
+BAND, TOLERANCE, BIN = 0.05, 0.03, 0.003  # the filter's defaults: plane_tolerance + max_support_rms, 3 cm, 3 mm
+
+
+def reference_support(depth, kernel, band, tolerance, bin_width, turned=()):
+    """(offset, share, rms) of the window centred on every cell: the filter's computation before it was
+    taken at the centres only."""
+    def box_sum(values, k):
+        v = values.astype(np.float32)
+        if k.all():
+            return cv2.boxFilter(v, -1, k.shape[::-1], normalize=False, borderType=cv2.BORDER_CONSTANT)
+        return cv2.filter2D(v, -1, k.astype(np.float32), borderType=cv2.BORDER_CONSTANT)
+
+    shape = depth.shape
+    valid = np.isfinite(depth) & (np.abs(depth) <= band)
+    d = np.where(valid, depth, 0.0).astype(np.float32)
+    edges = np.arange(-band, band + bin_width, bin_width)
+    bins = np.clip(np.floor((d + band) / bin_width).astype(np.int64), 0, len(edges) - 2)
+    half = 0.5 * box_sum(valid, kernel)
+    below = np.zeros(shape, np.float32)
+    median = np.full(shape, np.nan, np.float32)
+    counts = {}
+    for b in np.unique(bins[valid]):
+        mine = valid & (bins == b)
+        counts[b] = (mine, box_sum(mine, kernel))
+        crossed = np.isnan(median) & (below + counts[b][1] >= half) & (half > 0)
+        position = np.clip((half - below) / np.maximum(counts[b][1], 1e-6), 0.0, 1.0)
+        median[crossed] = (edges[b] + position * bin_width)[crossed]
+        below += counts[b][1]
+    m = np.nan_to_num(median, nan=0.0)
+    count = np.zeros(shape, np.float32)
+    squares = np.zeros(shape, np.float32)
+    turned_counts = [np.zeros(shape, np.float32) for _ in turned]
+    for b, (mine, n) in counts.items():
+        near = np.abs(edges[b] + 0.5 * bin_width - m) <= tolerance
+        if not near.any():
+            continue
+        dm = np.where(mine, d, 0.0)
+        s1, s2 = box_sum(dm, kernel), box_sum(dm * dm, kernel)
+        count += np.where(near, n, 0.0)
+        squares += np.where(near, s2 - 2.0 * m * s1 + m * m * n, 0.0)
+        for other, other_count in zip(turned, turned_counts):
+            other_count += np.where(near, box_sum(mine, other), 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rms = np.where(count > 0.5, np.sqrt(np.maximum(squares, 0.0) / np.maximum(count, 1.0)), np.inf)
+    share = count / float(kernel.sum())
+    for other, other_count in zip(turned, turned_counts):
+        share = np.minimum(share, other_count / float(other.sum()))
+    return m, share.astype(np.float32), rms.astype(np.float32)
+
+
+def random_depth(rng, shape, noise, holes=0.02, outliers=0.02, tilt=0.0):
+    """A scanned surface: a gentle warp and tilt, scan noise, holes (NaN), cells beyond the band and
+    outliers in front within it, and a torn edge."""
+    r, c = np.mgrid[0:shape[0], 0:shape[1]]
+    depth = (0.008 * np.sin(r / 17.0) * np.cos(c / 23.0) + tilt * (c - shape[1] / 2) / shape[1]
+             + rng.normal(0.0, noise, shape)).astype(np.float32)
+    depth[rng.random(shape) < holes] = np.nan
+    spots = rng.random(shape) < outliers
+    depth[spots] = rng.uniform(-0.045, 0.045, int(spots.sum())).astype(np.float32)
+    far = rng.random(shape) < 0.005
+    depth[far] = 0.2  # beyond the band: not the surface
+    depth[:, : shape[1] // 10] = np.where(rng.random((shape[0], shape[1] // 10)) < 0.5, np.nan, 0.04)  # torn edge
+    return depth
+
+
+def centres_of(rng, shape, share=0.6):
+    return rng.random(shape) < share
+
+
+def assert_equal_at_centres(depth, kernel, turned, centres, min_share, max_rms, exact_share):
+    m, share, rms = reference_support(depth, kernel, BAND, TOLERANCE, BIN, turned)
+    got = local_window_support(depth, kernel, BAND, TOLERANCE, BIN, turned, centres=centres,
+                               min_share=min_share, max_rms=max_rms)
+    np.testing.assert_array_equal(got.offset[centres], m[centres])
+    np.testing.assert_allclose(got.rms[centres], rms[centres], rtol=1e-6, atol=1e-9)
+    ok_reference = (share >= min_share) & (rms <= max_rms)
+    ok = (got.share >= min_share) & (got.rms <= max_rms)
+    np.testing.assert_array_equal(ok[centres], ok_reference[centres])
+    passing = centres & ok_reference
+    if exact_share:
+        np.testing.assert_array_equal(got.share[passing], share[passing])
+    else:  # the reference's DFT convolutions carry float noise; the counts are integers
+        np.testing.assert_allclose(got.share[passing], share[passing], atol=1e-5)
+    # Off the centres nothing is judged.
+    assert (got.share[~centres] == 0).all() and np.isinf(got.rms[~centres]).all()
+    return ok[centres].mean(), passing.sum()
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_small_windows_in_every_yaw_equal_the_whole_raster_computation(seed):
+    """7 x 7 windows turned every 15 deg: OpenCV convolves kernels this small directly, so the
+    reference's counts are exact and every statistic must be the same number."""
+    rng = np.random.default_rng(seed)
+    kernel = window_kernel(0.14, 0.14, 0.02, False)
+    turned = [turned_kernel(kernel, np.radians(yaw)) for yaw in (15, 30, 45, 60, 75)]
+    depth = random_depth(rng, (60 + 7 * seed, 90), noise=(0.002, 0.006, 0.012)[seed % 3], tilt=0.01 * (seed % 2))
+    kept, judged = assert_equal_at_centres(depth, kernel, turned, centres_of(rng, depth.shape), 0.9 - 1e-6, 0.02,
+                                           exact_share=True)
+    assert 0.05 < kept < 0.95 and judged > 50  # both answers occur
+
+
+def test_ties_at_the_share_threshold_are_decided_alike():
+    """A threshold that many windows meet exactly: k of 49 cells, the same float32 share both ways."""
+    rng = np.random.default_rng(11)
+    kernel = window_kernel(0.14, 0.14, 0.02, False)
+    turned = [turned_kernel(kernel, np.radians(yaw)) for yaw in (15, 30, 45, 60, 75)]
+    depth = np.zeros((50, 70), np.float32)
+    depth[rng.random(depth.shape) < 0.04] = np.nan
+    m, share, rms = reference_support(depth, kernel, BAND, TOLERANCE, BIN, turned)
+    centres = np.ones(depth.shape, bool)
+    values, counts = np.unique(share[share > 0.5], return_counts=True)
+    tie = float(values[np.argmax(counts * (values < 1))])  # the most common share below 1
+    got = local_window_support(depth, kernel, BAND, TOLERANCE, BIN, turned, centres=centres, min_share=tie)
+    at_tie = share == tie
+    assert at_tie.sum() > 20
+    np.testing.assert_array_equal(got.share >= tie, share >= tie)
+    np.testing.assert_array_equal(got.share[share >= tie], share[share >= tie])
+
+
+@pytest.mark.parametrize("seed", range(2))
+def test_filter_sized_windows_equal_the_whole_raster_computation(seed):
+    """The filter's 25 x 25 window and its 35 x 35 turns (convolved by DFT in the reference)."""
+    rng = np.random.default_rng(100 + seed)
+    kernel = window_kernel(0.5, 0.5, 0.02, False)
+    turned = turned_kernels(kernel, tuple(np.radians([15.0, 30.0, 45.0, 60.0, 75.0])))
+    depth = random_depth(rng, (110, 150), noise=0.006, holes=0.004, outliers=0.01)
+    kept, judged = assert_equal_at_centres(depth, kernel, turned, centres_of(rng, depth.shape, 0.5), 0.9 - 1e-6,
+                                           0.02, exact_share=False)
+    assert 0.05 < kept < 0.95 and judged > 500
+
+
+def test_walls_and_elliptic_windows_without_centres_equal_the_whole_raster_computation():
+    """No turns (a wall), every cell a centre; and an elliptic window (a kernel that is no rectangle,
+    small enough that the reference convolves it directly, so its counts are exact)."""
+    rng = np.random.default_rng(5)
+    depth = random_depth(rng, (70, 80), noise=0.008)
+    for kernel in (window_kernel(0.3, 0.2, 0.02, False), window_kernel(0.2, 0.2, 0.02, True)):
+        m, share, rms = reference_support(depth, kernel, BAND, TOLERANCE, BIN)
+        got = local_window_support(depth, kernel, BAND, TOLERANCE, BIN)
+        np.testing.assert_array_equal(got.offset, m)
+        np.testing.assert_allclose(got.share, share, atol=1e-5)
+        np.testing.assert_allclose(got.rms, rms, rtol=1e-5, atol=1e-7)
+
+
+def test_outlier_bins_far_from_some_centres_and_rasters_without_depth():
+    """A bin whose cells sit in one corner is summed only near it; centres at the raster's border;
+    a raster with no depth in the band gives share 0 and an infinite RMS at every centre."""
+    rng = np.random.default_rng(9)
+    kernel = window_kernel(0.14, 0.14, 0.02, False)
+    turned = [turned_kernel(kernel, np.radians(yaw)) for yaw in (15, 30, 45, 60, 75)]
+    depth = rng.normal(0.0, 0.003, (40, 60)).astype(np.float32)
+    depth[:6, :5] = 0.032  # a corner of outliers in bins no other cell has
+    centres = np.zeros(depth.shape, bool)
+    centres[::3, ::2] = True
+    centres[0, :] = centres[-1, :] = centres[:, 0] = centres[:, -1] = True
+    assert_equal_at_centres(depth, kernel, turned, centres, 0.9 - 1e-6, 0.02, exact_share=True)
+    empty = local_window_support(np.full((20, 20), np.nan, np.float32), kernel, BAND, TOLERANCE, BIN, turned)
+    assert (empty.share == 0).all() and np.isinf(empty.rms).all() and (empty.offset == 0).all()
+
+
+def test_the_near_run_of_bins_is_the_per_bin_tolerance_test():
+    """The float32 limits give exactly the bins whose centre is within tolerance of m in float64,
+    also for m one float32 step either side of each limit."""
+    rng = np.random.default_rng(3)
+    edges = np.arange(-BAND, BAND + BIN, BIN)
+    centres = edges[:-1] + 0.5 * BIN
+    limits = np.array([_near_limits(c, TOLERANCE) for c in centres], np.float32)
+    ms = [rng.uniform(-BAND, BAND, 2000).astype(np.float32)]
+    for step in (-np.inf, np.inf):
+        ms += [np.nextafter(limits[:, 0], np.float32(step)), np.nextafter(limits[:, 1], np.float32(step))]
+    m = np.concatenate(ms + [limits[:, 0], limits[:, 1]])
+    near = np.abs(centres[:, None] - m[None, :]) <= TOLERANCE
+    np.testing.assert_array_equal((limits[:, :1] <= m) & (m <= limits[:, 1:]), near)
+
+
+def test_ray_origins_are_the_cell_centres_in_front_in_float32():
+    rng = np.random.default_rng(2)
+    normal = rng.normal(size=3)
+    normal /= np.linalg.norm(normal)
+    u = np.cross(normal, [0.0, 0.0, 1.0])
+    u /= np.linalg.norm(u)
+    frame = PlaneFrame(rng.uniform(-20, 20, 3), u, np.cross(normal, u), normal)
+    raster = SurfaceRaster(frame, 0.02, -3.117, 1.203, (300, 700), np.ones((300, 700), bool))
+    cells = rng.random(raster.shape) < 0.7
+    expected = np.asarray(raster.cell_world(cells) + 0.07 * normal, np.float32)
+    np.testing.assert_array_equal(_ray_origins(raster, cells, 0.07), expected)
+
+
+def test_turned_kernels_are_made_once_and_not_shared_writable():
+    kernel = window_kernel(0.5, 0.3, 0.02, False)
+    yaws = tuple(np.radians([15.0, 30.0, 45.0]))
+    first, again = turned_kernels(kernel, yaws), turned_kernels(kernel.copy(), yaws)
+    for a, b, yaw in zip(first, again, yaws):
+        assert a is b
+        np.testing.assert_array_equal(a, turned_kernel(kernel, yaw))
+        assert not a.flags.writeable
