@@ -20,6 +20,7 @@ from perch_common.threads import OPENMP_THREADS, thread_environment
 MISS = -1
 SCENE_BYTES_PER_FACE = 64   # Embree's BVH: ~62 B a face (measured on 957k faces)
 PARALLEL_RAYS = 1 << 16     # rays from which a batch is split over the ray threads (embreex releases the GIL)
+SEGMENT_BLOCK = 1 << 14     # segments prepared at once by occluded: ~200 KB a temporary, in cache
 
 
 @dataclass
@@ -51,6 +52,11 @@ def _ray_threads() -> int:
         return max(1, int(thread_environment()["OMP_NUM_THREADS"]))
     except ValueError:
         return OPENMP_THREADS
+
+
+def _blocks(part: slice, size: int) -> list[slice]:
+    """`part` (a slice with explicit bounds) cut into consecutive slices of at most `size`."""
+    return [slice(first, min(first + size, part.stop)) for first in range(part.start, part.stop, size)] or [part]
 
 
 def _in_parallel(count: int, work) -> list:
@@ -123,17 +129,24 @@ class RayScene:
             return np.zeros(len(origins), bool)
 
         def segments(part: slice) -> np.ndarray:
-            # Float32 throughout (what Embree takes): the preparation must not cost more than the rays.
-            delta = targets[part] - origins[part]
-            length = np.sqrt(np.einsum("ij,ij->i", delta, delta))
-            usable = length > 2 * epsilon
-            skip = np.divide(epsilon, length, out=np.zeros_like(length), where=usable)
-            starts = np.ascontiguousarray(origins[part] + delta * skip[:, None])   # epsilon along the segment
-            spans = np.ascontiguousarray(delta * (1 - 2 * skip)[:, None])          # to epsilon before its end
-            blocked = self._scene.run(starts, spans, dists=np.ones(len(starts), np.float32), query="OCCLUDED") == 0
-            return blocked & usable
+            return np.concatenate([self._occluded_block(origins[block], targets[block], epsilon)
+                                   for block in _blocks(part, SEGMENT_BLOCK)])
 
         return np.concatenate(_in_parallel(len(origins), segments))
+
+    def _occluded_block(self, origins: np.ndarray, targets: np.ndarray, epsilon: float) -> np.ndarray:
+        """`occluded` of one cache-sized block of float32 segments (temporaries stay in cache and
+        are not page-faulted in anew for millions of rays)."""
+        # Float32 throughout (what Embree takes): the preparation must not cost more than the rays.
+        delta = targets - origins
+        length = np.sqrt(np.einsum("ij,ij->i", delta, delta))
+        usable = length > 2 * epsilon
+        skip = np.divide(epsilon, length, out=np.zeros_like(length), where=usable)
+        starts = delta * skip[:, None]   # epsilon along the segment
+        starts += origins
+        delta *= (1 - 2 * skip)[:, None]  # to epsilon before its end
+        blocked = self._scene.run(starts, delta, dists=np.ones(len(starts), np.float32), query="OCCLUDED") == 0
+        return blocked & usable
 
     def closest_points(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Closest mesh point, its face and the distance for each query point (Open3D, loaded and

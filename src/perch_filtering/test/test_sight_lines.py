@@ -1,0 +1,140 @@
+"""Line of sight cast in rounds (`visible_shares(..., threshold=...)`) decides every cell exactly as
+the shares of every sight line do, with fewer sight lines; its parts keep the full computation's
+arithmetic."""
+
+import numpy as np
+import pytest
+
+from perch_common.raycast import RayScene, ray_scene
+from perch_common.scene_generator import generate_scene
+from perch_filtering import visibility
+from perch_filtering.raster import rasterise
+
+
+@pytest.fixture(scope="module")
+def room():
+    return generate_scene(3, "two_rooms")
+
+
+def _surfaces(room, seed: int, keep: float):
+    """Rasters of the room's larger surfaces with seeded random masks (holes and ragged edges)."""
+    rng = np.random.default_rng(seed)
+    rasters, masks, offsets = [], [], []
+    for s in [s for s in room.ground_truth_surfaces() if s.area > 1.0][:8]:
+        raster = rasterise(s.frame, s.boundary, 0.02, 3, 4_000_000)
+        rasters.append(raster)
+        masks.append(raster.inside & (rng.random(raster.shape) < keep))
+        offsets.append(float(rng.uniform(0.02, 0.1)))
+    return rasters, masks, offsets
+
+
+def _count_sight_lines(monkeypatch) -> list[int]:
+    cast = []
+    occlusion = visibility.patched_occlusion
+
+    def counted(scene, patches, origins, targets):
+        cast.append(len(origins))
+        return occlusion(scene, patches, origins, targets)
+
+    monkeypatch.setattr(visibility, "patched_occlusion", counted)
+    return cast
+
+
+def _assert_same_decisions(full, bounded, masks, threshold):
+    for exact, fast, mask in zip(full, bounded, masks):
+        np.testing.assert_array_equal(fast >= threshold, exact >= threshold)
+        assert not fast[~mask].any()
+
+
+@pytest.mark.parametrize("per_volume", [False, True])
+def test_rounds_decide_every_cell_of_a_room_as_every_sight_line(room, per_volume, monkeypatch):
+    scene = ray_scene(room.mesh)
+    rasters, masks, offsets = _surfaces(room, 1, 0.8)
+    targets = room.target.sample(64, seed=0)
+    groups = None
+    if per_volume:   # three overlapping "volumes" and a few points in none, as a target's volumes may be
+        rng = np.random.default_rng(2)
+        groups = rng.random((len(targets), 3)) < 0.4
+    full = visibility.visible_shares(rasters, masks, offsets, targets, scene, None, 0.06, groups)
+    values = np.concatenate([f[m] for f, m in zip(full, masks)])
+    cast = _count_sight_lines(monkeypatch)
+    # Thresholds at shares the cells have exactly (ties), between them, and the filter's own.
+    for threshold in [0.2 - 1e-6, float(np.quantile(values, 0.3)), float(np.quantile(values, 0.7)), 0.5, 1e-9]:
+        cast.clear()
+        bounded = visibility.visible_shares(rasters, masks, offsets, targets, scene, None, 0.06, groups,
+                                            threshold=threshold)
+        _assert_same_decisions(full, bounded, masks, threshold)
+        assert 0 < sum(cast)
+    assert 0.1 < (values >= 0.2 - 1e-6).mean() < 0.9
+    # Some cells sit exactly on a threshold asked above, so ties are decided too.
+    assert (values == np.float32(np.quantile(values, 0.3))).any()
+
+
+@pytest.mark.parametrize("seed", [3, 4, 5])
+def test_rounds_decide_random_rasters_with_patches_as_every_sight_line(room, seed, monkeypatch):
+    """Sparse random masks (isolated cells, lone nodes), random shares of points per group, and a
+    patch scene that blocks some of the rays the mesh lets through."""
+    rng = np.random.default_rng(seed)
+    scene = ray_scene(room.mesh)
+    rasters, masks, offsets = _surfaces(room, seed, rng.uniform(0.05, 0.9))
+    targets = room.target.sample(int(rng.integers(20, 80)), seed=seed)
+    groups = rng.random((len(targets), int(rng.integers(1, 5)))) < rng.uniform(0.2, 0.8)
+    lo, hi = room.mesh.vertices.min(axis=0), room.mesh.vertices.max(axis=0)
+    centre = lo + rng.random((40, 3)) * (hi - lo)
+    patch_vertices = np.concatenate([c + rng.normal(scale=0.4, size=(3, 3)) for c in centre])
+    patches = RayScene(type(room.mesh)(patch_vertices, np.arange(len(patch_vertices)).reshape(-1, 3)))
+    full = visibility.visible_shares(rasters, masks, offsets, targets, scene, patches, 0.06, groups)
+    values = np.unique(np.concatenate([f[m] for f, m in zip(full, masks)]))
+    cast = _count_sight_lines(monkeypatch)
+    for threshold in [float(values[len(values) // 3]), float(values[-1]), 0.2 - 1e-6]:
+        bounded = visibility.visible_shares(rasters, masks, offsets, targets, scene, patches, 0.06, groups,
+                                            threshold=threshold)
+        _assert_same_decisions(full, bounded, masks, threshold)
+    assert len(cast)
+
+
+def test_rounds_cast_fewer_sight_lines_than_every_one(room, monkeypatch):
+    scene = ray_scene(room.mesh)
+    rasters, masks, offsets = _surfaces(room, 6, 1.0)
+    targets = room.target.sample(64, seed=0)
+    cast = _count_sight_lines(monkeypatch)
+    visibility.visible_shares(rasters, masks, offsets, targets, scene, None, 0.06)
+    every = sum(cast)
+    cast.clear()
+    visibility.visible_shares(rasters, masks, offsets, targets, scene, None, 0.06, threshold=0.2 - 1e-6)
+    assert sum(cast) < 0.8 * every
+
+
+def test_cell_values_are_the_bilinear_interpolation_bit_for_bit():
+    """The rounds decide cells with `_Cells.values`, which must be `_bilinear`'s arithmetic exactly."""
+    rng = np.random.default_rng(8)
+    masks, nodes, grids = [], [], []
+    for step in (1, 2, 3, 4):
+        mask = rng.random((int(rng.integers(5, 40)), int(rng.integers(5, 40)))) < 0.6
+        rows, cols = np.nonzero(mask)
+        need = np.zeros((rows.max() // step + 2, cols.max() // step + 2), bool)
+        for dr in (0, 1):
+            for dc in (0, 1):
+                need[rows // step + dr, cols // step + dc] = True
+        masks.append(mask)
+        nodes.append((step, need))
+        grids.append(np.where(need, rng.integers(0, 65, need.shape) / 64, 0).astype(np.float32))
+    cells = visibility._Cells.of(masks, nodes)
+    share = np.concatenate([g[need] for g, (_, need) in zip(grids, nodes)])
+    expected = np.concatenate([visibility._bilinear(g, step, m.shape, m)[m] for g, (step, _), m in zip(grids, nodes, masks)])
+    np.testing.assert_array_equal(cells.values(share), expected)
+
+
+def test_occluded_in_blocks_equals_each_segment_alone(room):
+    """`occluded` prepares its segments in blocks: more than a few blocks give each segment's own answer."""
+    from perch_common import raycast
+
+    rng = np.random.default_rng(9)
+    scene = ray_scene(room.mesh)
+    lo, hi = room.mesh.vertices.min(axis=0), room.mesh.vertices.max(axis=0)
+    count = 3 * raycast.SEGMENT_BLOCK + 17
+    origins, targets = lo + rng.random((count, 3)) * (hi - lo), lo + rng.random((count, 3)) * (hi - lo)
+    whole = scene.occluded(origins, targets)
+    alone = np.concatenate([scene.occluded(origins[i:i + 999], targets[i:i + 999]) for i in range(0, count, 999)])
+    np.testing.assert_array_equal(whole, alone)
+    assert 0.1 < whole.mean() < 0.9
