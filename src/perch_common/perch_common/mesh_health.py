@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from perch_common.mesh import Mesh
+from perch_common.mesh import FACE_BLOCK, Mesh
 
 NEEDLE_ASPECT = 1e-3        # altitude / longest edge below this: a sliver
 NEEDLE_LENGTH = 10.0        # ... and longer than this many median edge lengths: a needle across space
@@ -96,13 +96,8 @@ def needle_mask(mesh: Mesh) -> np.ndarray:
     """Faces that are needle slivers (see NEEDLE_ASPECT, NEEDLE_LENGTH)."""
     if mesh.num_faces == 0:
         return np.zeros(0, bool)
-    corner = [mesh.vertices[mesh.faces[:, i]] for i in range(3)]
-    lengths = np.empty((mesh.num_faces, 3))
-    for i in range(3):   # |b - a|, |c - b|, |a - c|, summed in np.linalg.norm's order (the same numbers)
-        edge = corner[(i + 1) % 3] - corner[i]
-        lengths[:, i] = edge[:, 0] * edge[:, 0] + edge[:, 1] * edge[:, 1] + edge[:, 2] * edge[:, 2]
-    np.sqrt(lengths, out=lengths)
-    longest = lengths.max(axis=1)
+    lengths = _edge_lengths(mesh.vertices, mesh.faces)
+    longest = np.maximum(np.maximum(lengths[:, 0], lengths[:, 1]), lengths[:, 2])   # max(axis=1), 5x faster
     typical = float(np.median(lengths, overwrite_input=True))
     # Only faces long enough to be needles need their width (most of a large mesh is not).
     needles = np.flatnonzero(longest > NEEDLE_LENGTH * typical)
@@ -111,6 +106,20 @@ def needle_mask(mesh: Mesh) -> np.ndarray:
     mask = np.zeros(mesh.num_faces, bool)
     mask[needles] = altitude < NEEDLE_ASPECT * longest[needles]
     return mask
+
+
+def _edge_lengths(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(F,3) lengths |b - a|, |c - b|, |a - c| of every face, summed in np.linalg.norm's order (the same
+    numbers). Block by block: on millions of faces whole-array corner copies cost more than the sums."""
+    lengths = np.empty((len(faces), 3))
+    for start in range(0, len(faces), FACE_BLOCK):
+        block = faces[start:start + FACE_BLOCK]
+        corner = [np.take(vertices, block[:, i], axis=0) for i in range(3)]
+        out = lengths[start:start + FACE_BLOCK]
+        for i in range(3):
+            edge = corner[(i + 1) % 3] - corner[i]
+            out[:, i] = edge[:, 0] * edge[:, 0] + edge[:, 1] * edge[:, 1] + edge[:, 2] * edge[:, 2]
+    return np.sqrt(lengths, out=lengths)
 
 
 def winding_flips(faces: np.ndarray, at_least: float = 0) -> tuple[np.ndarray, int]:
@@ -128,6 +137,9 @@ def winding_flips(faces: np.ndarray, at_least: float = 0) -> tuple[np.ndarray, i
     flips = np.zeros(n, bool)
     if n == 0:
         return flips, 0
+    inconsistent = _same_way_edges(faces)
+    if not inconsistent or inconsistent <= at_least:
+        return flips, inconsistent
     directed, owner = _edges(faces)
     # The two uses of each manifold edge (shared by exactly two faces), in the order of the edges' keys:
     # one sort of the keys (np.unique and a second sort of the shared edges cost twice as much).
@@ -138,9 +150,6 @@ def winding_flips(faces: np.ndarray, at_least: float = 0) -> tuple[np.ndarray, i
     pairs = starts[np.diff(np.append(starts, len(keys))) == 2]
     first, second = np.minimum(order[pairs], order[pairs + 1]), np.maximum(order[pairs], order[pairs + 1])
     same_way = directed[first, 0] == directed[second, 0]     # both faces run the edge a->b: inconsistent
-    inconsistent = int(same_way.sum())
-    if not inconsistent or inconsistent <= at_least:
-        return flips, inconsistent
     fa, fb = owner[first], owner[second]
     # 1: consistent neighbours, 2: one of the two must turn over.
     relation = np.where(same_way, 2, 1).astype(np.int8)
@@ -166,6 +175,32 @@ def winding_flips(faces: np.ndarray, at_least: float = 0) -> tuple[np.ndarray, i
     sizes = np.bincount(label, minlength=count)
     flips = parity ^ (2 * turned > sizes)[label]   # keep each piece's majority winding
     return flips, inconsistent
+
+
+def _same_way_edges(faces: np.ndarray) -> int:
+    """How many edges shared by exactly two faces both faces run the same way (winding_flips' count),
+    from one sort of the directed edges: a consistent mesh has no directed edge twice, and then
+    nothing else is needed; otherwise only the repeated ones are looked at."""
+    count = int(faces.max()) + 1
+    keys = np.empty(3 * len(faces), np.int64)   # a -> b as a * count + b, for (0,1), (1,2), (2,0)
+    for i, (a, b) in enumerate(((0, 1), (1, 2), (2, 0))):
+        np.add(faces[:, a] * count, faces[:, b], out=keys[i * len(faces):(i + 1) * len(faces)])
+    keys.sort()
+    repeated = np.flatnonzero(keys[1:] == keys[:-1])
+    if not len(repeated):
+        return 0
+    # Edges run exactly twice one way: runs of two equal keys (not part of a longer run) ...
+    longer = np.zeros(len(repeated), bool)
+    gap = np.diff(repeated) == 1   # neighbouring repeats: a run of three or more
+    longer[1:] |= gap
+    longer[:-1] |= gap
+    twice = keys[repeated[~longer]]
+    a, b = twice // count, twice % count
+    # ... and never the other way (an edge used by exactly two faces); a loop a -> a is its own reverse.
+    reverse = b * count + a
+    found = np.searchsorted(keys, reverse)
+    found = np.minimum(found, len(keys) - 1)
+    return int(((keys[found] != reverse) | (a == b)).sum())
 
 
 def unreferenced_line(unreferenced: int, vertices: int) -> str:

@@ -65,7 +65,7 @@ def clean_mesh_with_report(mesh: Mesh, gravity: np.ndarray | None, config: Recon
     lost = unreferenced_line(*unreferenced_vertices(mesh))   # faces lost on the way (the clean drops the rest)
     if lost:
         report.warnings.append(lost)
-    cleaned = _decimated_clean(mesh, config, report).with_viewpoints_of(mesh)
+    cleaned = _own_arrays(_decimated_clean(mesh, config, report), mesh).with_viewpoints_of(mesh)
     if cleaned.num_faces == 0:
         raise MeshError(f"mesh to clean: nothing left after removing pieces smaller than "
                         f"{config.min_piece_diameter} m; lower min_piece_diameter")
@@ -79,6 +79,17 @@ def clean_mesh_with_report(mesh: Mesh, gravity: np.ndarray | None, config: Recon
     report.faces_out = cleaned.num_faces
     report.seconds = time.perf_counter() - start
     return cleaned, report
+
+
+def _own_arrays(cleaned: Mesh, given: Mesh) -> Mesh:
+    """`cleaned` with arrays of its own where it still shares the given mesh's (nothing needed
+    repairing or decimating): the cleaned mesh is a copy, whatever its caller does to it."""
+    given_arrays = [a for a in (given.vertices, given.faces, given.vertex_colors, given.vertex_normals) if a is not None]
+    arrays = (cleaned.vertices, cleaned.faces, cleaned.vertex_colors, cleaned.vertex_normals)
+    if not any(a is not None and np.may_share_memory(a, b) for a in arrays for b in given_arrays):
+        return cleaned
+    return Mesh(*(None if a is None else a.copy() for a in arrays), frame_id=cleaned.frame_id,
+                viewpoints=cleaned.viewpoints)
 
 
 def _decimated_clean(mesh: Mesh, config: ReconstructionConfig, report: CleanReport) -> Mesh:

@@ -6,6 +6,9 @@ import numpy as np
 
 from perch_common.mesh import Mesh, column_bounds
 
+# Below this many vertices a face's three sorted indices fit one int64 key exactly.
+EXACT_FACE_KEY_VERTICES = 2 ** 21
+
 
 def _remap(mesh: Mesh, inverse: np.ndarray, count: int, average: bool) -> Mesh:
     """Mesh whose vertex i becomes new vertex inverse[i]; degenerate and duplicate faces dropped."""
@@ -29,17 +32,46 @@ def _remap_faces(mesh: Mesh, faces: np.ndarray) -> Mesh:
     """`mesh` with `faces` (indices into its vertices) less degenerate and duplicate ones, unused vertices dropped."""
     count = mesh.num_vertices
     keep = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
+    if keep.all() and _all_distinct(faces, count):
+        # Nothing to drop (the usual case): the faces as they are; the same arrays keep the per-face
+        # data derived from them (validation's cross products) valid.
+        shared = mesh._cache if faces is mesh.faces else {}
+        return _drop_unused(Mesh(mesh.vertices, faces, mesh.vertex_colors, mesh.vertex_normals,
+                                 frame_id=mesh.frame_id, _cache=shared))
     faces = faces[keep]
     ordered = np.sort(faces, axis=1)
-    key = (ordered[:, 0] * count + ordered[:, 1]) * count + ordered[:, 2] if count < 2 ** 21 else None
-    if key is None:
-        _, first_face = np.unique(ordered, axis=0, return_index=True)
+    if count < EXACT_FACE_KEY_VERTICES:
+        first_face = _first_occurrences((ordered[:, 0] * count + ordered[:, 1]) * count + ordered[:, 2])
     else:
-        _, first_face = np.unique(key, return_index=True)
-    if len(first_face) == len(faces) and keep.all() and faces is mesh.faces:
-        return _drop_unused(mesh)
-    faces = faces[np.sort(first_face)]
+        first_face = np.sort(np.unique(ordered, axis=0, return_index=True)[1])
+    faces = faces[first_face]
     return _drop_unused(Mesh(mesh.vertices, faces, mesh.vertex_colors, mesh.vertex_normals, frame_id=mesh.frame_id))
+
+
+def _all_distinct(faces: np.ndarray, count: int) -> bool:
+    """Whether no two faces have the same three vertices (in any order), from one sort of one key per
+    face: exact below EXACT_FACE_KEY_VERTICES; above, a hash whose keys all differ only when the faces do
+    (equal keys: False, and the caller's exact test decides)."""
+    a, b, c = faces[:, 0], faces[:, 1], faces[:, 2]
+    low, high = np.minimum(np.minimum(a, b), c), np.maximum(np.maximum(a, b), c)
+    middle = a + b + c - low - high
+    if count < EXACT_FACE_KEY_VERTICES:
+        key = (low * count + middle) * count + high
+    else:   # wraps modulo 2^64 (unsigned): a hash
+        key = (low * count + middle).astype(np.uint64) * np.uint64(0x9E3779B97F4A7C15) + high.astype(np.uint64)
+    key.sort()
+    return not (key[1:] == key[:-1]).any()
+
+
+def _first_occurrences(key: np.ndarray) -> np.ndarray:
+    """Ascending indices of the first occurrence of each distinct key: np.unique(key, return_index=True)[1]
+    sorted, from a quicksort instead of its stable sort."""
+    order = np.argsort(key)
+    ordered = key[order]
+    starts = np.flatnonzero(np.concatenate([[True], ordered[1:] != ordered[:-1]]))
+    first = np.minimum.reduceat(order, starts) if len(key) else order
+    first.sort()
+    return first
 
 
 def _drop_unused(mesh: Mesh) -> Mesh:
@@ -52,29 +84,44 @@ def _drop_unused(mesh: Mesh) -> Mesh:
                 None if mesh.vertex_colors is None else mesh.vertex_colors[used], frame_id=mesh.frame_id)
 
 
-def _cells(points: np.ndarray, cell: float) -> tuple[np.ndarray, int]:
+def _cell_keys(points: np.ndarray, cell: float) -> np.ndarray:
+    """One int64 per point naming its grid cell of size `cell`."""
     key = np.floor((points - column_bounds(points)[0]) / cell).astype(np.int64)
     span = column_bounds(key)[1] + 1
-    linear = (key[:, 0] * span[1] + key[:, 1]) * span[2] + key[:, 2]
-    unique, first, inverse = np.unique(linear, return_index=True, return_inverse=True)
-    inverse = inverse.ravel()
-    if len(unique) == len(points):   # one point per cell: numbered by first point, that is as given
+    return (key[:, 0] * span[1] + key[:, 1]) * span[2] + key[:, 2]
+
+
+def _cells(points: np.ndarray, cell: float, linear: np.ndarray | None = None) -> tuple[np.ndarray, int]:
+    """(cell number of each point, cells); `linear`: the points' _cell_keys when already made."""
+    linear = _cell_keys(points, cell) if linear is None else linear
+    # np.unique(linear, return_index=True, return_inverse=True) from a quicksort (its stable sort is 3x slower)
+    order = np.argsort(linear)
+    ordered = linear[order]
+    new = np.empty(len(points), bool)
+    new[:1] = True
+    np.not_equal(ordered[1:], ordered[:-1], out=new[1:])
+    starts = np.flatnonzero(new)
+    if len(starts) == len(points):   # one point per cell: numbered by first point, that is as given
         return np.arange(len(points)), len(points)
+    first = np.minimum.reduceat(order, starts)   # each cell's first point
     # Number the cells by their first point, not by position: the output keeps the input's order,
     # so the same mesh in another orientation (other cell keys) comes out in the same order.
-    rank = np.empty(len(unique), np.int64)
-    rank[np.argsort(first)] = np.arange(len(unique))
-    return rank[inverse], len(unique)
+    rank = np.empty(len(starts), np.int64)
+    rank[np.argsort(first)] = np.arange(len(starts))
+    inverse = np.empty(len(points), np.int64)
+    inverse[order] = rank[np.cumsum(new) - 1]
+    return inverse, len(starts)
 
 
 def weld_vertices(mesh: Mesh, distance: float) -> Mesh:
     """Merge vertices falling in the same `distance` cell (duplicates from block seams, STL soups)."""
-    inverse, count = _cells(mesh.vertices, max(distance, 1e-12))
-    if count == mesh.num_vertices:   # nothing to merge: only degenerate and duplicate faces can go
+    linear = _cell_keys(mesh.vertices, max(distance, 1e-12))
+    ordered = np.sort(linear)   # a third of _cells' time: enough to see that every vertex has its own cell
+    if not (ordered[1:] == ordered[:-1]).any():   # nothing to merge: only degenerate and duplicate faces can go
         # Same arrays: per-face geometry already computed (validation) stays valid.
         same = Mesh(mesh.vertices, mesh.faces, mesh.vertex_colors, frame_id=mesh.frame_id, _cache=mesh._cache)
         return _remap_faces(same, mesh.faces)
-    return _remap(mesh, inverse, count, average=False)
+    return _remap(mesh, *_cells(mesh.vertices, max(distance, 1e-12), linear), average=False)
 
 
 def weld_close_vertices(mesh: Mesh, distance: float) -> Mesh:
@@ -99,15 +146,20 @@ def weld_close_vertices(mesh: Mesh, distance: float) -> Mesh:
 
 def remove_small_pieces(mesh: Mesh, min_diameter: float) -> tuple[Mesh, int]:
     """Drop connected pieces whose bounding-box diagonal is below min_diameter; returns (mesh, faces removed)."""
-    from scipy.sparse import coo_matrix
+    from scipy.sparse import csr_matrix
     from scipy.sparse.csgraph import connected_components
 
-    n = mesh.num_vertices
-    f = mesh.faces
-    rows = np.concatenate([f[:, 0], f[:, 1]])
-    cols = np.concatenate([f[:, 1], f[:, 2]])
-    graph = coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), shape=(n, n))
+    n, f = mesh.num_vertices, mesh.faces
+    # Faces and vertices as one graph, each face joined to its three corners: its rows need no sorting
+    # (a vertex graph's edge list does), and its vertices fall into the vertex graph's pieces.
+    faces = mesh.num_faces
+    indptr = np.empty(faces + n + 1, np.int32 if 3 * faces + n < 2 ** 31 else np.int64)
+    indptr[:faces + 1] = np.arange(0, 3 * faces + 1, 3)
+    indptr[faces + 1:] = 3 * faces
+    corners = (f + faces).ravel().astype(indptr.dtype)
+    graph = csr_matrix((np.ones(3 * faces), corners, indptr), shape=(faces + n, faces + n))
     count, label = connected_components(graph, directed=False)
+    label = label[faces:]
     if count == 1:
         lo, hi = column_bounds(mesh.vertices)
         big = np.array([np.linalg.norm(hi - lo) >= min_diameter])
