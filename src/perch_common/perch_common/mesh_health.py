@@ -184,7 +184,9 @@ def _same_way_edges(faces: np.ndarray) -> int:
     count = int(faces.max()) + 1
     keys = np.empty(3 * len(faces), np.int64)   # a -> b as a * count + b, for (0,1), (1,2), (2,0)
     for i, (a, b) in enumerate(((0, 1), (1, 2), (2, 0))):
-        np.add(faces[:, a] * count, faces[:, b], out=keys[i * len(faces):(i + 1) * len(faces)])
+        part = keys[i * len(faces):(i + 1) * len(faces)]
+        np.multiply(faces[:, a], count, out=part)
+        part += faces[:, b]
     keys.sort()
     repeated = np.flatnonzero(keys[1:] == keys[:-1])
     if not len(repeated):

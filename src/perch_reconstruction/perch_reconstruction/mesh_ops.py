@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from perch_common.mesh import Mesh, column_bounds
+from perch_common.mesh import FACE_BLOCK, Mesh, column_bounds
 
 # Below this many vertices a face's three sorted indices fit one int64 key exactly.
 EXACT_FACE_KEY_VERTICES = 2 ** 21
@@ -25,7 +25,14 @@ def _remap(mesh: Mesh, inverse: np.ndarray, count: int, average: bool) -> Mesh:
         sums = np.column_stack([np.bincount(inverse, mesh.vertex_colors[:, i].astype(np.float64), count)
                                 for i in range(3)])
         colors = np.clip(np.round(sums / weights[:, None]), 0, 255).astype(np.uint8)
-    return _remap_faces(Mesh(vertices, mesh.faces, colors, frame_id=mesh.frame_id), inverse[mesh.faces])
+    # The faces renumbered, those left without area dropped at once (block by block: most faces of a
+    # clustered mesh go, and a face-sized copy of them all costs more than the rest of the remap).
+    kept = []
+    for start in range(0, mesh.num_faces, FACE_BLOCK):
+        faces = inverse[mesh.faces[start:start + FACE_BLOCK]]
+        kept.append(faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])])
+    faces = np.concatenate(kept) if kept else np.zeros((0, 3), np.int64)
+    return _remap_faces(Mesh(vertices, mesh.faces, colors, frame_id=mesh.frame_id), faces)
 
 
 def _remap_faces(mesh: Mesh, faces: np.ndarray) -> Mesh:
@@ -52,13 +59,18 @@ def _all_distinct(faces: np.ndarray, count: int) -> bool:
     """Whether no two faces have the same three vertices (in any order), from one sort of one key per
     face: exact below EXACT_FACE_KEY_VERTICES; above, a hash whose keys all differ only when the faces do
     (equal keys: False, and the caller's exact test decides)."""
-    a, b, c = faces[:, 0], faces[:, 1], faces[:, 2]
-    low, high = np.minimum(np.minimum(a, b), c), np.maximum(np.maximum(a, b), c)
-    middle = a + b + c - low - high
-    if count < EXACT_FACE_KEY_VERTICES:
-        key = (low * count + middle) * count + high
-    else:   # wraps modulo 2^64 (unsigned): a hash
-        key = (low * count + middle).astype(np.uint64) * np.uint64(0x9E3779B97F4A7C15) + high.astype(np.uint64)
+    exact = count < EXACT_FACE_KEY_VERTICES
+    key = np.empty(len(faces), np.int64 if exact else np.uint64)
+    for start in range(0, len(faces), FACE_BLOCK):   # block by block: no face-sized temporaries
+        block = faces[start:start + FACE_BLOCK]
+        a, b, c = block[:, 0], block[:, 1], block[:, 2]
+        low, high = np.minimum(np.minimum(a, b), c), np.maximum(np.maximum(a, b), c)
+        middle = a + b + c - low - high
+        if exact:
+            key[start:start + FACE_BLOCK] = (low * count + middle) * count + high
+        else:   # wraps modulo 2^64 (unsigned): a hash
+            key[start:start + FACE_BLOCK] = ((low * count + middle).astype(np.uint64) * np.uint64(0x9E3779B97F4A7C15)
+                                             + high.astype(np.uint64))
     key.sort()
     return not (key[1:] == key[:-1]).any()
 
@@ -86,9 +98,15 @@ def _drop_unused(mesh: Mesh) -> Mesh:
 
 def _cell_keys(points: np.ndarray, cell: float) -> np.ndarray:
     """One int64 per point naming its grid cell of size `cell`."""
-    key = np.floor((points - column_bounds(points)[0]) / cell).astype(np.int64)
-    span = column_bounds(key)[1] + 1
-    return (key[:, 0] * span[1] + key[:, 1]) * span[2] + key[:, 2]
+    lo = column_bounds(points)[0]
+    # column by column: a third of the (N,3) temporaries' time
+    key = [np.floor((points[:, i] - lo[i]) / cell).astype(np.int64) for i in range(3)]
+    span = [int(k.max()) + 1 if len(k) else 1 for k in key]
+    linear = key[0] * span[1]
+    linear += key[1]
+    linear *= span[2]
+    linear += key[2]
+    return linear
 
 
 def _cells(points: np.ndarray, cell: float, linear: np.ndarray | None = None) -> tuple[np.ndarray, int]:
@@ -156,7 +174,8 @@ def remove_small_pieces(mesh: Mesh, min_diameter: float) -> tuple[Mesh, int]:
     indptr = np.empty(faces + n + 1, np.int32 if 3 * faces + n < 2 ** 31 else np.int64)
     indptr[:faces + 1] = np.arange(0, 3 * faces + 1, 3)
     indptr[faces + 1:] = 3 * faces
-    corners = (f + faces).ravel().astype(indptr.dtype)
+    corners = np.empty(3 * faces, indptr.dtype)
+    np.add(f, faces, out=corners.reshape(-1, 3), casting="unsafe")   # below 2^31 where int32
     graph = csr_matrix((np.ones(3 * faces), corners, indptr), shape=(faces + n, faces + n))
     count, label = connected_components(graph, directed=False)
     label = label[faces:]

@@ -301,3 +301,12 @@ def test_cells_duplicates_and_pieces_on_small_cases(monkeypatch):
                                                      reference_remove_small_pieces(mesh, diameter))
             assert removed == want_removed
             np.testing.assert_array_equal(fast.faces, slow.faces)
+
+
+def test_face_areas_are_the_norm_of_the_cross_products(meshes):
+    rng = np.random.default_rng(6)
+    spread = Mesh(rng.standard_normal((3000, 3)) * 10.0 ** rng.uniform(-4, 4, (3000, 1)),
+                  rng.integers(0, 3000, (70_000, 3)))
+    for mesh in [*meshes.values(), spread]:
+        expected = 0.5 * np.linalg.norm(reference_cross(Mesh(mesh.vertices, mesh.faces)), axis=1)
+        np.testing.assert_array_equal(mesh.face_areas(), expected)
