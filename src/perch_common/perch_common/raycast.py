@@ -113,6 +113,17 @@ class RayScene:
             normal[hit] = self._normals[face[hit]]
         return RayHits(distance, face, normal)
 
+    def first_hit_distance(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
+        """`cast(...).distance` (inf where a ray misses) without the faces and normals, whose
+        gathers cost a third of a large batch."""
+        origins, directions = _float32_rows(origins), _float32_rows(directions)
+        distance = np.full(len(origins), np.inf)
+        if len(origins) and self._scene is not None:
+            parts = _in_parallel(len(origins), lambda part: self._scene.run(origins[part], directions[part], output=1))
+            hit = np.concatenate([p["primID"] for p in parts]).astype(np.int64) >= 0
+            distance[hit] = np.concatenate([p["tfar"] for p in parts])[hit]
+        return distance
+
     def any_hit(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
         """Whether each ray hits the mesh at all (`cast(...).hit`): Embree's occlusion query stops at
         the first face it meets instead of finding the nearest, ~4x less CPU where only hit or miss counts."""

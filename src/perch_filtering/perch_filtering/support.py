@@ -31,28 +31,30 @@ def first_surface_depth(scene: RayScene, raster: SurfaceRaster, cells: np.ndarra
     origins = _ray_origins(raster, cells, probe)
     directions = np.empty_like(origins)
     directions[:] = -normal
-    hits = scene.cast(origins, directions)
-    ok = hits.hit & (hits.distance <= 2.0 * probe)
-    depth[cells] = np.where(ok, probe - hits.distance, np.nan)
+    distance = scene.first_hit_distance(origins, directions)
+    depth[cells] = np.where(distance <= 2.0 * probe, probe - distance, np.nan)
     return depth
 
 
-ORIGIN_CHUNK = 1 << 16  # cells whose float64 temporaries stay in cache
+ORIGIN_CHUNK = 1 << 14  # cells whose float64 temporaries stay in cache
 
 
 def _ray_origins(raster: SurfaceRaster, cells: np.ndarray, probe: float) -> np.ndarray:
     """float32 (N,3) points `probe` in front of the cells' centres (row-major): raster.cell_world(cells)
-    + probe * normal with the same float64 operations, taken in chunks and rounded to float32 (what the
-    ray caster takes)."""
+    + probe * normal with the same float64 operations (origin + u * axis_u per column, v * axis_v per
+    row), taken in chunks and rounded to float32 (what the ray caster takes)."""
     frame = raster.frame
     rows, cols = np.nonzero(cells)
-    u, v = raster.u0 + cols * raster.cell, raster.v0 + rows * raster.cell
+    by_col = frame.origin + (raster.u0 + np.arange(raster.shape[1]) * raster.cell)[:, None] * frame.axis_u
+    by_row = (raster.v0 + np.arange(raster.shape[0]) * raster.cell)[:, None] * frame.axis_v
     lift, step = np.asarray(0.0)[..., None] * frame.normal, probe * frame.normal  # to_world's height, the probe
     out = np.empty((len(rows), 3), np.float32)
     for start in range(0, len(rows), ORIGIN_CHUNK):
         part = slice(start, start + ORIGIN_CHUNK)
-        world = frame.origin + u[part, None] * frame.axis_u + v[part, None] * frame.axis_v + lift
-        out[part] = world + step
+        world = by_col[cols[part]] + by_row[rows[part]]
+        world += lift
+        world += step
+        out[part] = world
     return out
 
 
@@ -94,6 +96,9 @@ class LocalSupport:
     rms: np.ndarray
 
 
+NO_BIN = 255  # bin of the cells without a depth within the band
+
+
 def local_window_support(depth: np.ndarray, kernel: np.ndarray, band: float, tolerance: float,
                          bin_width: float, turned: list[np.ndarray] = (), centres: np.ndarray | None = None,
                          min_share: float = -np.inf, max_rms: float = np.inf) -> LocalSupport:
@@ -109,15 +114,13 @@ def local_window_support(depth: np.ndarray, kernel: np.ndarray, band: float, tol
     window fails in any yaw and the share is the upright one's. Off `centres` the offset and share are
     0 and the RMS infinite.
 
-    The sums are taken only where a centre's window can hold a bin's cells and read at the centres;
-    window counts are exact integers, so the median, share and RMS are those of the same sums taken
-    over the whole raster."""
+    Window sums are read at the centres only. Counts are exact integers, so the median and share are
+    those of per-bin sums over the whole raster; the cells near a centre's plane are a run of bins, and
+    the centres sharing a run are summed together."""
     shape = depth.shape
     offset, share = np.zeros(shape, np.float32), np.zeros(shape, np.float32)
     rms = np.full(shape, np.inf, np.float32)
     at = _Centres(np.ones(shape, bool) if centres is None else centres)
-    if at.count == 0:
-        return LocalSupport(offset, share, rms)
     valid = np.isfinite(depth) & (np.abs(depth) <= band)
     d = np.where(valid, depth, np.float32(0.0)).astype(np.float32, copy=False)
     edges = np.arange(-band, band + bin_width, bin_width)
@@ -125,56 +128,39 @@ def local_window_support(depth: np.ndarray, kernel: np.ndarray, band: float, tol
     bins = np.clip(np.floor((d + band) / bin_width), 0, len(edges) - 2).astype(np.uint8)
     bins[~valid] = NO_BIN
     present = np.flatnonzero(np.bincount(bins.ravel(), minlength=NO_BIN + 1)[:NO_BIN])
-    area = float(kernel.sum())
-    spans = [_bin_span(bins == b, kernel.shape) for b in present]
-    # n[i]: the cells of bin present[i] under each centre's window.
-    n = np.zeros((len(present), at.count), np.float32)
-    for i, (b, span) in enumerate(zip(present, spans)):
-        n[i] = at.window_sums(bins[span] == b, span, kernel)
-    # The median lies in the first bin whose running count reaches half the window's valid cells.
-    running = np.cumsum(n, axis=0, dtype=np.float32)
-    half = 0.5 * running[-1] if len(present) else np.zeros(at.count, np.float32)
-    first = (running < half).sum(axis=0)
-    pick = first * at.count + np.arange(at.count)
-    crossed_count = np.take(n, pick) if len(present) else half
-    below = np.take(running, pick) - crossed_count if len(present) else half
-    position = np.clip((half - below) / np.maximum(crossed_count, 1e-6), 0.0, 1.0)
-    crossing_edge = edges[present[first]] if len(present) else np.zeros(at.count)
-    median = np.where(half > 0, (crossing_edge + position * bin_width).astype(np.float32), np.float32(np.nan))
-    m = np.nan_to_num(median, nan=0.0)
-    # Cells within tolerance of the plane: per centre the run of bins present[lo..hi] (the distance to m
-    # is unimodal); lo > hi where none is.
-    limits = np.array([_near_limits(edges[b] + 0.5 * bin_width, tolerance) for b in present], np.float32)
-    lo = np.searchsorted(limits[:, 1], m, "left") if len(present) else np.zeros(at.count, np.int64)
-    hi = np.searchsorted(limits[:, 0], m, "right") - 1 if len(present) else lo - 1
-    # Integer counts: the running sums' difference is the bins' sum.
-    ahead = np.concatenate([np.zeros((1, at.count), np.float32), running]) if len(present) else None
-    count = (np.take(ahead, (hi + 1) * at.count + np.arange(at.count))
-             - np.take(ahead, lo * at.count + np.arange(at.count))) if len(present) else half
-    count = np.where(hi >= lo, count, np.float32(0.0))
-    squares = np.zeros(at.count, np.float32)
-    for i, (b, span) in enumerate(zip(present, spans)):
-        # Only the centres whose window holds cells of the bin add to the squares (in bin order).
-        adds = np.flatnonzero(n[i])
-        adds = adds[(lo[adds] <= i) & (hi[adds] >= i)]
-        if len(adds) == 0:
-            continue
-        dm = np.where(bins[span] == b, d[span], np.float32(0.0))
-        s1, s2 = at.window_sums(dm, span, kernel, adds), at.window_sums(dm * dm, span, kernel, adds)
-        mm = m[adds]
-        squares[adds] += s2 - 2.0 * mm * s1 + mm * mm * n[i, adds]
+    if at.count == 0 or len(present) == 0:  # nothing judged, or no depth in the band: no support
+        return LocalSupport(offset, share, rms)
+    # running[i]: the cells of bins present[..i] under each centre's window.
+    running = np.empty((len(present), at.count), np.float32)
+    for i, b in enumerate(present):
+        at.window_sums(bins == b, kernel, out=running[i])
+    np.cumsum(running, axis=0, out=running)
+    m = _median_in_bins(running, edges[present], bin_width)
+    lo, hi = _near_runs(m, edges[present] + 0.5 * bin_width, tolerance)
+    runs = _Runs(lo, hi, len(present))
+    # The cells near the plane: an exact count, and their squared distances to it.
+    ahead = np.concatenate([np.zeros((1, at.count), np.float32), running])
+    count = np.take(ahead, (hi + 1) * at.count + at.index) - np.take(ahead, lo * at.count + at.index)
+    count[runs.none] = 0.0
+    squares = np.zeros(at.count)
+    hv, hu = kernel.shape[0] // 2, kernel.shape[1] // 2
+    for first, last, mine in runs:
+        part = _grown_span(at.rows[mine], at.cols[mine], hv, hu)
+        near = np.where(_in_bins(bins[part], present[first], present[last]), d[part], np.float32(0.0))
+        near = near.astype(np.float64)
+        flat = at.flat_in(mine, part, near.shape[1])
+        s1, s2 = np.take(_box_sum(near, kernel).ravel(), flat), np.take(_box_sum(near * near, kernel).ravel(), flat)
+        mm = m[mine].astype(np.float64)
+        squares[mine] = s2 - 2.0 * mm * s1 + mm * mm * count[mine]
     with np.errstate(divide="ignore", invalid="ignore"):
         window_rms = np.where(count > 0.5, np.sqrt(np.maximum(squares, 0.0) / np.maximum(count, 1.0)), np.inf)
-    window_share = count / area
-    judged = (window_share >= min_share) & (window_rms <= max_rms) & (hi >= lo)
-    if len(turned) and judged.any():
-        runs = np.where(hi >= lo, present[np.minimum(lo, len(present) - 1)] * (NO_BIN + 1) + present[hi], -1)
-        window_share = np.minimum(window_share, _turned_share(bins, turned, at, judged, runs))
+    window_rms = window_rms.astype(np.float32)  # judged as the caller judges the map
+    window_share = count / float(kernel.sum())
+    if len(turned):
+        judged = (window_share >= min_share) & (window_rms <= max_rms)
+        window_share = np.minimum(window_share, _turned_share(bins, turned, at, runs, judged, present))
     offset[at.rows, at.cols], share[at.rows, at.cols], rms[at.rows, at.cols] = m, window_share, window_rms
     return LocalSupport(offset, share, rms)
-
-
-NO_BIN = 255  # bin of the cells without a depth within the band
 
 
 def turned_kernels(kernel: np.ndarray, yaws: tuple[float, ...]) -> list[np.ndarray]:
@@ -195,84 +181,46 @@ class _Centres:
     """The window centres of a raster (row-major) and reads of window sums at them."""
 
     def __init__(self, mask: np.ndarray):
-        self.shape = mask.shape
         self.rows, self.cols = np.nonzero(mask)
         self.count = len(self.rows)
+        self.index = np.arange(self.count)
         self.flat = self.rows * mask.shape[1] + self.cols
 
-    def inside(self, span: tuple[slice, slice]) -> tuple[np.ndarray | slice, np.ndarray, np.ndarray]:
-        """The centres in `span` (an index or a slice into the centres) and their (row, col) in it."""
-        r0, r1 = span[0].indices(self.shape[0])[:2]
-        c0, c1 = span[1].indices(self.shape[1])[:2]
-        which = slice(*np.searchsorted(self.rows, [r0, r1]))  # rows are sorted
-        if c0 > 0 or c1 < self.shape[1]:
-            cols = self.cols[which]
-            which = np.flatnonzero((cols >= c0) & (cols < c1)) + which.start
-        return which, self.rows[which] - r0, self.cols[which] - c0
+    def flat_in(self, which: np.ndarray, part: tuple[slice, slice], width: int) -> np.ndarray:
+        """Flat indices of centres `which` in the part of the raster `part` (`width` columns wide)."""
+        return (self.rows[which] - part[0].start) * width + self.cols[which] - part[1].start
 
-    def window_sums(self, values: np.ndarray, span: tuple[slice, slice], kernel: np.ndarray,
-                    subset: np.ndarray | None = None) -> np.ndarray:
-        """Per centre (of `subset`, all without it), the sum under the kernel of a raster that holds
-        `values` in `span` and zero elsewhere."""
-        sums = _box_sum(values, kernel)
-        if subset is not None:  # centres whose windows hold cells of `values`: all inside the span
-            r0, c0 = span[0].indices(self.shape[0])[0], span[1].indices(self.shape[1])[0]
-            return np.take(sums.ravel(), (self.rows[subset] - r0) * sums.shape[1] + self.cols[subset] - c0)
-        out = np.zeros(self.count, np.float32)
-        if sums.shape == self.shape:
-            return np.take(sums.ravel(), self.flat, out=out)
-        which, rows, cols = self.inside(span)
-        out[which] = np.take(sums.ravel(), rows * sums.shape[1] + cols)
-        return out
+    def window_sums(self, values: np.ndarray, kernel: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """Per centre, the sum of `values` under the kernel."""
+        return np.take(_box_sum(values, kernel).ravel(), self.flat, out=out)
 
 
-def _bin_span(mine: np.ndarray, kernel_shape: tuple[int, int]) -> tuple[slice, slice]:
-    """The part of the raster holding the cells of `mine` grown by the kernel's half sizes: windows
-    centred outside it hold none of them."""
-    r = np.flatnonzero(mine.any(axis=1))
-    c = np.flatnonzero(mine.any(axis=0))
-    hv, hu = kernel_shape[0] // 2, kernel_shape[1] // 2
-    return slice(max(r[0] - hv, 0), r[-1] + hv + 1), slice(max(c[0] - hu, 0), c[-1] + hu + 1)
+def _median_in_bins(running: np.ndarray, lower_edges: np.ndarray, bin_width: float) -> np.ndarray:
+    """Per centre (column), the median of its window's depths from its running bin counts: in the first
+    bin whose running count reaches half the window's depths, interpolated by the count there
+    (float32 throughout, as the counts); 0 where the window holds none."""
+    count = running.shape[1]
+    half = 0.5 * running[-1]
+    first = (running < half).sum(axis=0)
+    at_first = first * count + np.arange(count)
+    below = np.take(running, at_first - count, mode="clip") * (first > 0)
+    crossed = np.take(running, at_first) - below
+    position = np.clip((half - below) / np.maximum(crossed, 1e-6), 0.0, 1.0)
+    median = (lower_edges[first] + position * bin_width).astype(np.float32)
+    median[half <= 0] = 0.0
+    return median
 
 
-def _turned_share(bins: np.ndarray, turned: list[np.ndarray], at: _Centres, judged: np.ndarray,
-                  runs: np.ndarray) -> np.ndarray:
-    """Per centre, the smallest share over the turned windows of the cells whose bin lies in its run
-    (lo * (NO_BIN + 1) + hi; 1 where not `judged`). Centres sharing a bin run are taken together; where every turned window
-    lies on such cells (one erosion by their union), each holds its whole area."""
-    import cv2
-
-    reach = max(max(k.shape) for k in turned) // 2
-    union = np.zeros((2 * reach + 1,) * 2, np.uint8)
-    for k in turned:
-        pr, pc = reach - k.shape[0] // 2, reach - k.shape[1] // 2
-        union[pr:pr + k.shape[0], pc:pc + k.shape[1]] |= k
-    out = np.ones(at.count, np.float32)
-    for run in np.unique(runs[judged]):
-        mine = np.flatnonzero(judged & (runs == run))
-        span = _grown_span(at.rows[mine], at.cols[mine], reach)
-        good = cv2.inRange(bins[span], int(run // (NO_BIN + 1)), int(run % (NO_BIN + 1)))  # 255 on the run's cells
-        r, c = at.rows[mine] - span[0].start, at.cols[mine] - span[1].start
-        eroded = cv2.erode(good, union, borderType=cv2.BORDER_CONSTANT, borderValue=0)
-        partial = np.flatnonzero(eroded[r, c] == 0)
-        if len(partial) == 0:
-            continue
-        mine, r, c = mine[partial], r[partial], c[partial]
-        sub = _grown_span(r, c, reach)
-        r, c = r - sub[0].start, c - sub[1].start
-        good = (good[sub] > 0).astype(np.float32)
-        worst = np.full(len(mine), np.inf, np.float32)
-        for k in turned:
-            # Counts are integers: rounding removes the DFT convolution's float noise.
-            counts = np.rint(cv2.filter2D(good, -1, k.astype(np.float32), borderType=cv2.BORDER_CONSTANT)[r, c])
-            worst = np.minimum(worst, counts / float(k.sum()))
-        out[mine] = worst
-    return out
+def _near_runs(m: np.ndarray, centres: np.ndarray, tolerance: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per plane offset m (float32), the first and last of the bins (centred at `centres`, ascending)
+    with abs(centre - m) <= tolerance (in float64); first > last where none is. The test is monotone in
+    m on either side, so each bin is near the m between two float32 limits."""
+    limits = np.array([_near_limits(c, tolerance) for c in centres], np.float32)
+    return np.searchsorted(limits[:, 1], m, "left"), np.searchsorted(limits[:, 0], m, "right") - 1
 
 
 def _near_limits(centre: float, tolerance: float) -> tuple[np.float32, np.float32]:
-    """The smallest and largest float32 m with abs(centre - m) <= tolerance in float64 (the bin at
-    `centre` is near a plane at m exactly between them: the rounded difference is monotone in m)."""
+    """The smallest and largest float32 m with abs(centre - m) <= tolerance in float64."""
     def near_low(m):  # the lower limit's side of the test
         return centre - np.float64(m) <= tolerance
 
@@ -291,19 +239,86 @@ def _near_limits(centre: float, tolerance: float) -> tuple[np.float32, np.float3
     return low, high
 
 
-def _grown_span(rows: np.ndarray, cols: np.ndarray, reach: int) -> tuple[slice, slice]:
-    """The bounding box of the cells grown by `reach` (clipped at 0; slicing clips the far ends)."""
+class _Runs:
+    """The centres grouped by their run of near bins [lo, hi] (indices into the present bins)."""
+
+    def __init__(self, lo: np.ndarray, hi: np.ndarray, bins: int):
+        self.none = hi < lo
+        code = np.where(self.none, -1, lo * bins + hi).astype(np.int16 if bins * bins < 1 << 15 else np.int32)
+        self.order = np.argsort(code, kind="stable")
+        codes, starts = np.unique(code[self.order], return_index=True)
+        ends = np.append(starts[1:], len(code))
+        self.groups = [(int(c) // bins, int(c) % bins, self.order[s:e])
+                       for c, s, e in zip(codes, starts, ends) if c >= 0]
+
+    def __iter__(self):
+        """(lo, hi, centres) of each run, centres ascending."""
+        return iter(self.groups)
+
+
+def _in_bins(bins: np.ndarray, low: int, high: int) -> np.ndarray:
+    """Whether each cell's bin lies in [low, high] (a byte mask, 255 where it does)."""
+    import cv2
+
+    return cv2.inRange(bins, int(low), int(high))
+
+
+def _turned_share(bins: np.ndarray, turned: list[np.ndarray], at: _Centres, runs: _Runs, judged: np.ndarray,
+                  present: np.ndarray) -> np.ndarray:
+    """Per centre, the smallest share over the turned windows of the cells in its run of near bins (1
+    where not `judged`). Where every turned window lies on such cells (an erosion by their union finds
+    it), each holds its whole area; elsewhere the run's cells are convolved with each turned window."""
+    import cv2
+
+    reach = max(max(k.shape) for k in turned) // 2
+    union = np.zeros((2 * reach + 1,) * 2, np.uint8)
+    for k in turned:
+        pr, pc = reach - k.shape[0] // 2, reach - k.shape[1] // 2
+        union[pr:pr + k.shape[0], pc:pc + k.shape[1]] |= k
+    out = np.ones(at.count, np.float32)
+    for first, last, mine in runs:
+        mine = mine[judged[mine]]
+        if len(mine) == 0:
+            continue
+        part = _grown_span(at.rows[mine], at.cols[mine], reach)
+        good = _in_bins(bins[part], present[first], present[last])
+        eroded = cv2.erode(good, union, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+        partial = np.take(eroded.ravel(), at.flat_in(mine, part, good.shape[1])) == 0
+        if not partial.any():
+            continue
+        mine = mine[partial]
+        sub = _grown_span(at.rows[mine], at.cols[mine], reach)  # inside `part`
+        good = (good[sub[0].start - part[0].start:sub[0].stop - part[0].start,
+                     sub[1].start - part[1].start:sub[1].stop - part[1].start] > 0).astype(np.float32)
+        flat = at.flat_in(mine, sub, good.shape[1])
+        worst = np.full(len(mine), np.inf, np.float32)
+        for k in turned:
+            # Counts are integers: rounding removes the DFT convolution's float noise.
+            counts = np.rint(np.take(cv2.filter2D(good, -1, k.astype(np.float32), borderType=cv2.BORDER_CONSTANT)
+                                     .ravel(), flat))
+            worst = np.minimum(worst, counts / float(k.sum()))
+        out[mine] = worst
+    return out
+
+
+def _grown_span(rows: np.ndarray, cols: np.ndarray, reach: int, reach_cols: int | None = None) -> tuple[slice, slice]:
+    """The bounding box of the cells grown by `reach` (`reach_cols` along rows when given; clipped at 0,
+    slicing clips the far ends)."""
+    reach_cols = reach if reach_cols is None else reach_cols
     return (slice(max(int(rows.min()) - reach, 0), int(rows.max()) + reach + 1),
-            slice(max(int(cols.min()) - reach, 0), int(cols.max()) + reach + 1))
+            slice(max(int(cols.min()) - reach_cols, 0), int(cols.max()) + reach_cols + 1))
 
 
 def _box_sum(values: np.ndarray, kernel: np.ndarray) -> np.ndarray:
-    """Sum of `values` under the kernel centred on every cell (zero outside the raster), float32; a
-    boolean raster's sums are its exact counts."""
+    """Sum of `values` under the kernel centred on every cell (zero outside the raster): float64 for
+    float64 values, else float32; a boolean raster's sums are its exact counts."""
     import cv2
 
-    v = values.view(np.uint8) if values.dtype == bool else values.astype(np.float32, copy=False)
+    depth = cv2.CV_64F if values.dtype == np.float64 else cv2.CV_32F
+    v = values.view(np.uint8) if values.dtype == bool else values.astype(np.float32, copy=False) \
+        if depth == cv2.CV_32F else values
     if kernel.all():  # a rectangle: OpenCV's running box sum
-        return cv2.boxFilter(v, cv2.CV_32F, kernel.shape[::-1], normalize=False, borderType=cv2.BORDER_CONSTANT)
-    sums = cv2.filter2D(v, cv2.CV_32F, kernel.astype(np.float32), borderType=cv2.BORDER_CONSTANT)
+        return cv2.boxFilter(v, depth, kernel.shape[::-1], normalize=False, borderType=cv2.BORDER_CONSTANT)
+    sums = cv2.filter2D(v, depth, kernel.astype(np.float32 if depth == cv2.CV_32F else np.float64),
+                        borderType=cv2.BORDER_CONSTANT)
     return np.rint(sums, out=sums) if values.dtype == bool else sums  # counts: no DFT float noise

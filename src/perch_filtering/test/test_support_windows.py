@@ -89,7 +89,8 @@ def assert_equal_at_centres(depth, kernel, turned, centres, min_share, max_rms, 
     got = local_window_support(depth, kernel, BAND, TOLERANCE, BIN, turned, centres=centres,
                                min_share=min_share, max_rms=max_rms)
     np.testing.assert_array_equal(got.offset[centres], m[centres])
-    np.testing.assert_allclose(got.rms[centres], rms[centres], rtol=1e-6, atol=1e-9)
+    # The squares are summed in float64: the reference's float32 cancellation is a few micrometres.
+    np.testing.assert_allclose(got.rms[centres], rms[centres], rtol=1e-4, atol=1e-5)
     ok_reference = (share >= min_share) & (rms <= max_rms)
     ok = (got.share >= min_share) & (got.rms <= max_rms)
     np.testing.assert_array_equal(ok[centres], ok_reference[centres])
@@ -106,7 +107,7 @@ def assert_equal_at_centres(depth, kernel, turned, centres, min_share, max_rms, 
 @pytest.mark.parametrize("seed", range(6))
 def test_small_windows_in_every_yaw_equal_the_whole_raster_computation(seed):
     """7 x 7 windows turned every 15 deg: OpenCV convolves kernels this small directly, so the
-    reference's counts are exact and every statistic must be the same number."""
+    reference's counts are exact: the same offsets, decisions and shares."""
     rng = np.random.default_rng(seed)
     kernel = window_kernel(0.14, 0.14, 0.02, False)
     turned = [turned_kernel(kernel, np.radians(yaw)) for yaw in (15, 30, 45, 60, 75)]
@@ -156,7 +157,7 @@ def test_walls_and_elliptic_windows_without_centres_equal_the_whole_raster_compu
         got = local_window_support(depth, kernel, BAND, TOLERANCE, BIN)
         np.testing.assert_array_equal(got.offset, m)
         np.testing.assert_allclose(got.share, share, atol=1e-5)
-        np.testing.assert_allclose(got.rms, rms, rtol=1e-5, atol=1e-7)
+        np.testing.assert_allclose(got.rms, rms, rtol=1e-4, atol=1e-5)
 
 
 def test_outlier_bins_far_from_some_centres_and_rasters_without_depth():
@@ -211,3 +212,34 @@ def test_turned_kernels_are_made_once_and_not_shared_writable():
         assert a is b
         np.testing.assert_array_equal(a, turned_kernel(kernel, yaw))
         assert not a.flags.writeable
+
+
+def test_first_surface_depth_is_the_first_hit_in_front_of_each_cell():
+    """Against RayScene.cast from the cells' world centres: a floor with a hole, a step within the
+    probe, a slab beyond it; the same float32 depths and NaN where nothing lies within the probe."""
+    from perch_common.mesh import Mesh
+    from perch_common.raycast import RayScene
+    from perch_filtering.support import first_surface_depth
+
+    def quad(x0, y0, x1, y1, z):
+        v = np.array([[x0, y0, z], [x1, y0, z], [x1, y1, z], [x0, y1, z]], np.float64)
+        return v, np.array([[0, 1, 2], [0, 2, 3]])
+
+    parts = [quad(0, 0, 1, 2, 0.0), quad(1.2, 0, 3, 2, 0.0), quad(0.5, 0.5, 1.5, 1.0, 0.013), quad(2, 1, 3, 2, -0.5)]
+    vertices = np.concatenate([v for v, _ in parts])
+    faces = np.concatenate([f + 4 * i for i, (_, f) in enumerate(parts)])
+    scene = RayScene(Mesh(vertices, faces))
+    frame = PlaneFrame(np.zeros(3), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), np.array([0, 0, 1.0]))
+    raster = SurfaceRaster(frame, 0.02, 0.013, 0.007, (100, 150), np.ones((100, 150), bool))
+    cells = np.random.default_rng(4).random(raster.shape) < 0.8
+    probe = 0.06
+    depth = first_surface_depth(scene, raster, cells, probe)
+    normal = frame.normal
+    hits = scene.cast(raster.cell_world(cells) + probe * normal, np.repeat(-normal[None], int(cells.sum()), axis=0))
+    expected = np.full(raster.shape, np.nan, np.float32)
+    expected[cells] = np.where(hits.hit & (hits.distance <= 2 * probe), probe - hits.distance, np.nan)
+    np.testing.assert_array_equal(depth, expected)
+    assert np.isnan(depth[cells]).any() and (depth[cells] > 0.01).any() and (np.abs(depth) < 1e-6).any()
+    np.testing.assert_array_equal(scene.first_hit_distance(raster.cell_world(cells) + probe * normal,
+                                                           np.repeat(-normal[None], int(cells.sum()), axis=0)),
+                                  hits.distance)
