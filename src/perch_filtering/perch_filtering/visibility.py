@@ -198,7 +198,7 @@ class _Bounds:
 
     def cast(self, nodes: np.ndarray, window: slice, deciding: float | None = None) -> None:
         """Cast the sight lines from `nodes` to their facing points at positions `window` of groups that
-        can still raise the node's share (with `deciding`: and reach it). Each position is cast once."""
+        can still raise the node's share (with `deciding`: and reach it)."""
         member = self.member[window].astype(np.float32)
         cast = np.take(self.facing[:, window], nodes, axis=0)
         if deciding is not None:

@@ -76,6 +76,9 @@ def test_rounds_decide_random_rasters_with_patches_as_every_sight_line(room, see
     patch scene that blocks some of the rays the mesh lets through."""
     rng = np.random.default_rng(seed)
     scene = ray_scene(room.mesh)
+    if seed == 5:   # facing points and sight lines found in many small batches give the same answers
+        monkeypatch.setattr(visibility, "FACING_NODES", 257)
+        monkeypatch.setattr(visibility, "CHUNK_PAIRS", 1000)
     rasters, masks, offsets = _surfaces(room, seed, rng.uniform(0.05, 0.9))
     targets = room.target.sample(int(rng.integers(20, 80)), seed=seed)
     groups = rng.random((len(targets), int(rng.integers(1, 5)))) < rng.uniform(0.2, 0.8)
