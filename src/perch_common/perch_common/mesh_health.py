@@ -96,6 +96,8 @@ def needle_mask(mesh: Mesh) -> np.ndarray:
     """Faces that are needle slivers (see NEEDLE_ASPECT, NEEDLE_LENGTH)."""
     if mesh.num_faces == 0:
         return np.zeros(0, bool)
+    if _too_short_for_needles(mesh.vertices, mesh.faces):
+        return np.zeros(mesh.num_faces, bool)
     lengths = _edge_lengths(mesh.vertices, mesh.faces)
     longest = np.maximum(np.maximum(lengths[:, 0], lengths[:, 1]), lengths[:, 2])   # max(axis=1), 5x faster
     typical = float(np.median(lengths, overwrite_input=True))
@@ -106,6 +108,21 @@ def needle_mask(mesh: Mesh) -> np.ndarray:
     mask = np.zeros(mesh.num_faces, bool)
     mask[needles] = altitude < NEEDLE_ASPECT * longest[needles]
     return mask
+
+
+def _too_short_for_needles(vertices: np.ndarray, faces: np.ndarray) -> bool:
+    """Whether no edge is over NEEDLE_LENGTH x a lower bound of the median edge (then no face is a
+    needle), in one pass that keeps no face-sized array: the bound is a sample's lower quartile,
+    checked to lie at or below the median (no more edges than half shorter than it)."""
+    sample = _edge_lengths(vertices, faces[::max(1, len(faces) // 4096)]).ravel()
+    bound = np.partition(sample, len(sample) // 4)[len(sample) // 4]
+    shorter, longest = 0, 0.0
+    for start in range(0, len(faces), FACE_BLOCK):
+        lengths = _edge_lengths(vertices, faces[start:start + FACE_BLOCK])
+        shorter += int(np.count_nonzero(lengths < bound))
+        longest = max(longest, float(lengths.max()))
+    # the median is at least the ((3F - 1) // 2)-th shortest edge (from 0), which is >= bound
+    return shorter <= (3 * len(faces) - 1) // 2 and longest <= NEEDLE_LENGTH * bound
 
 
 def _edge_lengths(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:

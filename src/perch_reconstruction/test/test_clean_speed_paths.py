@@ -259,7 +259,14 @@ def test_the_mesh_health_report_is_the_same(meshes, monkeypatch):
 
 
 def test_needles_and_cross_products_are_the_same_numbers(meshes):
-    for mesh in meshes.values():
+    """Also where edges are too short for needles by a sample's bound (rooms), where that bound
+    cannot tell (a room with one large wide triangle: its edges are far over the bound) and on rooms
+    with needles."""
+    room = meshes["room-1"]
+    big = np.array([[0.0, 0, 0], [8, 0, 0], [4, 7, 0]]) + room.bounds()[0]
+    wide = Mesh(np.vstack([room.vertices, big]), np.vstack([room.faces, room.num_vertices + np.array([[0, 1, 2]])]))
+    assert not mesh_health._too_short_for_needles(wide.vertices, wide.faces)
+    for mesh in [*meshes.values(), wide]:
         np.testing.assert_array_equal(needle_mask(mesh), reference_needle_mask(mesh))
         np.testing.assert_array_equal(Mesh(mesh.vertices, mesh.faces)._cross(),
                                       reference_cross(Mesh(mesh.vertices, mesh.faces)))
