@@ -311,13 +311,16 @@ def _support(w: _Work, scene: RayScene, kernel: np.ndarray, config: FilterConfig
     import cv2
 
     window = w.window if w.window is not None else kernel
-    under = cv2.dilate(w.alive.astype(np.uint8), window).astype(bool)
     share = np.zeros(w.raster.shape, np.float32)
     rms = np.full(w.raster.shape, np.inf, np.float32)
-    if under.any():  # the statistics on the part of the raster the live windows cover
-        rows, cols = np.nonzero(under)
-        box = (slice(rows.min(), rows.max() + 1), slice(cols.min(), cols.max() + 1))
-        depth = first_surface_depth(scene, w.raster, under, w.band + config.cell)[box]
+    rows = np.flatnonzero(w.alive.any(axis=1))
+    if len(rows):  # the statistics on the part of the raster the live windows cover
+        cols = np.flatnonzero(w.alive.any(axis=0))
+        reach_v, reach_u = window.shape[0] // 2, window.shape[1] // 2
+        box = (slice(max(rows[0] - reach_v, 0), rows[-1] + reach_v + 1),
+               slice(max(cols[0] - reach_u, 0), cols[-1] + reach_u + 1))
+        under = cv2.dilate(w.alive[box].astype(np.uint8), window).astype(bool)
+        depth = first_surface_depth(scene, w.raster, under, w.band + config.cell, box)
         # Only the live windows are judged (the others are gone whatever their support).
         local = local_window_support(depth, kernel, config.plane_tolerance + config.max_support_rms,
                                      config.plane_tolerance, SUPPORT_BIN * config.plane_tolerance,

@@ -20,15 +20,17 @@ from perch_common.raycast import RayScene
 from perch_filtering.raster import SurfaceRaster, turned_kernel
 
 
-def first_surface_depth(scene: RayScene, raster: SurfaceRaster, cells: np.ndarray, probe: float) -> np.ndarray:
+def first_surface_depth(scene: RayScene, raster: SurfaceRaster, cells: np.ndarray, probe: float,
+                        box: tuple[slice, slice] | None = None) -> np.ndarray:
     """Signed depth (m, + towards free space) of the first scanned surface under each cell in `cells`:
     a ray cast along the inverted normal from `probe` in front of the plane; NaN where it finds nothing
-    within `probe` of the plane on either side."""
-    depth = np.full(raster.shape, np.nan, np.float32)
+    within `probe` of the plane on either side. `cells` (and the answer) cover the raster, or its part
+    `box` when given."""
+    depth = np.full(cells.shape, np.nan, np.float32)
     if not cells.any():
         return depth
     normal = raster.frame.normal
-    origins = _ray_origins(raster, cells, probe)
+    origins = _ray_origins(raster, cells, probe, box)
     directions = np.empty_like(origins)
     directions[:] = -normal
     distance = scene.first_hit_distance(origins, directions)
@@ -39,12 +41,16 @@ def first_surface_depth(scene: RayScene, raster: SurfaceRaster, cells: np.ndarra
 ORIGIN_CHUNK = 1 << 14  # cells whose float64 temporaries stay in cache
 
 
-def _ray_origins(raster: SurfaceRaster, cells: np.ndarray, probe: float) -> np.ndarray:
-    """float32 (N,3) points `probe` in front of the cells' centres (row-major): raster.cell_world(cells)
-    + probe * normal with the same float64 operations (origin + u * axis_u per column, v * axis_v per
-    row), taken in chunks and rounded to float32 (what the ray caster takes)."""
+def _ray_origins(raster: SurfaceRaster, cells: np.ndarray, probe: float,
+                 box: tuple[slice, slice] | None = None) -> np.ndarray:
+    """float32 (N,3) points `probe` in front of the cells' centres (row-major; `cells` covers `box`
+    when given): raster.cell_world(cells) + probe * normal with the same float64 operations (origin +
+    u * axis_u per column, v * axis_v per row), taken in chunks and rounded to float32 (what the ray
+    caster takes)."""
     frame = raster.frame
     rows, cols = np.nonzero(cells)
+    if box is not None:
+        rows, cols = rows + box[0].start, cols + box[1].start
     by_col = frame.origin + (raster.u0 + np.arange(raster.shape[1]) * raster.cell)[:, None] * frame.axis_u
     by_row = (raster.v0 + np.arange(raster.shape[0]) * raster.cell)[:, None] * frame.axis_v
     lift, step = np.asarray(0.0)[..., None] * frame.normal, probe * frame.normal  # to_world's height, the probe

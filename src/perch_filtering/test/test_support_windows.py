@@ -239,6 +239,8 @@ def test_first_surface_depth_is_the_first_hit_in_front_of_each_cell():
     expected = np.full(raster.shape, np.nan, np.float32)
     expected[cells] = np.where(hits.hit & (hits.distance <= 2 * probe), probe - hits.distance, np.nan)
     np.testing.assert_array_equal(depth, expected)
+    box = (slice(13, 71), slice(40, 150))
+    np.testing.assert_array_equal(first_surface_depth(scene, raster, cells[box], probe, box), expected[box])
     assert np.isnan(depth[cells]).any() and (depth[cells] > 0.01).any() and (np.abs(depth) < 1e-6).any()
     np.testing.assert_array_equal(scene.first_hit_distance(raster.cell_world(cells) + probe * normal,
                                                            np.repeat(-normal[None], int(cells.sum()), axis=0)),
