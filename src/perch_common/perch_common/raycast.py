@@ -114,15 +114,14 @@ class RayScene:
         return RayHits(distance, face, normal)
 
     def first_hit_distance(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
-        """`cast(...).distance` (inf where a ray misses) without the faces and normals, whose
-        gathers cost a third of a large batch."""
+        """`cast(...).distance` (inf where a ray misses) from Embree's distance query: no faces,
+        normals or hit records (a third of cast's CPU on a large batch)."""
         origins, directions = _float32_rows(origins), _float32_rows(directions)
-        distance = np.full(len(origins), np.inf)
-        if len(origins) and self._scene is not None:
-            parts = _in_parallel(len(origins), lambda part: self._scene.run(origins[part], directions[part], output=1))
-            hit = np.concatenate([p["primID"] for p in parts]).astype(np.int64) >= 0
-            distance[hit] = np.concatenate([p["tfar"] for p in parts])[hit]
-        return distance
+        if len(origins) == 0 or self._scene is None:
+            return np.full(len(origins), np.inf)
+        return np.concatenate(_in_parallel(len(origins), lambda part: self._scene.run(
+            origins[part], directions[part], dists=np.full(part.stop - part.start, np.inf, np.float32),
+            query="DISTANCE"))).astype(np.float64)
 
     def any_hit(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
         """Whether each ray hits the mesh at all (`cast(...).hit`): Embree's occlusion query stops at
