@@ -181,7 +181,7 @@ class _Bounds:
         for first in range(0, len(origins), FACING_NODES):
             part = slice(first, first + FACING_NODES)
             self.facing[part] = _facing(origins[part], normals[part], targets)[:, order]
-            self.possible[part] = self.facing[part].astype(np.float32) @ member32   # exact: counts < 2^24
+            self.possible[part] = _counts(self.facing[part], member32)
         self.seen = np.zeros(self.possible.shape)
         self.lower, _ = self._shares(self.seen)
         self.upper, self.group_upper = self._shares(self.possible)
@@ -205,13 +205,13 @@ class _Bounds:
             group_upper = np.take(self.group_upper, nodes, axis=0).astype(np.float32)
             # A group whose upper bound is no more than the node's lower bound cannot raise its share.
             useful = (group_upper > np.take(self.lower, nodes)[:, None]) & (group_upper >= deciding)
-            cast &= useful.astype(np.float32) @ member.T > 0
+            cast &= _counts(useful, member.T) > 0
         points, rows = np.nonzero(cast.T)   # point by point: neighbouring nodes' rays traverse alike (~8 % faster)
         visible = np.zeros(cast.shape, np.float32)
         visible[rows, points] = _visible(self.scene, self.patches, self.origins32, self.targets32,
                                          np.take(nodes, rows), points + window.start)
-        seen = np.take(self.seen, nodes, axis=0) + visible @ member          # exact: counts < 2^24
-        possible = np.take(self.possible, nodes, axis=0) - (cast.astype(np.float32) - visible) @ member
+        seen = np.take(self.seen, nodes, axis=0) + _counts(visible, member)
+        possible = np.take(self.possible, nodes, axis=0) - _counts(cast.astype(np.float32) - visible, member)
         self.seen[nodes], self.possible[nodes] = seen, possible
         self.lower[nodes], _ = self._shares(seen)
         self.upper[nodes], self.group_upper[nodes] = self._shares(possible)
@@ -219,8 +219,15 @@ class _Bounds:
     def cast_all(self, nodes: np.ndarray) -> None:
         """Cast every facing sight line from `nodes` anew: their bounds become exact."""
         self.seen[nodes] = 0
-        self.possible[nodes] = self.facing[nodes].astype(np.float32) @ self.member.astype(np.float32)
+        self.possible[nodes] = _counts(self.facing[nodes], self.member.astype(np.float32))
         self.cast(nodes, slice(0, self.facing.shape[1]))
+
+
+def _counts(flags: np.ndarray, member: np.ndarray) -> np.ndarray:
+    """(A, G) = (A, K) 0/1 flags summed per group of `member` ((K, G) 0/1): exact in float32 (counts
+    < 2^24). einsum, not matmul: a multi-threaded BLAS spins its idle threads after every small product,
+    which on two cores cost the sight lines' ray thread a third more CPU."""
+    return np.einsum("ak,kg->ag", flags.astype(np.float32), member)
 
 
 def _bounded_shares(origins: np.ndarray, normals: np.ndarray, targets: np.ndarray, scene: RayScene,
