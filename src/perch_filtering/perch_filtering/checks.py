@@ -17,7 +17,7 @@ import numpy as np
 from perch_common.mesh_samples import MeshSamples
 from perch_common.types import SurfaceClass
 from perch_filtering.raster import SurfaceRaster, any_yaw_radius, disc_kernel
-from perch_filtering.sampling import SampleIndex, project
+from perch_filtering.sampling import SampleIndex
 
 SNAP = 0.35  # cells (the worst case, a point half a cell diagonal from its cell centre, is 0.71)
 GAP = 0.25  # share of the sample spacing (points of a face lie within ~0.5 spacing of a sample)
@@ -39,7 +39,8 @@ def geometry_in_front(samples: MeshSamples, index: SampleIndex, raster: SurfaceR
                       up: np.ndarray, min_depth: float, max_depth: float, margin: float,
                       own_min_depth: float | None = None) -> NearbyGeometry:
     """Samples with min_depth < depth <= max_depth whose plane coordinates lie within `margin` of the
-    raster; samples on the surface's own faces only beyond `own_min_depth` (never when None)."""
+    raster; samples on the surface's own faces only beyond `own_min_depth` (never when None). The samples
+    are read from `index` (built from `samples`), which keeps them in bucket order."""
     f = raster.frame
     rows, cols = raster.shape
     u_lo, u_hi = raster.u0 - margin, raster.u0 + (cols - 1) * raster.cell + margin

@@ -37,6 +37,19 @@ def floor_cells(local: np.ndarray, lo: np.ndarray, size: float) -> np.ndarray:
     return scaled.astype(np.int64)
 
 
+FLOOR_CHUNK = 1 << 16  # points per chunk of cell_keys: its temporaries stay in cache, not fresh pages
+
+
+def cell_keys(local: np.ndarray, lo: np.ndarray, size: float, dims: tuple) -> np.ndarray:
+    """np.ravel_multi_index(floor_cells(local, lo, size).T, dims), a chunk at a time (no (N,3) temporaries:
+    the building's 8 M samples would take two of 190 MB)."""
+    out = np.empty(len(local), np.int64)
+    for start in range(0, len(local), FLOOR_CHUNK):
+        part = slice(start, start + FLOOR_CHUNK)
+        out[part] = np.ravel_multi_index(floor_cells(local[part], lo, size).T, dims)
+    return out
+
+
 # m: a box's candidates overshoot it by up to a bucket on every side (at 0.5 m a wall's 1 m deep box
 # fetched the samples of the wall itself and of the room behind it as well).
 BUCKET = 0.25
@@ -53,18 +66,12 @@ class SampleIndex:
         local = project(samples.points, rotation) if local is None else local
         self.rotation, self.bucket = rotation, bucket
         self.lo = local.min(axis=0)
-        cells = floor_cells(local, self.lo, bucket)
-        self.dims = cells.max(axis=0) + 1
-        key = np.ravel_multi_index(cells.T, tuple(self.dims))
-        del cells
-        self.order = stable_argsort(key)
-        self.sorted_key = key[self.order]
+        # The largest cell is the cell of the largest coordinate (floor and the scaling are monotonic).
+        self.dims = np.floor((local.max(axis=0) - self.lo) / bucket).astype(np.int64) + 1
+        key = cell_keys(local, self.lo, bucket, tuple(self.dims))
+        self.order, self.sorted_key = stable_sort(key)
         self.x, self.y, self.z = (np.ascontiguousarray(samples.points[self.order, axis]) for axis in range(3))
         self.face = samples.face[self.order]
-
-    @property
-    def nbytes(self) -> int:
-        return sum(a.nbytes for a in (self.order, self.sorted_key, self.x, self.y, self.z, self.face))
 
     def near_box(self, corners: np.ndarray) -> np.ndarray:
         """Indices of samples in buckets overlapping the (rotated-frame) bounds of world `corners`."""
@@ -91,14 +98,16 @@ class SampleIndex:
         return offsets + np.arange(total)
 
 
-def stable_argsort(key: np.ndarray) -> np.ndarray:
-    """np.argsort(key, kind="stable") of non-negative int keys, 3x faster: key and index packed into one
-    int64 and sorted (unique values, so any sort is stable); falls back when they do not fit."""
+def stable_sort(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(np.argsort(key, kind="stable"), the sorted keys) of non-negative int keys, 3x faster: key and index
+    packed into one int64 and sorted (unique values, so any sort is stable); falls back when they do not fit."""
     bits = max(1, int(len(key)).bit_length())
     if len(key) == 0 or int(key.max()) >= 1 << (63 - bits) or int(key.min()) < 0:
-        return np.argsort(key, kind="stable")
+        order = np.argsort(key, kind="stable")
+        return order, key[order]
     packed = key.astype(np.int64) << bits
     packed |= np.arange(len(key), dtype=np.int64)
     packed.sort()
+    sorted_key = packed >> bits
     packed &= (1 << bits) - 1
-    return packed
+    return packed, sorted_key

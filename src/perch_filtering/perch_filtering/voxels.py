@@ -9,7 +9,7 @@ from scipy import ndimage
 
 from perch_common.target import TargetVolume
 from perch_common.transforms import rotation_between
-from perch_filtering.sampling import floor_cells, project
+from perch_filtering.sampling import cell_keys, project
 
 SIX_CONNECTED = ndimage.generate_binary_structure(3, 1)
 # Open space (for orienting surfaces) is more than 1.5 voxels from any sample: one voxel of
@@ -81,8 +81,7 @@ def build_flight_grid(points: np.ndarray, rotation: np.ndarray, target: TargetVo
         raise ValueError(f"occupancy grid of {shape.tolist()} voxels exceeds max_voxels={max_voxels}: "
                          f"raise voxel_size ({voxel} m) or crop the mesh")
     occupied = np.zeros(tuple(shape), bool)
-    idx = floor_cells(local, lo, voxel)
-    occupied[idx[:, 0], idx[:, 1], idx[:, 2]] = True
+    occupied.reshape(-1)[cell_keys(local, lo, voxel, tuple(shape))] = True
     occupied[[0, -1], :, :] = occupied[:, [0, -1], :] = True
     occupied[:, :, [0, -1]] = True
     # In voxels, from free voxel centres to occupied centres, exact up to the largest threshold below (the
@@ -92,8 +91,10 @@ def build_flight_grid(points: np.ndarray, rotation: np.ndarray, target: TargetVo
     grid = FlightGrid(rotation, lo, voxel, occupied, occupied, occupied)
     seeds = grid.indices(target.sample(count=4000, seed=seed))
     seeds = seeds[np.all((seeds >= 0) & (seeds < shape), axis=1)]
-    grid.open_space = _connected_to(distance > OPEN_SPACE_VOXELS, seeds)
-    grid.reachable = _connected_to(distance >= drone_radius / voxel, seeds)
+    labels = np.empty(occupied.shape, np.int32)  # one buffer for both labellings
+    grid.open_space = _connected_to(distance > OPEN_SPACE_VOXELS, seeds, labels)
+    grid.reachable = _connected_to(distance >= drone_radius / voxel, seeds, labels)
+    del labels
     grid.hover = grid.reachable & (distance >= hover_voxels)
     grid.reachable_near = _grown(grid.reachable)
     return grid
@@ -147,9 +148,12 @@ def _grown(mask: np.ndarray) -> np.ndarray:
     return out
 
 
-def _connected_to(free: np.ndarray, seeds: np.ndarray) -> np.ndarray:
-    """The voxels of `free` 6-connected to a seed: one labelling, then a lookup table of kept labels."""
-    labels, count = ndimage.label(free, structure=SIX_CONNECTED)
+def _connected_to(free: np.ndarray, seeds: np.ndarray, labels: np.ndarray | None = None) -> np.ndarray:
+    """The voxels of `free` 6-connected to a seed: one labelling (into `labels`, int32 of free's shape,
+    when given), then a lookup table of kept labels."""
+    if labels is None:
+        labels = np.empty(free.shape, np.int32)
+    count = ndimage.label(free, structure=SIX_CONNECTED, output=labels)
     keep = np.zeros(count + 1, bool)
     if len(seeds):
         keep[labels[seeds[:, 0], seeds[:, 1], seeds[:, 2]]] = True

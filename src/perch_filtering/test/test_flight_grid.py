@@ -11,7 +11,7 @@ from perch_common.raycast import ray_scene, sphere_directions
 from perch_common.scene_generator import generate_scene
 from perch_filtering import voxels
 from perch_filtering.observed import down_cone, escape_shares, escapes
-from perch_filtering.sampling import SampleIndex, project, stable_argsort
+from perch_filtering.sampling import SampleIndex, cell_keys, floor_cells, project, stable_sort
 
 
 @pytest.fixture(scope="module")
@@ -78,11 +78,27 @@ def test_connected_to_and_grown_equal_isin_and_binary_dilation(seed):
     np.testing.assert_array_equal(voxels._grown(plain), ndimage.binary_dilation(plain, voxels.SIX_CONNECTED))
 
 
-def test_stable_argsort_equals_numpy_stable():
+def test_stable_sort_equals_numpy_stable():
     rng = np.random.default_rng(3)
-    for n, top in ((0, 1), (1, 1), (1000, 7), (100_000, 50_000)):
+    for n, top in ((0, 1), (1, 1), (1000, 7), (100_000, 50_000), (10, 1 << 60)):
         key = rng.integers(0, top, n)
-        np.testing.assert_array_equal(stable_argsort(key), np.argsort(key, kind="stable"))
+        order, sorted_key = stable_sort(key)
+        np.testing.assert_array_equal(order, np.argsort(key, kind="stable"))
+        np.testing.assert_array_equal(sorted_key, np.sort(key))
+
+
+def test_cell_keys_equal_the_raveled_cells(monkeypatch):
+    from perch_filtering import sampling
+
+    monkeypatch.setattr(sampling, "FLOOR_CHUNK", 1000)  # several chunks, the last one shorter
+    local = np.asfortranarray(np.random.default_rng(8).normal(size=(4321, 3)) * 5)
+    lo = local.min(axis=0) - 0.05
+    cells = floor_cells(local, lo, 0.05)
+    dims = tuple(cells.max(axis=0) + 1)
+    np.testing.assert_array_equal(cell_keys(local, lo, 0.05, dims), np.ravel_multi_index(cells.T, dims))
+    # SampleIndex sizes its grid from the largest coordinate alone: the largest cell.
+    assert tuple(np.floor((local.max(axis=0) - local.min(axis=0)) / 0.25).astype(np.int64) + 1) == \
+        tuple(floor_cells(local, local.min(axis=0), 0.25).max(axis=0) + 1)
 
 
 def test_project_equals_the_row_sums():
