@@ -144,9 +144,9 @@ def local_window_support(depth: np.ndarray, kernel: np.ndarray, band: float, tol
     m = _median_in_bins(running, edges[present], bin_width)
     lo, hi = _near_runs(m, edges[present] + 0.5 * bin_width, tolerance)
     runs = _Runs(lo, hi, len(present))
-    # The cells near the plane: an exact count, and their squared distances to it.
-    ahead = np.concatenate([np.zeros((1, at.count), np.float32), running])
-    count = np.take(ahead, (hi + 1) * at.count + at.index) - np.take(ahead, lo * at.count + at.index)
+    # The cells near the plane: an exact count (running sums' difference), and their squared distances.
+    count = np.take(running, hi * at.count + at.index, mode="clip")
+    count -= np.take(running, (lo - 1) * at.count + at.index, mode="clip") * (lo > 0)
     count[runs.none] = 0.0
     squares = np.zeros(at.count)
     hv, hu = kernel.shape[0] // 2, kernel.shape[1] // 2
