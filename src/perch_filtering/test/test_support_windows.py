@@ -117,6 +117,18 @@ def test_small_windows_in_every_yaw_equal_the_whole_raster_computation(seed):
     assert 0.05 < kept < 0.95 and judged > 50  # both answers occur
 
 
+def test_oblong_windows_turned_to_half_a_turn_equal_the_whole_raster_computation():
+    """A 9 x 5 window (a rectangle repeats after half a turn: 11 yaws) on a noisy tilted scan."""
+    rng = np.random.default_rng(21)
+    kernel = window_kernel(0.18, 0.1, 0.02, False)
+    turned = turned_kernels(kernel, tuple(np.radians(np.arange(15.0, 180.0 - 1e-9, 15.0))))
+    assert len(turned) == 11 and kernel.shape == (5, 9)
+    depth = random_depth(rng, (70, 90), noise=0.006, tilt=0.02)
+    kept, judged = assert_equal_at_centres(depth, kernel, turned, centres_of(rng, depth.shape), 0.9 - 1e-6, 0.02,
+                                           exact_share=True)
+    assert 0.05 < kept < 0.95 and judged > 50
+
+
 def test_ties_at_the_share_threshold_are_decided_alike():
     """A threshold that many windows meet exactly: k of 49 cells, the same float32 share both ways."""
     rng = np.random.default_rng(11)
