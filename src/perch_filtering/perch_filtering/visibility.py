@@ -224,10 +224,10 @@ class _Bounds:
 
 
 def _counts(flags: np.ndarray, member: np.ndarray) -> np.ndarray:
-    """(A, G) = (A, K) 0/1 flags summed per group of `member` ((K, G) 0/1): exact in float32 (counts
-    < 2^24). einsum, not matmul: a multi-threaded BLAS spins its idle threads after every small product,
-    which on two cores cost the sight lines' ray thread a third more CPU."""
-    return np.einsum("ak,kg->ag", flags.astype(np.float32), member)
+    """(A, G) = (A, K) 0/1 flags summed per group of `member` ((K, G) 0/1), exact in float32 (counts
+    < 2^24). A matrix product: Perch's entry points give BLAS one thread (`perch_common.threads`);
+    a threaded OpenBLAS would spin after each of these small products."""
+    return flags.astype(np.float32) @ member
 
 
 def _bounded_shares(origins: np.ndarray, normals: np.ndarray, targets: np.ndarray, scene: RayScene,
