@@ -17,11 +17,11 @@ def frames_of(table: np.ndarray, centre: np.ndarray) -> tuple[list[PlaneFrame], 
     majority, v = normal x u) and the RMS distance of each cluster's surface to its plane."""
     centroid, values, vectors = st.pca_frames(table)
     normals = st.oriented_normals(table, vectors)
+    cross = st.cross(normals, vectors[:, :, 2])  # np.cross's floats, one call for all clusters
     frames = []
     for k in range(len(table)):
-        u = vectors[k, :, 2]
-        v = np.cross(normals[k], u)
-        frames.append(PlaneFrame(centroid[k] + centre, u, v / np.linalg.norm(v), normals[k]))
+        v = cross[k]
+        frames.append(PlaneFrame(centroid[k] + centre, vectors[k, :, 2], v / np.linalg.norm(v), normals[k]))
     return frames, np.sqrt(values[:, 0])
 
 

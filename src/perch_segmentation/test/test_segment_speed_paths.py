@@ -1,7 +1,7 @@
 """The segment stage's cheaper paths give the straightforward code's answers, float for float.
 
 Each reference below is the code the fast path replaced (np.roll / np.linalg.norm / np.cross, and
-make_valid on every outline); segment_mesh with the references patched in must match exactly.
+make_valid on every outline, a cross product per surface); segment_mesh with the references patched in must match exactly.
 """
 
 from __future__ import annotations
@@ -12,6 +12,7 @@ import shapely
 
 from perch_common.scene_generator import generate_scene
 from perch_segmentation import core, outline
+from perch_segmentation import surfaces as step3
 from perch_segmentation.config import SegmentationConfig
 
 
@@ -104,6 +105,7 @@ def test_segment_mesh_matches_the_straightforward_code(monkeypatch, kind, seed, 
     monkeypatch.setattr(outline, "_edge_lengths", reference_edge_lengths)
     monkeypatch.setattr(outline, "_shrink", reference_shrink)
     monkeypatch.setattr(core, "reliable_face_normals", reference_reliable_face_normals)
+    monkeypatch.setattr(step3, "frames_of", reference_frames_of)
     mesh = generate_scene(seed, kind, holes=holes).mesh
     ref_labels, ref_surfaces = summary(core.segment_mesh(mesh, SegmentationConfig()))
     assert np.array_equal(labels, ref_labels)
@@ -112,3 +114,34 @@ def test_segment_mesh_matches_the_straightforward_code(monkeypatch, kind, seed, 
         for x, y in zip(s[:-1], r[:-1]):
             assert np.array_equal(np.asarray(x), np.asarray(y))
         assert_same_polygons(s[-1], r[-1])
+
+
+def reference_frames_of(table, centre):
+    from perch_common.types import PlaneFrame
+    from perch_segmentation import stats as st
+
+    centroid, values, vectors = st.pca_frames(table)
+    normals = st.oriented_normals(table, vectors)
+    frames = []
+    for k in range(len(table)):
+        u = vectors[k, :, 2]
+        v = np.cross(normals[k], u)
+        frames.append(PlaneFrame(centroid[k] + centre, u, v / np.linalg.norm(v), normals[k]))
+    return frames, np.sqrt(values[:, 0])
+
+
+def test_frames_are_the_straightforward_floats():
+    from perch_segmentation import stats as st
+    from perch_segmentation.surfaces import frames_of
+
+    rng = np.random.default_rng(5)
+    tri = rng.normal(size=(3000, 3, 3)) * np.array([3.0, 2.0, 0.05])
+    table = st.aggregate(st.face_table(tri, np.abs(rng.normal(size=3000)) + 0.01, rng.normal(size=(3000, 3)),
+                                       None, None), rng.integers(0, 300, 3000), 300)
+    centre = np.array([1.5, -2.0, 0.25])
+    frames, rms = frames_of(table, centre)
+    ref_frames, ref_rms = reference_frames_of(table, centre)
+    assert np.array_equal(rms, ref_rms)
+    for f, r in zip(frames, ref_frames, strict=True):
+        for name in ("origin", "axis_u", "axis_v", "normal"):
+            assert np.array_equal(getattr(f, name), getattr(r, name))
