@@ -103,12 +103,7 @@ def outline(uv: np.ndarray, cell: float, simplify: float) -> list:
     epsilon = max(simplify / cell, 0.5)
     rings = [cv2.approxPolyDP(c, epsilon, True).reshape(-1, 2) * cell + origin + 0.5 * cell for c in contours]
     parents = hierarchy[0][:, 3]
-    polygons = []
-    for k in np.flatnonzero(parents < 0):
-        if len(rings[k]) < 3:
-            continue
-        holes = [rings[h] for h in np.flatnonzero(parents == k) if len(rings[h]) >= 3]
-        polygons.append(shapely.Polygon(rings[k], holes))
+    polygons = _polygons(rings, parents)
     if not polygons:
         return []
     shape = shapely.MultiPolygon(polygons) if len(polygons) > 1 else polygons[0]
@@ -117,3 +112,22 @@ def outline(uv: np.ndarray, cell: float, simplify: float) -> list:
     # Contours run through the centres of the outermost cells: grow by half a cell to the true edge.
     shape = shape.buffer(0.5 * cell, join_style="mitre")
     return from_shapely(shape)
+
+
+def _polygons(rings: list, parents: np.ndarray) -> list:
+    """shapely Polygons of the outer rings (parent -1) with their holes (rings of at least 3 points),
+    built in two vectorised calls instead of a Polygon (and a LinearRing per ring) each."""
+    import shapely
+
+    outer = [k for k in np.flatnonzero(parents < 0) if len(rings[k]) >= 3]
+    if not outer:
+        return []
+    holes_of: dict[int, list[int]] = {k: [] for k in outer}
+    for h in np.flatnonzero(parents >= 0):
+        if parents[h] in holes_of and len(rings[h]) >= 3:
+            holes_of[parents[h]].append(h)
+    order = [r for k in outer for r in [k] + holes_of[k]]   # each polygon's shell, then its holes
+    polygon_of = np.repeat(np.arange(len(outer)), [1 + len(holes_of[k]) for k in outer])
+    ring_of = np.repeat(np.arange(len(order)), [len(rings[r]) for r in order])
+    linear = shapely.linearrings(np.concatenate([rings[r] for r in order]), indices=ring_of)
+    return list(shapely.polygons(linear, indices=polygon_of))

@@ -65,16 +65,38 @@ def test_reliable_face_normals_are_the_straightforward_floats(scale):
     assert np.array_equal(core.reliable_face_normals(tri, normals), reference_reliable_face_normals(tri, normals))
 
 
+def reference_polygons(rings, parents):
+    polygons = []
+    for k in np.flatnonzero(parents < 0):
+        if len(rings[k]) < 3:
+            continue
+        holes = [rings[h] for h in np.flatnonzero(parents == k) if len(rings[h]) >= 3]
+        polygons.append(shapely.Polygon(rings[k], holes))
+    return polygons
+
+
 def always_make_valid(monkeypatch):
-    """The straightforward outline: every shape through make_valid."""
+    """The straightforward outline: every shape through make_valid, a Polygon built per outer ring."""
     monkeypatch.setattr(shapely, "is_valid", lambda shape: False)
+    monkeypatch.setattr(outline, "_polygons", reference_polygons)
+
+
+def square_ring(inner: float, outer: float) -> np.ndarray:
+    """Triangles of the square annulus between half-widths inner and outer (a polygon with a hole)."""
+    a = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1.0]])
+    tris = []
+    for k in range(4):
+        i0, i1, o0, o1 = a[k] * inner, a[(k + 1) % 4] * inner, a[k] * outer, a[(k + 1) % 4] * outer
+        tris += [[o0, o1, i1], [o0, i1, i0]]
+    return np.array(tris)
 
 
 def test_outline_of_overlapping_and_touching_triangles_matches_make_valid_always(monkeypatch):
     rng = np.random.default_rng(11)
     soups = [rng.uniform(0, 2.0, size=(40, 3, 2)),                     # overlapping, holes, pieces
              np.array([[[0, 0], [1, 0], [0, 1]], [[1, 0], [2, 0], [1, 1.0]]]),  # touching at a corner
-             np.array([[[0, 0], [3, 0], [0, 3]], [[0.5, 0.5], [1.5, 0.5], [0.5, 1.5]]])]  # overlap
+             np.array([[[0, 0], [3, 0], [0, 3]], [[0.5, 0.5], [1.5, 0.5], [0.5, 1.5]]]),  # overlap
+             np.concatenate([square_ring(0.5, 1.0), square_ring(2.0, 2.5), square_ring(0.1, 0.3) + 3.0])]
     fast = [outline.outline(uv, 0.05, 0.02) for uv in soups]
     always_make_valid(monkeypatch)
     slow = [outline.outline(uv, 0.05, 0.02) for uv in soups]
