@@ -302,7 +302,7 @@ def load_mesh(path: str | Path, validate: bool = True, scale: float = 1.0) -> Me
     if not (np.isfinite(scale) and scale > 0):
         raise MeshError(f"{path}: scale must be a finite number > 0, got {scale}")
     try:
-        loaded = trimesh.load(path, process=False, force="mesh")
+        loaded = _load_single_mesh(path) or trimesh.load(path, process=False, force="mesh")
     except Exception as exc:  # trimesh raises many types for corrupt files
         raise MeshError(f"{path}: cannot be read as a mesh: the file is truncated or corrupt "
                         f"({type(exc).__name__}: {exc})") from exc
@@ -326,6 +326,28 @@ def load_mesh(path: str | Path, validate: bool = True, scale: float = 1.0) -> Me
     mesh = Mesh(np.asarray(loaded.vertices) * scale, np.asarray(loaded.faces), colors,
                 viewpoints=None if views is None else scaled_viewpoints(views, scale))
     return validate_mesh(mesh, str(path)) if validate else mesh
+
+
+def _load_single_mesh(path: Path):
+    """A PLY, STL or OFF file holding one triangle mesh, read by trimesh's format reader straight into a
+    Trimesh; None for anything else (the caller's trimesh.load decides, and words its errors). trimesh.load
+    builds a scene and copies it into one mesh, deriving face colours on the way: 7 s for a 7.2 M-face
+    PLY whose reading takes 0.6 s."""
+    import trimesh
+    from trimesh.exchange.load import mesh_loaders
+
+    kind = path.suffix.lower().lstrip(".")
+    if kind not in ("ply", "stl", "off"):
+        return None
+    try:
+        with open(path, "rb") as stream:
+            read = mesh_loaders[kind](stream, file_type=kind)
+    except Exception:   # a corrupt file: trimesh.load reads it again and the caller says what is wrong
+        return None
+    if not isinstance(read, dict) or "geometry" in read or len(read.get("faces", ())) == 0:
+        return None
+    read.pop("metadata", None)
+    return trimesh.Trimesh(**read, process=False)
 
 
 _OBJ_RECORDS = (b"v", b"vt", b"vn", b"vp", b"f", b"l", b"p")
