@@ -74,6 +74,7 @@ class FilterNode(Node):
         prepare_mesh(mesh, float(self.get_parameter("voxel_size").value))
 
     def destroy_node(self) -> None:
+        """Stop preparing this process's meshes for a filter that is gone, then destroy the node."""
         if self._preparer is not None:
             remove_preparer(self._preparer)
             self._preparer = None

@@ -207,7 +207,8 @@ def _one_run(args) -> dict:
     stages = {n: round(s, 3) for n, s in zip(first.stage_names, first.stage_seconds) if n != "total"}
     out = {"source": source, "faces": faces, "graph_mode": args.graph_mode, "domain": domain,
            "namespace": own_namespace,
-           "wall_s": round(wall, 3), "input_s": round(input_s, 3), "startup_s": round(graph.startup_seconds, 3), "mission_s": round(missions[0], 3),
+           "wall_s": round(wall, 3), "input_s": round(input_s, 3), "startup_s": round(graph.startup_seconds, 3),
+           "mission_s": round(missions[0], 3),
            "stages": stages, "transport_s": round(missions[0] - sum(stages.values()), 3),
            "peak_rss_mb": round(max(sampler.peak_bytes / 2**20, peak_rss_mb()), 1),
            "cameras": len(first.placements), "coverage": first.coverage, "mean_uncertainty": first.mean_uncertainty,
