@@ -21,6 +21,7 @@ CAP_NET_ADMIN, as in most containers and CI runners).
 
 from __future__ import annotations
 
+import faulthandler
 import json
 import os
 import select
@@ -150,6 +151,9 @@ def _driver() -> int:
                                     auto_accept=True, seed=-1)
             start = time.monotonic()
             deadline = start + command["timeout"]
+            # The driver answers by its deadline; past it, every thread's stack goes to driver.err
+            # (one CI rehearsal saw no answer at all after a cancel the coordinator had taken).
+            faulthandler.dump_traceback_later(command["timeout"] + 3, exit=False, file=sys.stderr)
             sent = client.send_goal_async(goal, feedback_callback=on_feedback)
             if not spin_until(sent, deadline) or not sent.result().accepted:
                 say(event="result", success=False, message="the coordinator did not accept the goal",
@@ -165,7 +169,10 @@ def _driver() -> int:
                     taken = canceller.cancel(handle.goal_id, "two-host test", lambda: handle.status,
                                              wait=max(0.0, deadline - time.monotonic()),
                                              step=lambda: rclpy.spin_once(node, timeout_sec=0.05))
+                    print(f"{time.monotonic():.3f} cancel taken={taken} status={handle.status} "
+                          f"result={answer.done()}", file=sys.stderr, flush=True)
                     say(event="cancel", taken=taken, t=cancelled[0], seconds=time.monotonic() - cancelled[0])
+            faulthandler.cancel_dump_traceback_later()
             done = answer.done()
             end = time.monotonic()
             if not done:
@@ -306,6 +313,7 @@ class Driver:
     def __init__(self, hosts: TwoHosts, log: str = "driver", host: str = "a"):
         self.proc = hosts.start(host, [sys.executable, str(Path(__file__).resolve()), "driver"], log,
                                 stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+        self.log = hosts.tmp / f"{log}.err"
         self.read("started", STEP_LIMIT)
 
     def read(self, event: str, limit: float, on_event=None) -> dict:
@@ -315,7 +323,8 @@ class Driver:
             left = deadline - time.monotonic()
             ready, _, _ = select.select([self.proc.stdout], [], [], max(0.0, left))
             if not ready:
-                raise AssertionError(f"the driver sent no '{event}' within {limit:.0f} s")
+                raise AssertionError(f"the driver sent no '{event}' within {limit:.0f} s; the end of its "
+                                     f"log:\n{self.log_tail()}")
             line = self.proc.stdout.readline()
             if not line:
                 raise AssertionError(f"the driver exited (code {self.proc.wait(5)}) before '{event}'")
@@ -324,6 +333,13 @@ class Driver:
                 return message
             if on_event:
                 on_event(message)
+
+    def log_tail(self, lines: int = 40) -> str:
+        """The last lines of the driver's stderr (its feedback, and the thread dump of a hang)."""
+        try:
+            return "\n".join(self.log.read_text(errors="replace").splitlines()[-lines:])
+        except OSError as exc:
+            return f"(unreadable: {exc})"
 
     def send(self, **command) -> None:
         """Send one command."""
