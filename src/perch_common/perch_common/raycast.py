@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from perch_common.mesh import Mesh
-from perch_common.threads import OPENMP_THREADS, thread_environment
+from perch_common.threads import work_threads
 
 MISS = -1
 SCENE_BYTES_PER_FACE = 64   # Embree's BVH: ~62 B a face (measured on 957k faces)
@@ -45,15 +45,6 @@ _pool: ThreadPoolExecutor | None = None
 _pool_lock = threading.Lock()
 
 
-def _ray_threads() -> int:
-    """Threads a large batch of rays is split over: as many as OpenMP gets (OMP_NUM_THREADS, which
-    Perch's entry points set to at most 2; Open3D's ray caster used that many)."""
-    try:
-        return max(1, int(thread_environment()["OMP_NUM_THREADS"]))
-    except ValueError:
-        return OPENMP_THREADS
-
-
 def _blocks(part: slice, size: int) -> list[slice]:
     """`part` (a slice with explicit bounds) cut into consecutive slices of at most `size`."""
     return [slice(first, min(first + size, part.stop)) for first in range(part.start, part.stop, size)] or [part]
@@ -61,7 +52,7 @@ def _blocks(part: slice, size: int) -> list[slice]:
 
 def _in_parallel(count: int, work) -> list:
     """work(slice) over `count` rays: in chunks on the ray threads when the batch is large."""
-    threads = _ray_threads()
+    threads = work_threads()  # as many as OpenMP gets (Open3D's ray caster used that many)
     if count < PARALLEL_RAYS or threads == 1:
         return [work(slice(0, count))]
     global _pool

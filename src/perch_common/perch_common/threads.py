@@ -9,7 +9,10 @@ and the test graphs give their child processes `thread_environment()`.
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import os
+from typing import Iterator
 
 BLAS_THREADS = 1
 OPENMP_THREADS = min(os.cpu_count() or 1, 2)
@@ -38,3 +41,29 @@ def limit_threads() -> dict[str, int]:
     limits = {"blas": int(values["OPENBLAS_NUM_THREADS"]), "openmp": int(values["OMP_NUM_THREADS"])}
     threadpool_limits(limits=limits)
     return limits
+
+
+_threads_override: contextvars.ContextVar[int | None] = contextvars.ContextVar("perch_work_threads", default=None)
+
+
+def work_threads() -> int:
+    """Threads a call spreads its own work over (ray batches, a filter's surfaces): OMP_NUM_THREADS
+    (at most 2 from Perch's entry points), or 1 inside `one_thread()`."""
+    override = _threads_override.get()
+    if override is not None:
+        return override
+    try:
+        return max(1, int(thread_environment()["OMP_NUM_THREADS"]))
+    except ValueError:
+        return OPENMP_THREADS
+
+
+@contextlib.contextmanager
+def one_thread() -> Iterator[None]:
+    """Run the block's work on the calling thread only (per thread, a contextvar): a process that
+    shares the cores with a second process of the same call must not also split its own work."""
+    reset = _threads_override.set(1)
+    try:
+        yield
+    finally:
+        _threads_override.reset(reset)
