@@ -35,10 +35,11 @@ from perch_common.proximity import LARGE_QUERY, clear_of_mesh
 from perch_common.raycast import RayScene
 from perch_common.raycast import ray_scene as shared_ray_scene
 from perch_common.target import TargetVolume
-from perch_common.threads import thread_environment
+from perch_common.threads import work_threads
 from perch_common.timing import Laps
 from perch_common.types import NOT_MEASURED, FilterRemoval, PerchEvidence, PerchRegion, Surface, SurfaceClass
 from perch_common.work import report, steps
+from perch_common.work_split import in_two_processes
 from perch_filtering.checks import approach_clearance, free_fall, geometry_in_front
 from perch_filtering.config import FilterConfig
 from perch_filtering.holes import hole_patches
@@ -67,6 +68,9 @@ ANY_YAW_STEP_DEG = 15.0  # yaws in which such a window's support is asked
 CELL_HALF_DIAGONAL = 0.5 * 2 ** 0.5  # cells
 NOISE_SIGMAS = 3.0  # scan noise sigmas in front of a plane that count as the surface itself (surface_band)
 SUPPORT_BIN = 0.1  # depth bins of the support statistics, as a share of plane_tolerance (3 mm at 3 cm)
+ANY_YAW_COST = 1.5  # CPU per m^2 of a ceiling's (or floor's) judging, of a wall's (turned windows; 4.9 vs 3.2 ms)
+SPLIT_MIN_CELLS = 200_000  # raster cells (m^2 of enabled surface / cell^2) from which a second process judges half
+SPLIT_PATIENCE = 10.0  # s the second process may take beyond the caller's share before it is judged here
 
 
 @dataclass
@@ -82,6 +86,7 @@ class FilterResult:
     decided_by: list[str] = field(default_factory=list)  # how each surface was oriented
     seconds: float = 0.0
     timings: dict = field(default_factory=dict)
+    second_process: str = ""  # "" (one process), "done", or why the caller judged the second share itself
 
     def removed_area(self) -> dict[str, float]:
         """Total area (m^2) each filter removed over all surfaces."""
@@ -146,18 +151,27 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
     clock.lap("orientation")
 
     kernel = window_kernel(config.window_width, config.window_height, config.cell, config.window_ellipse)
-    work = _per_surface(lambda s: _raster_filters(s, mesh, samples, index, scene, up, floor_height, kernel, config),
-                        oriented, "raster filters: surface", 0.2, 0.45)
-    clock.lap("raster_filters")
-    _per_surface(lambda w: _support(w, scene, kernel, config) if w.raster is not None else None,
-                 work, "support: surface", 0.45, 0.5)
-    clock.lap("support")
-    report(0.5, "line of sight")
     patches = hole_patches(oriented, config.drone_radius)
+    patch_scene = RayScene(patches) if patches is not None else None  # built before a split (Embree's threads)
     target_points = target.sample(config.visibility_points, seed=config.seed)
-    _visibility(work, scene, RayScene(patches) if patches is not None else None, target_points,
-                _volume_groups(target, target_points, config), config)
-    clock.lap("line_of_sight")
+    groups = _volume_groups(target, target_points, config)
+
+    def judge(indices: list[int]) -> list[_Work]:
+        """The per-surface filters up to line of sight, on the surfaces `indices` (each surface's answer
+        is its own: the same alone, with the others, or in another process)."""
+        work = _per_surface(lambda i: _raster_filters(oriented[i], mesh, samples, index, scene, up, floor_height,
+                                                      kernel, config),
+                            indices, "raster filters: surface", 0.2, 0.45)
+        clock.lap("raster_filters")
+        _per_surface(lambda w: _support(w, scene, kernel, config) if w.raster is not None else None,
+                     work, "support: surface", 0.45, 0.5)
+        clock.lap("support")
+        report(0.5, "line of sight")
+        _visibility(work, scene, patch_scene, target_points, groups, config)
+        clock.lap("line_of_sight")
+        return work
+
+    work, second_process = _judged(judge, oriented, config, clock)
     report(0.7, "reachability")
     reached = _reachability([w for w in work if w.raster is not None], grid, scene.mesh, config)
     clock.lap("reachability")
@@ -170,7 +184,8 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
     clock.lap("regions")
     removals = [w.removal for w in work]
     result = FilterResult(regions, removals, oriented, "", floor_height, floor_ids,
-                          [o.decided_by for o in orientations], time.perf_counter() - start, clock.laps)
+                          [o.decided_by for o in orientations], time.perf_counter() - start, clock.laps,
+                          second_process)
     result.message = _summary(result)
     return result
 
@@ -184,11 +199,30 @@ def prepare_mesh(mesh: Mesh, voxel_size: float) -> None:
 
 def _surface_threads() -> int:
     """Threads the per-surface phases run on: as many as the ray casts get (OMP_NUM_THREADS, at most 2
-    from Perch's entry points)."""
-    try:
-        return max(1, int(thread_environment()["OMP_NUM_THREADS"]))
-    except ValueError:
-        return 1
+    from Perch's entry points; 1 in each process of a split)."""
+    return work_threads()
+
+
+def _judged(judge, surfaces: list[Surface], config: FilterConfig, clock: Laps) -> tuple[list[_Work], str]:
+    """judge(all surface indices), in two processes when the surfaces hold enough cells to pay for the
+    fork: the surfaces are shared out by area (largest first, each to the lighter share)."""
+    cost = np.array([s.area * (ANY_YAW_COST if s.surface_class in ANY_YAW_CLASSES else 1.0)
+                     if class_enabled(s.surface_class, config) else 0.0 for s in surfaces])
+    if config.processes < 2 or cost.sum() / config.cell ** 2 < SPLIT_MIN_CELLS or np.count_nonzero(cost) < 2:
+        return judge(list(range(len(surfaces)))), ""
+    shares: tuple[list[int], list[int]] = ([], [])
+    loads = [0.0, 0.0]
+    for i in np.argsort(-cost, kind="stable"):
+        lighter = int(loads[1] < loads[0])
+        shares[lighter].append(int(i))
+        loads[lighter] += cost[i]
+    # The child's share should take about as long as the caller's: past three times that (and a
+    # floor for a loaded machine), it is taken as lost and judged here.
+    split = in_two_processes(judge, sorted(shares[0]), sorted(shares[1]),
+                             patience=lambda own: max(SPLIT_PATIENCE, 2.0 * own))
+    clock.lap("second_process")
+    by_index = dict(zip(sorted(shares[0]), split.mine)) | dict(zip(sorted(shares[1]), split.theirs))
+    return [by_index[i] for i in range(len(surfaces))], split.child
 
 
 def _done(work, *args, **kwargs) -> Future:

@@ -98,6 +98,9 @@ class FilterNode(Node):
         mesh = mesh_from_request(request.mesh, "environment mesh")
         set_work_budget(self, node_config, mesh.num_faces)
         result = filter_surfaces(mesh, surfaces, target, up, config)
+        if result.second_process not in ("", "done"):  # the same answer, computed here instead
+            self.get_logger().warning(f"the second process's surfaces were judged in this one "
+                                      f"({result.second_process.splitlines()[0]})")
         response.regions = [region_to_msg(r) for r in result.regions]
         classes = {s.id: int(s.surface_class) for s in result.surfaces}
         response.removals = [removal_to_msg(r) for r in result.removals]

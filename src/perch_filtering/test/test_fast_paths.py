@@ -191,3 +191,24 @@ def test_per_surface_threads_keep_the_order_and_stop_at_an_error(monkeypatch):
     with pytest.raises(ValueError, match="surface 5"):
         core._per_surface(work, list(range(40)), "test", 0.0, 1.0)
     assert 5 in started and max(started) < 5 + 2 * 2 + 1
+
+
+def test_two_processes_give_the_one_process_answer(room, monkeypatch):
+    """The surfaces judged in two processes (a forked child takes half) give exactly the regions,
+    evidence and removals of one process."""
+    from filtering_accuracy import filter_input_surfaces
+
+    from perch_filtering import core
+
+    monkeypatch.setenv("OMP_NUM_THREADS", "2")
+    monkeypatch.setattr(core, "SPLIT_MIN_CELLS", 0)  # the room is below the size that pays for a fork
+    surfaces = filter_input_surfaces(room)
+    one = core.filter_surfaces(room.mesh, surfaces, room.target, room.up, core.FilterConfig(processes=1))
+    two = core.filter_surfaces(room.mesh, surfaces, room.target, room.up, core.FilterConfig(processes=2))
+    assert (one.second_process, two.second_process) == ("", "done") and "second_process" in two.timings
+    assert len(one.regions) >= 4 and one.removals == two.removals
+    assert [(r.source_surface, r.area, r.evidence) for r in one.regions] == \
+        [(r.source_surface, r.area, r.evidence) for r in two.regions]
+    for a, b in zip(one.regions, two.regions):
+        np.testing.assert_array_equal(a.mesh.vertices, b.mesh.vertices)
+        np.testing.assert_array_equal(a.mesh.faces, b.mesh.faces)

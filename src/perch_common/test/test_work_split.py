@@ -1,0 +1,116 @@
+"""in_two_processes: the caller's share here, the other in a forked child, and the same answer
+whatever happens to the child (it fails, dies, hangs, or cannot start)."""
+
+import multiprocessing
+import os
+import threading
+
+import pytest
+
+from perch_common.cancellation import Cancelled, CancelToken, cancellable, current_token
+from perch_common.threads import one_thread, work_threads
+from perch_common.work_split import in_two_processes
+
+CALLER = os.getpid()
+
+
+def squares(share):
+    """The share's squares, with the process and the threads it was computed with."""
+    return [x * x for x in share], os.getpid(), work_threads(), current_token() is None
+
+
+def patient(own):
+    return 60.0
+
+
+@pytest.fixture(autouse=True)
+def two_threads(monkeypatch):
+    monkeypatch.setenv("OMP_NUM_THREADS", "2")
+    yield
+    assert not multiprocessing.active_children()  # no child outlives its call
+
+
+def test_each_share_is_computed_once_the_other_in_a_child_on_one_thread():
+    with cancellable(CancelToken()):
+        split = in_two_processes(squares, [1, 2], [3, 4], patient)
+    assert split.child == "done"
+    assert split.mine == ([1, 4], CALLER, 1, False)
+    values, pid, threads, no_token = split.theirs
+    assert values == [9, 16] and pid != CALLER and threads == 1 and no_token  # the child has no request context
+    assert work_threads() == 2  # the caller's own setting is back
+
+
+def run_failing_in_the_child(share):
+    if os.getpid() != CALLER:
+        raise RuntimeError("only in the child")
+    return squares(share)
+
+
+def exit_in_the_child(share):
+    if os.getpid() != CALLER:
+        os._exit(3)
+    return squares(share)
+
+
+def hang_in_the_child(share):
+    if os.getpid() != CALLER:
+        threading.Event().wait()
+    return squares(share)
+
+
+@pytest.mark.parametrize("run, status, patience", [
+    (run_failing_in_the_child, "failed: RuntimeError: only in the child", patient),
+    (exit_in_the_child, "died: exit code 3", patient),
+    (hang_in_the_child, "late: no answer", lambda own: 0.5),
+])
+def test_a_lost_child_share_is_computed_by_the_caller(run, status, patience):
+    split = in_two_processes(run, [1, 2], [3, 4], patience)
+    assert split.child.startswith(status)
+    assert split.mine == ([1, 4], CALLER, 1, True) and split.theirs == ([9, 16], CALLER, 1, True)
+
+
+def test_an_error_in_the_callers_share_is_raised_and_the_child_killed():
+    def failing_here(share):
+        if os.getpid() == CALLER:
+            raise ValueError("the caller's share")
+        threading.Event().wait()  # would never answer: the caller must not wait for it
+
+    with pytest.raises(ValueError, match="the caller's share"):
+        in_two_processes(failing_here, [1], [2], patient)
+
+
+def test_a_cancel_while_waiting_for_the_child_stops_the_call_and_kills_the_child():
+    token = CancelToken()
+
+    def cancelled_after_the_callers_share(share):
+        if os.getpid() == CALLER:
+            token.cancel("mission cancelled")
+            return share
+        threading.Event().wait()
+
+    with cancellable(token), pytest.raises(Cancelled, match="mission cancelled"):
+        in_two_processes(cancelled_after_the_callers_share, [1], [2], patient)
+
+
+def test_one_allowed_thread_computes_both_shares_here():
+    with one_thread():
+        split = in_two_processes(squares, [1], [2], patient)
+    assert split.child == "one thread allowed" and split.theirs == ([4], CALLER, 1, True)
+
+
+def test_a_daemonic_caller_computes_both_shares_itself():
+    """A process that may not have children (a daemonic worker of a process pool) still answers."""
+    context = multiprocessing.get_context("fork")
+    receiver, sender = context.Pipe(duplex=False)
+
+    def in_a_daemon():
+        split = in_two_processes(squares, [1], [2], patient)
+        sender.send((split.child, split.mine[0], split.theirs[0], split.theirs[1] == os.getpid()))
+
+    worker = context.Process(target=in_a_daemon, daemon=True)
+    worker.start()
+    assert receiver.poll(60)
+    child, mine, theirs, here = receiver.recv()
+    worker.join()
+    assert child.startswith("no child process:") and "daemonic" in child
+    assert (mine, theirs, here) == ([1], [4], True)
