@@ -35,36 +35,22 @@ def visible_shares(rasters: list[SurfaceRaster], masks: list[np.ndarray], offset
     (rays start `offset` in front of the plane; points behind the plane are not seen); 0 elsewhere.
     With `groups` ((T, G) bool: which points belong to each of G target volumes), the share of the
     volume seen best. With `threshold`, a map exact only as to `share >= threshold` (the same
-    comparison of every cell as with the exact shares), for far fewer rays."""
-    nodes = []
-    for k, (raster, mask) in enumerate(zip(rasters, masks)):
-        step = max(1, int(round(spacing / raster.cell)))
-        rows, cols = np.nonzero(mask)
-        need = np.zeros((rows.max() // step + 2, cols.max() // step + 2), bool) if len(rows) else np.zeros((0, 0), bool)
-        for dr in (0, 1):
-            for dc in (0, 1):
-                need[rows // step + dr, cols // step + dc] = True
-        nodes.append((step, need))
-    origins, normals = [], []
-    for raster, offset, (step, need) in zip(rasters, offsets, nodes):
-        nr, nc = np.nonzero(need)
+    comparison of every cell as with the exact shares), for far fewer rays. Each raster's answer
+    depends on it alone: any split of the rasters over calls gives the same maps."""
+    layouts = [_Layout.of(mask, max(1, int(round(spacing / raster.cell)))) for raster, mask in zip(rasters, masks)]
+    origins, normals, first = [], [], 0
+    for raster, offset, layout in zip(rasters, offsets, layouts):
+        nr, nc = np.nonzero(layout.need)
+        step = layout.step
         uv = np.column_stack([raster.u0 + nc * step * raster.cell, raster.v0 + nr * step * raster.cell])
         origins.append(raster.frame.to_world(uv) + offset * raster.frame.normal)
         normals.append(np.repeat(raster.frame.normal[None], len(uv), axis=0))
+        layout.first, first = first, first + len(uv)
     origins, normals = np.concatenate(origins), np.concatenate(normals)
     if threshold is None or len(target_points) == 0:
         share = _shares(origins, normals, target_points, scene, patches, groups)
-        return _interpolated(share, rasters, masks, nodes)
-    cells = _Cells.of(masks, nodes)
-    values = _bounded_shares(origins, normals, target_points, scene, patches, groups, cells, threshold)
-    out, first = [], 0
-    for mask in masks:   # the cells are in the rasters' order, each raster's in its mask's
-        count = int(mask.sum())
-        grid = np.zeros(mask.shape, np.float32)
-        grid[mask] = values[first:first + count]
-        first += count
-        out.append(grid)
-    return out
+        return _interpolated(share, rasters, masks, [(layout.step, layout.need) for layout in layouts])
+    return _bounded_shares(origins, normals, target_points, scene, patches, groups, layouts, masks, threshold)
 
 
 def _interpolated(share: np.ndarray, rasters: list[SurfaceRaster], masks: list[np.ndarray],
@@ -120,149 +106,208 @@ def _visible(scene: RayScene, patches: RayScene | None, origins32: np.ndarray, t
 
 
 @dataclass
-class _Cells:
-    """Masked cells of every raster as their bilinear weights and the global indices of the nodes
-    they weigh, in `_bilinear`'s order of terms, so a cell's value from node shares is bit for bit
-    `_bilinear`'s. A weight of 0 refers to the cell's first node (0 times any share adds the same 0)."""
+class _Layout:
+    """One raster's coarse nodes (cell (i * step, j * step) is node (i, j)): `need`, every node its
+    masked cells interpolate from (the full computation's node grid), `weighed`, those some cell
+    weighs by more than nothing (the rest never change a cell), `first`, its first node's index in
+    the nodes of all rasters (each raster's in `need`'s order)."""
 
-    nodes: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
-    weights: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+    step: int
+    need: np.ndarray
+    weighed: np.ndarray
+    first: int = 0
 
     @classmethod
-    def of(cls, masks: list[np.ndarray], nodes: list[tuple[int, np.ndarray]]) -> "_Cells":
-        ids, weights, first = [[], [], [], []], [[], [], [], []], 0
-        for mask, (step, need) in zip(masks, nodes):
-            index = np.full(need.shape, -1, np.int64)
-            count = int(need.sum())
-            index[need] = np.arange(first, first + count)
-            first += count
-            rows, cols = np.nonzero(mask)
-            i, j = rows // step, cols // step
-            fr, fc = (rows % step) / step, (cols % step) / step
-            own = index[i, j]
-            for k, (node, weight) in enumerate([(own, (1 - fr) * (1 - fc)), (index[i, j + 1], (1 - fr) * fc),
-                                                (index[i + 1, j], fr * (1 - fc)), (index[i + 1, j + 1], fr * fc)]):
-                ids[k].append(np.where(weight > 0, node, own))
-                weights[k].append(weight)
-        return cls(tuple(np.concatenate(a) for a in ids),
-                   tuple(np.concatenate(w) for w in weights))
+    def of(cls, mask: np.ndarray, step: int) -> "_Layout":
+        rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+        if not len(rows):
+            return cls(step, np.zeros((0, 0), bool), np.zeros((0, 0), bool))
+        height, width = rows[-1] // step + 2, cols[-1] // step + 2
+        # Cells by their position (r, c) in their block: block (i, j) holds the cells that node (i, j) starts.
+        padded = np.zeros(((height - 1) * step, (width - 1) * step), bool)
+        padded[:rows[-1] + 1, :cols[-1] + 1] = mask[:rows[-1] + 1, :cols[-1] + 1]
+        at = [[padded[r::step, c::step] for c in range(step)] for r in range(step)]
+        corner = at[0][0].copy()
+        right = np.logical_or.reduce([at[0][c] for c in range(1, step)]) if step > 1 else np.zeros_like(corner)
+        below = np.logical_or.reduce([at[r][0] for r in range(1, step)]) if step > 1 else np.zeros_like(corner)
+        both = (np.logical_or.reduce([at[r][c] for r in range(1, step) for c in range(1, step)])
+                if step > 1 else np.zeros_like(corner))
+        right |= both     # cells with a weight on node (i, j + 1)
+        below |= both     # on node (i + 1, j)
+        own = corner | right | below
+        need, weighed = np.zeros((height, width), bool), np.zeros((height, width), bool)
+        for dr in (0, 1):
+            for dc in (0, 1):
+                need[dr:height - 1 + dr, dc:width - 1 + dc] |= own
+        weighed[:-1, :-1] = own
+        weighed[:-1, 1:] |= right
+        weighed[1:, :-1] |= below
+        weighed[1:, 1:] |= both
+        return cls(step, need, weighed)
 
-    def values(self, share: np.ndarray) -> np.ndarray:
-        """float32 interpolated node `share` at every cell (the arithmetic of `_bilinear`)."""
-        (a, b, c, d), (wa, wb, wc, wd) = self.nodes, self.weights
-        return (wa * share[a] + wb * share[b] + wc * share[c] + wd * share[d]).astype(np.float32)
+    def cell_values(self, values: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+        """float32 bilinear interpolation of this raster's nodes' `values` (of all nodes) at every cell of
+        the first `shape` rows and columns: `_bilinear`'s arithmetic (float64 weights times float32
+        shares, summed in its order), so bit for bit its values, for all cells at once."""
+        step, (height, width) = self.step, self.need.shape
+        grid = np.zeros(self.need.shape, np.float32)
+        grid[self.need] = values[self.first:self.first + int(self.need.sum())]
+        # By position (r, c) in the block first: the long axes innermost, then one transposing copy.
+        fr = (np.arange(step) / step)[:, None, None, None]
+        fc = (np.arange(step) / step)[None, :, None, None]
+        a, b, c, d = grid[:-1, :-1], grid[:-1, 1:], grid[1:, :-1], grid[1:, 1:]
+        cells = ((1 - fr) * (1 - fc) * a + (1 - fr) * fc * b + fr * (1 - fc) * c + fr * fc * d).astype(np.float32)
+        return cells.transpose(2, 0, 3, 1).reshape((height - 1) * step, (width - 1) * step)[:shape[0], :shape[1]]
 
-    def subset(self, which: np.ndarray) -> "_Cells":
-        return _Cells(tuple(n[which] for n in self.nodes), tuple(w[which] for w in self.weights))
 
-    def weighed_nodes(self, count: int) -> np.ndarray:
-        """(count,) bool: the nodes these cells weigh by more than nothing."""
-        out = np.zeros(count, bool)
-        for node in self.nodes:
-            out[node] = True
-        return out
-
-
-class _Bounds:
-    """Per node, lower and upper bounds of `_shares` from the sight lines cast so far: `_shares`'
-    arithmetic on the points seen (lower) and on those plus the facing points not yet cast (upper).
-    Every step of that arithmetic (division by a fixed size, max, rounding to float32) is monotonic
-    in each count, so the exact share lies between the bounds, and equals both once they meet."""
-
-    def __init__(self, origins: np.ndarray, normals: np.ndarray, targets: np.ndarray,
-                 groups: np.ndarray | None, scene: RayScene, patches: RayScene | None):
-        # Groups interleaved in the casting order: a perch seeing one volume finds its points early.
-        order = np.random.default_rng(ORDER_SEED).permutation(len(targets))
-        self.member = (np.ones((len(targets), 1), bool) if groups is None else np.asarray(groups, bool))[order]
-        self.sizes = np.maximum(self.member.sum(axis=0), 1).astype(np.float64)  # `_shares`' len(targets) for one group
-        self.facing = np.empty((len(origins), len(targets)), bool)
-        self.possible = np.empty((len(origins), self.member.shape[1]))
-        member32 = self.member.astype(np.float32)
-        for first in range(0, len(origins), FACING_NODES):
-            part = slice(first, first + FACING_NODES)
-            self.facing[part] = _facing(origins[part], normals[part], targets)[:, order]
-            self.possible[part] = _counts(self.facing[part], member32)
-        self.seen = np.zeros(self.possible.shape)
-        self.lower, _ = self._shares(self.seen)
-        self.upper, self.group_upper = self._shares(self.possible)
-        self.origins32, self.targets32 = origins.astype(np.float32), targets[order].astype(np.float32)
-        self.scene, self.patches = scene, patches
-
-    def _shares(self, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        per_group = counts / self.sizes
-        return per_group.max(axis=1).astype(np.float32), per_group
-
-    def open(self, nodes: np.ndarray) -> np.ndarray:
-        """Whether each node's bounds differ."""
-        return self.lower[nodes] < self.upper[nodes]
-
-    def cast(self, nodes: np.ndarray, window: slice, deciding: float | None = None) -> None:
-        """Cast the sight lines from `nodes` to their facing points at positions `window` of groups that
-        can still raise the node's share (with `deciding`: and reach it)."""
-        member = self.member[window].astype(np.float32)
-        cast = np.take(self.facing[:, window], nodes, axis=0)
-        if deciding is not None:
-            group_upper = np.take(self.group_upper, nodes, axis=0).astype(np.float32)
-            # A group whose upper bound is no more than the node's lower bound cannot raise its share.
-            useful = (group_upper > np.take(self.lower, nodes)[:, None]) & (group_upper >= deciding)
-            cast &= _counts(useful, member.T) > 0
-        points, rows = np.nonzero(cast.T)   # point by point: neighbouring nodes' rays traverse alike (~8 % faster)
-        visible = np.zeros(cast.shape, np.float32)
-        visible[rows, points] = _visible(self.scene, self.patches, self.origins32, self.targets32,
-                                         np.take(nodes, rows), points + window.start)
-        seen = np.take(self.seen, nodes, axis=0) + _counts(visible, member)
-        possible = np.take(self.possible, nodes, axis=0) - _counts(cast.astype(np.float32) - visible, member)
-        self.seen[nodes], self.possible[nodes] = seen, possible
-        self.lower[nodes], _ = self._shares(seen)
-        self.upper[nodes], self.group_upper[nodes] = self._shares(possible)
-
-    def cast_all(self, nodes: np.ndarray) -> None:
-        """Cast every facing sight line from `nodes` anew: their bounds become exact."""
-        self.seen[nodes] = 0
-        self.possible[nodes] = _counts(self.facing[nodes], self.member.astype(np.float32))
-        self.cast(nodes, slice(0, self.facing.shape[1]))
+def _facing_by_raster(origins: np.ndarray, normals: np.ndarray, targets: np.ndarray,
+                      layouts: list["_Layout"]) -> np.ndarray:
+    """(T, O) `_facing(origins, normals, targets).T`: a raster's nodes share its normal, so each target's
+    side is one product per raster (its first node's row: einsum's arithmetic of every row) against
+    each node's own product."""
+    facing = np.empty((len(targets), len(origins)), bool)
+    for layout in layouts:
+        part = slice(layout.first, layout.first + int(layout.need.sum()))
+        if part.start == part.stop:
+            continue
+        along = np.einsum("tk,ok->ot", targets, normals[part][:1])[0]
+        facing[:, part] = along[:, None] > np.einsum("ok,ok->o", origins[part], normals[part])[None]
+    return facing
 
 
 def _counts(flags: np.ndarray, member: np.ndarray) -> np.ndarray:
-    """(A, G) = (A, K) 0/1 flags summed per group of `member` ((K, G) 0/1), exact in float32 (counts
-    < 2^24). A matrix product: Perch's entry points give BLAS one thread (`perch_common.threads`);
-    a threaded OpenBLAS would spin after each of these small products."""
-    return flags.astype(np.float32) @ member
+    """(G, A) = (G, K) 0/1 `member` times (K, A) 0/1 `flags`: per group, how many flags are set; exact in
+    float32 (counts < 2^24). A matrix product: Perch's entry points give BLAS one thread
+    (`perch_common.threads`); a threaded OpenBLAS would spin after each of these small products."""
+    return member @ flags.astype(np.float32)
 
 
-def _bounded_shares(origins: np.ndarray, normals: np.ndarray, targets: np.ndarray, scene: RayScene,
-                    patches: RayScene | None, groups: np.ndarray | None, cells: _Cells,
-                    threshold: float) -> np.ndarray:
-    """Per cell (in `cells`' order) a float32 value on the same side of `threshold` as `_shares`
-    interpolated there (`_bilinear`'s arithmetic).
+def _passing_counts(sizes: np.ndarray, threshold: float) -> np.ndarray:
+    """(G, 1) float32: per group, the fewest points seen whose share (`_shares`' arithmetic: count / size in
+    float64, rounded to float32) reaches `threshold` (compared as `_shares`' values are); size + 1 if none."""
+    counts = np.arange(int(sizes.max()) + 2, dtype=np.float64)[:, None]
+    reaches = (counts / sizes).astype(np.float32) >= threshold   # monotonic in the count
+    first = np.where(reaches.any(axis=0), reaches.argmax(axis=0), sizes.astype(np.int64) + 1)
+    return first.astype(np.float32)[:, None]
 
-    Each node casts ROUND_POINTS target points a round (in a fixed order, of the groups that can
-    still decide it) until its own bounds lie on one side of `threshold`; a cell is then decided when
-    its interpolated lower bound reaches it or its upper bound falls below it (products with fixed
-    non-negative weights and sums are monotonic too, so the exact interpolated share lies between).
-    The nodes of cells still undecided cast all their points anew, which makes their bounds exact
-    and so decides those cells too."""
-    count, total = len(origins), len(targets)
-    if count == 0:
-        return np.zeros(len(cells.nodes[0]), np.float32)
-    bounds = _Bounds(origins, normals, targets, groups, scene, patches)
-    active = np.flatnonzero(bounds.open(np.arange(count)))
-    for position in range(0, total, ROUND_POINTS):
+
+def _bounded_shares(origins: np.ndarray, normals: np.ndarray, targets: np.ndarray,
+                    scene: RayScene, patches: RayScene | None, groups: np.ndarray | None,
+                    layouts: list[_Layout], masks: list[np.ndarray], threshold: float) -> list[np.ndarray]:
+    """Per raster a float32 map, at each masked cell on the same side of `threshold` as `_shares`
+    interpolated there (`_bilinear`'s arithmetic), 0 elsewhere.
+
+    Each node keeps, per group, the points seen so far and those seen plus the facing points not yet
+    cast: `_shares`' arithmetic on them gives a lower and an upper bound of its share (division by a
+    fixed size, max and rounding to float32 are monotonic in each count). Every ROUND_POINTS target
+    points (a fixed order; groups interleaved, so a perch seeing one volume finds its points early) a
+    node casts those of the groups that can still reach `threshold`, until some group's seen count
+    reaches it or no group's upper count can. Bilinear weights are fixed and non-negative, so a cell
+    is decided when its interpolated lower bound reaches `threshold` or its upper bound falls below
+    it. The nodes of cells still undecided cast all their points anew, which makes their bounds exact
+    and so decides those cells too. Nodes no cell weighs cast nothing."""
+    count = len(origins)
+    order = np.random.default_rng(ORDER_SEED).permutation(len(targets))
+    member = (np.ones((len(targets), 1), bool) if groups is None else np.asarray(groups, bool))[order]
+    member32 = member.T.astype(np.float32)   # (G, T)
+    sizes = np.maximum(member.sum(axis=0), 1).astype(np.float64)  # `_shares`' len(targets) for one group
+    passing = _passing_counts(sizes, threshold)
+    facing = _facing_by_raster(origins, normals, targets[order], layouts)   # (T, O)
+    possible = np.empty((member.shape[1], count), np.float32)
+    for first in range(0, count, FACING_NODES):
+        possible[:, first:first + FACING_NODES] = _counts(facing[:, first:first + FACING_NODES], member32)
+    seen = np.zeros_like(possible)
+    origins32, targets32 = origins.astype(np.float32), targets[order].astype(np.float32)
+
+    def free(nodes: np.ndarray, points: np.ndarray) -> np.ndarray:
+        return _visible(scene, patches, origins32, targets32, nodes, points)
+
+    weighed = np.concatenate([layout.weighed[layout.need] for layout in layouts])
+    active = np.flatnonzero(weighed & _undecided(seen, possible, passing))
+    seen_a, possible_a = seen[:, active], possible[:, active]
+    for position in range(0, len(targets), ROUND_POINTS):
         if not len(active):
             break
-        bounds.cast(active, slice(position, position + ROUND_POINTS), deciding=threshold)
-        lower, upper = bounds.lower[active], bounds.upper[active]
-        active = active[(lower < threshold) & (upper >= threshold) & (lower < upper)]
-    low, high = cells.values(bounds.lower), cells.values(bounds.upper)
-    undecided = np.flatnonzero((low < threshold) & (high >= threshold))
-    if len(undecided):
-        rest = cells.subset(undecided)
-        nodes = np.flatnonzero(rest.weighed_nodes(count))
-        bounds.cast_all(nodes[bounds.open(nodes)])
-        low[undecided], high[undecided] = rest.values(bounds.lower), rest.values(bounds.upper)
-    if not ((low >= threshold) | (high < threshold)).all():
-        raise AssertionError("sight line bounds left a cell undecided")  # cast in full, they are equal
-    return np.where(low >= threshold, low, high)
+        window = slice(position, position + ROUND_POINTS)
+        # Points of groups that can still reach the threshold (points of no group change no share).
+        useful = _counts(possible_a >= passing, member32[:, window].T) > 0
+        cast = np.take(facing[window], active, axis=1) & useful
+        points, columns = np.nonzero(cast)   # point by point: neighbouring nodes' rays traverse alike (~8 % faster)
+        visible = np.zeros(cast.shape, np.float32)
+        visible[points, columns] = free(np.take(active, columns), points + position)
+        seen_a += _counts(visible, member32[:, window])
+        possible_a -= _counts(cast.astype(np.float32) - visible, member32[:, window])
+        still = _undecided(seen_a, possible_a, passing)
+        done = active[~still]
+        seen[:, done], possible[:, done] = seen_a[:, ~still], possible_a[:, ~still]
+        active, seen_a, possible_a = active[still], seen_a[:, still], possible_a[:, still]
+    seen[:, active], possible[:, active] = seen_a, possible_a
+    lower, upper = _group_shares(seen, sizes), _group_shares(possible, sizes)
+    out, undecided = _decided_cells(layouts, masks, lower, upper, threshold)
+    if undecided:
+        nodes = np.unique(np.concatenate([_weighing_nodes(layouts[k], cells) for k, cells in undecided.items()]))
+        nodes = nodes[lower[nodes] < upper[nodes]]
+        points, columns = np.nonzero(np.take(facing, nodes, axis=1))
+        visible = np.zeros((len(targets), len(nodes)), np.float32)
+        visible[points, columns] = free(np.take(nodes, columns), points)
+        lower[nodes] = upper[nodes] = _group_shares(_counts(visible, member32), sizes)
+        again, still_undecided = _decided_cells([layouts[k] for k in undecided], [masks[k] for k in undecided],
+                                                lower, upper, threshold)
+        if still_undecided:
+            raise AssertionError("sight line bounds left a cell undecided")  # cast in full, they are equal
+        for k, grid in zip(undecided, again):
+            out[k] = grid
+    return out
+
+
+def _undecided(seen: np.ndarray, possible: np.ndarray, passing: np.ndarray) -> np.ndarray:
+    """(A,) whether each node's share may still reach the threshold and has not yet: no group's seen
+    count reaches its passing count, some group's upper count does (a loop over the few groups: numpy
+    reduces a short axis slowly)."""
+    reached, reachable = seen[0] >= passing[0], possible[0] >= passing[0]
+    for g in range(1, len(passing)):
+        reached |= seen[g] >= passing[g]
+        reachable |= possible[g] >= passing[g]
+    return reachable & ~reached
+
+
+def _group_shares(counts: np.ndarray, sizes: np.ndarray) -> np.ndarray:
+    """(N,) float32 `_shares` of (G, N) per-group counts: the best group's count / size."""
+    best = counts[0].astype(np.float64) / sizes[0]
+    for g in range(1, len(sizes)):
+        np.maximum(best, counts[g].astype(np.float64) / sizes[g], out=best)
+    return best.astype(np.float32)
+
+
+def _decided_cells(layouts: list[_Layout], masks: list[np.ndarray], lower: np.ndarray, upper: np.ndarray,
+                   threshold: float) -> tuple[list[np.ndarray], dict[int, tuple[np.ndarray, np.ndarray]]]:
+    """Per raster the map of the cells' interpolated lower bound where it reaches `threshold`, else of
+    their upper bound; and per raster with undecided cells (lower below, upper reaching) their rows
+    and columns."""
+    out, undecided = [], {}
+    for k, (layout, mask) in enumerate(zip(layouts, masks)):
+        grid = np.zeros(mask.shape, np.float32)
+        out.append(grid)
+        if not layout.need.size:
+            continue
+        low = layout.cell_values(lower, mask.shape)
+        high = layout.cell_values(upper, mask.shape)
+        cells = mask[:low.shape[0], :low.shape[1]]   # the rest of the mask is empty
+        reached = low >= threshold
+        np.copyto(grid[:low.shape[0], :low.shape[1]], np.where(reached, low, high), where=cells)
+        open_ = cells & ~reached & (high >= threshold)
+        if open_.any():
+            undecided[k] = np.nonzero(open_)
+    return out, undecided
+
+
+def _weighing_nodes(layout: _Layout, cells: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """Indices (of all nodes) of the nodes the cells at `cells` (rows, columns) weigh by more than nothing."""
+    index = np.full(layout.need.shape, -1, np.int64)
+    index[layout.need] = np.arange(layout.first, layout.first + int(layout.need.sum()))
+    rows, cols = cells
+    i, j, r, c = rows // layout.step, cols // layout.step, rows % layout.step > 0, cols % layout.step > 0
+    return np.concatenate([index[i, j], index[i, j + 1][c], index[i + 1, j][r], index[i + 1, j + 1][r & c]])
 
 
 def _bilinear(grid: np.ndarray, step: int, shape: tuple[int, int], mask: np.ndarray) -> np.ndarray:

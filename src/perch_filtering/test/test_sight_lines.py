@@ -64,7 +64,7 @@ def test_rounds_decide_every_cell_of_a_room_as_every_sight_line(room, per_volume
         bounded = visibility.visible_shares(rasters, masks, offsets, targets, scene, None, 0.06, groups,
                                             threshold=threshold)
         _assert_same_decisions(full, bounded, masks, threshold)
-        assert 0 < sum(cast)
+        assert (sum(cast) > 0) == (threshold > 0)   # every share reaches 0: no sight line needed
     assert 0.1 < (values >= 0.2 - 1e-6).mean() < 0.9
     # Some cells sit exactly on a threshold asked above, so ties are decided too.
     assert (values == np.float32(np.quantile(values, 0.3))).any()
@@ -109,23 +109,65 @@ def test_rounds_cast_fewer_sight_lines_than_every_one(room, monkeypatch):
 
 
 def test_cell_values_are_the_bilinear_interpolation_bit_for_bit():
-    """The rounds decide cells with `_Cells.values`, which must be `_bilinear`'s arithmetic exactly."""
+    """The rounds decide cells with `_Layout.cell_values`, which must be `_bilinear`'s arithmetic exactly,
+    on the full computation's node grid; the nodes it calls weighed are those some cell weighs."""
     rng = np.random.default_rng(8)
-    masks, nodes, grids = [], [], []
     for step in (1, 2, 3, 4):
-        mask = rng.random((int(rng.integers(5, 40)), int(rng.integers(5, 40)))) < 0.6
-        rows, cols = np.nonzero(mask)
-        need = np.zeros((rows.max() // step + 2, cols.max() // step + 2), bool)
-        for dr in (0, 1):
-            for dc in (0, 1):
-                need[rows // step + dr, cols // step + dc] = True
-        masks.append(mask)
-        nodes.append((step, need))
-        grids.append(np.where(need, rng.integers(0, 65, need.shape) / 64, 0).astype(np.float32))
-    cells = visibility._Cells.of(masks, nodes)
-    share = np.concatenate([g[need] for g, (_, need) in zip(grids, nodes)])
-    expected = np.concatenate([visibility._bilinear(g, step, m.shape, m)[m] for g, (step, _), m in zip(grids, nodes, masks)])
-    np.testing.assert_array_equal(cells.values(share), expected)
+        for _ in range(3):
+            mask = rng.random((int(rng.integers(5, 40)), int(rng.integers(5, 40)))) < rng.uniform(0.05, 0.9)
+            rows, cols = np.nonzero(mask)
+            need = np.zeros((rows.max() // step + 2, cols.max() // step + 2), bool)
+            weighed = np.zeros_like(need)
+            for dr in (0, 1):
+                for dc in (0, 1):
+                    need[rows // step + dr, cols // step + dc] = True
+                    weight = ((rows % step) if dr else (step - rows % step)) * ((cols % step) if dc else (step - cols % step))
+                    weighed[(rows // step + dr)[weight > 0], (cols // step + dc)[weight > 0]] = True
+            layout = visibility._Layout.of(mask, step)
+            np.testing.assert_array_equal(layout.need, need)
+            np.testing.assert_array_equal(layout.weighed, weighed)
+            grid = np.where(need, rng.integers(0, 65, need.shape) / 64, 0).astype(np.float32)
+            layout.first = 5
+            values = np.concatenate([np.zeros(5, np.float32), grid[need]])
+            cells = layout.cell_values(values, mask.shape)
+            expected = visibility._bilinear(grid, step, mask.shape, mask)
+            np.testing.assert_array_equal(cells[mask[:cells.shape[0], :cells.shape[1]]], expected[mask])
+            assert not mask[cells.shape[0]:].any() and not mask[:, cells.shape[1]:].any()
+
+
+def test_facing_per_raster_is_the_full_computation_bit_for_bit(room):
+    """Each raster's targets side found once with its normal equals every node's own product."""
+    rng = np.random.default_rng(10)
+    rasters, masks, _ = _surfaces(room, 11, 0.5)
+    layouts, origins, normals, first = [], [], [], 0
+    for raster, mask in zip(rasters, masks):
+        layout = visibility._Layout.of(mask, 3)
+        layout.first, count = first, int(layout.need.sum())
+        first += count
+        layouts.append(layout)
+        normal = rng.normal(size=3)   # also oblique normals: every rounding of the products counts
+        normals.append(np.repeat((normal / np.linalg.norm(normal))[None], count, axis=0))
+        origins.append(rng.normal(scale=3.0, size=(count, 3)))
+    origins, normals = np.concatenate(origins), np.concatenate(normals)
+    targets = rng.normal(scale=3.0, size=(70, 3))
+    np.testing.assert_array_equal(visibility._facing_by_raster(origins, normals, targets, layouts),
+                                  visibility._facing(origins, normals, targets).T)
+
+
+@pytest.mark.parametrize("threshold", [None, 0.2 - 1e-6])
+def test_surfaces_split_over_calls_get_the_maps_of_one_call(room, threshold):
+    """A raster's map depends on it alone: the filter may ask for its surfaces in parts (processes)."""
+    rng = np.random.default_rng(12)
+    scene = ray_scene(room.mesh)
+    rasters, masks, offsets = _surfaces(room, 13, 0.7)
+    targets = room.target.sample(64, seed=0)
+    groups = rng.random((len(targets), 3)) < 0.4
+    whole = visibility.visible_shares(rasters, masks, offsets, targets, scene, None, 0.06, groups, threshold=threshold)
+    for part in (slice(0, None, 2), slice(1, None, 2), slice(0, 3), slice(3, None)):
+        alone = visibility.visible_shares(rasters[part], masks[part], offsets[part], targets, scene, None, 0.06, groups,
+                                          threshold=threshold)
+        for one, other in zip(whole[part], alone):
+            np.testing.assert_array_equal(one, other)
 
 
 def test_occluded_in_blocks_equals_each_segment_alone(room):
