@@ -16,7 +16,7 @@ import numpy as np
 
 from perch_common.mesh_samples import MeshSamples
 from perch_common.types import SurfaceClass
-from perch_filtering.raster import SurfaceRaster, any_yaw_radius, disc_kernel
+from perch_filtering.raster import SurfaceRaster, any_yaw_radius, disc_kernel, erode
 from perch_filtering.sampling import SampleIndex
 
 SNAP = 0.35  # cells (the worst case, a point half a cell diagonal from its cell centre, is 0.71)
@@ -146,7 +146,7 @@ def free_fall(raster: SurfaceRaster, near: NearbyGeometry, up: np.ndarray, floor
         pix = pix + half
         usable = _in_image(pix, depth.shape)
         scatter(np.minimum, depth, pix[usable, 1], pix[usable, 0], near.depth[usable] - spacing * GAP)
-        column = cv2.erode(depth, kernel, borderType=cv2.BORDER_REPLICATE)
+        column = erode(depth, kernel, cv2.BORDER_REPLICATE)
         return np.minimum(fall, column[half:half + rows, half:half + cols])
     slope = float(f.axis_v @ up) * cell  # height per row (> 0: oriented frames' v axis follows up)
     if slope <= 1e-9:
@@ -190,5 +190,5 @@ def approach_clearance(raster: SurfaceRaster, near: NearbyGeometry, half_u: floa
         pix = near.pixels + [ku, kv]
         usable = _in_image(pix, depth.shape) & (near.depth < lookahead)
         scatter(np.minimum, depth, pix[usable, 1], pix[usable, 0], near.depth[usable] - spacing * GAP)
-    prism = cv2.erode(depth, kernel, borderType=cv2.BORDER_REPLICATE)
+    prism = erode(depth, kernel, cv2.BORDER_REPLICATE)
     return np.maximum(prism[kv:kv + rows, ku:ku + cols], 0.0)

@@ -149,5 +149,65 @@ def erode_window(alive: np.ndarray, kernel: np.ndarray) -> np.ndarray:
     """Cells where the whole window fits on alive cells; outside the raster counts as not alive."""
     import cv2
 
-    out = cv2.erode(alive.astype(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+    out = erode(alive.astype(np.uint8), kernel, cv2.BORDER_CONSTANT, 0)
     return out.astype(bool)
+
+
+RUN_CELLS = 64  # kernel cells per level from which erode takes a disc's minima level by level
+
+
+def erode(image: np.ndarray, kernel: np.ndarray, border: int, border_value: float | None = None) -> np.ndarray:
+    """cv2.erode(image, kernel, borderType=border, borderValue=border_value): the same minima.
+
+    A disc (every row of the kernel a run centred on its middle column, no wider than the rows nearer
+    the middle) is the union of the rectangles of its distinct row widths, so its minimum is taken from
+    1-D minima (`centred_runs`): O(radius) passes over the image instead of OpenCV's one per kernel
+    cell (the ceilings' 1 m approach disc: 2,000 cells, 15 levels, 2.5x faster). Minima compose
+    exactly, and a replicated or constant border composes like the whole kernel's."""
+    import cv2
+
+    levels = centred_runs(kernel)
+    extra = {} if border_value is None else {"borderValue": border_value}
+    # Three passes a level against one vectorised pass per kernel cell: measured even at ~50 cells a level.
+    if levels is None or np.count_nonzero(kernel) < RUN_CELLS * len(levels) or image.size == 0:
+        return cv2.erode(image, kernel, borderType=border, **extra)
+
+    def along(values, reach, axis):  # the minimum over +-reach cells along one axis
+        if reach == 0:
+            return values
+        shape = (1, 2 * reach + 1) if axis == 1 else (2 * reach + 1, 1)
+        return cv2.erode(values, np.ones(shape, np.uint8), borderType=border, **extra)
+
+    # Narrowest (tallest) level first: C = min(H_w, V_(h_prev - h)(C)); the answer is V_(h_widest)(C).
+    width, height = levels[0]
+    rows_min = along(image, width, 1)
+    combined = rows_min
+    for w, h in levels[1:]:
+        rows_min = along(rows_min, w - width, 1)
+        combined = np.minimum(rows_min, along(combined, height - h, 0))
+        width, height = w, h
+    return along(combined, height, 0)
+
+
+def centred_runs(kernel: np.ndarray) -> list[tuple[int, int]] | None:
+    """The kernel as a union of centred rectangles: (half width, half height) per distinct row width,
+    narrowest first; None unless every row is a run centred on the middle column, mirrored about the
+    middle row and no wider than the rows nearer it (a disc, an ellipse, a rectangle)."""
+    rows, cols = kernel.shape
+    if rows % 2 == 0 or cols % 2 == 0:
+        return None
+    half_v, half_u = rows // 2, cols // 2
+    on = kernel != 0
+    widths = on.sum(axis=1)
+    if widths[half_v] == 0 or not np.array_equal(widths, widths[::-1]):
+        return None
+    half = (widths - 1) // 2
+    expected = np.abs(np.arange(cols) - half_u)[None, :] <= half[:, None]
+    if np.any(widths % 2 == 0) or not np.array_equal(on, expected):
+        return None
+    if np.any(np.diff(half[half_v:]) > 0):
+        return None
+    levels = []
+    for w in np.unique(half[half_v:]):
+        levels.append((int(w), int(np.flatnonzero(half[half_v:] >= w).max())))
+    return levels

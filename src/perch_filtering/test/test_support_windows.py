@@ -257,3 +257,28 @@ def test_first_surface_depth_is_the_first_hit_in_front_of_each_cell():
     np.testing.assert_array_equal(scene.first_hit_distance(raster.cell_world(cells) + probe * normal,
                                                            np.repeat(-normal[None], int(cells.sum()), axis=0)),
                                   hits.distance)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_window_counts_from_row_prefix_sums_equal_the_rounded_convolution(seed):
+    """The turned windows' counts read at some centres from row prefix sums are cv2.filter2D's (rounded)
+    on near-bin masks of scanned-looking depth maps, for the filter's 25-cell window in every yaw and
+    for ragged kernels whose rows hold several runs; windows reaching past the mask count nothing there."""
+    from perch_filtering.support import _WindowCounts
+
+    rng = np.random.default_rng(seed)
+    depth = random_depth(rng, (150, 210), noise=(0.002, 0.006, 0.012)[seed])
+    mask = (np.abs(depth) <= 0.01).astype(np.uint8) * 255  # a run of near bins (NaN: not near)
+    kernel = window_kernel(0.5, 0.5, 0.02, False)
+    kernels = turned_kernels(kernel, tuple(np.radians(np.arange(15.0, 90.0, 15.0))))
+    kernels += [(rng.random((9, 13)) < 0.6).astype(np.uint8), (rng.random((35, 35)) < 0.3).astype(np.uint8)]
+    reach = max(max(k.shape) for k in kernels) // 2
+    rows, cols = np.nonzero(rng.random(mask.shape) < 0.3)  # the borders included
+    counts = _WindowCounts(mask, reach, rows, cols)
+    for k in kernels:
+        plain = np.rint(cv2.filter2D((mask > 0).astype(np.float32), -1, k.astype(np.float32),
+                                     borderType=cv2.BORDER_CONSTANT))[rows, cols]
+        got = counts.of(k)
+        assert got.dtype == np.float32
+        np.testing.assert_array_equal(got, plain)
+        assert 0 < (got / k.sum()).mean() < 1  # partial windows occur
