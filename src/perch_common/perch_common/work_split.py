@@ -45,11 +45,12 @@ class SplitRun(Generic[T]):
     child_wait: float   # s the caller waited for the child after its own share
 
 
-def _child_main(run: Callable, share, conn) -> None:
+def _child_main(run: Callable, share, send: Callable | None, conn) -> None:
     """The child's side: run its share in a fresh context on one thread and send the result (or why not)."""
     def work():
         with one_thread():
-            return run(share)
+            result = run(share)
+            return send(result) if send is not None else result
     try:
         result = contextvars.Context().run(work)
         conn.send(("done", result))
@@ -59,11 +60,13 @@ def _child_main(run: Callable, share, conn) -> None:
         conn.close()
 
 
-def in_two_processes(run: Callable[[object], T], mine, theirs, patience: Callable[[float], float]) -> SplitRun[T]:
+def in_two_processes(run: Callable[[object], T], mine, theirs, patience: Callable[[float], float],
+                     send: Callable | None = None) -> SplitRun[T]:
     """`run(mine)` here and `run(theirs)` in a forked child, at the same time, each on one thread.
 
     `patience(s)` is how long the caller waits for the child once its own share took `s` seconds;
-    past it the child is killed and its share computed here. Both calls run `run` on one thread.
+    past it the child is killed and its share computed here. `send(result)` is what the child sends
+    of its result (all of it by default): `theirs` is that when `child` is "done", else run(theirs).
     """
     if work_threads() < 2:  # one core: the child would only take turns with the caller
         with one_thread():
@@ -73,7 +76,7 @@ def in_two_processes(run: Callable[[object], T], mine, theirs, patience: Callabl
     child = None
     try:
         try:
-            child = context.Process(target=_child_main, args=(run, theirs, sender), daemon=True,
+            child = context.Process(target=_child_main, args=(run, theirs, send, sender), daemon=True,
                                     name="perch-share")
             with warnings.catch_warnings():  # Python >= 3.12 warns on any fork of a threaded process
                 warnings.filterwarnings("ignore", message=".*fork.*", category=DeprecationWarning)

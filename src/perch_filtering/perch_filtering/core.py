@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -70,6 +70,7 @@ NOISE_SIGMAS = 3.0  # scan noise sigmas in front of a plane that count as the su
 SUPPORT_BIN = 0.1  # depth bins of the support statistics, as a share of plane_tolerance (3 mm at 3 cm)
 ANY_YAW_COST = 1.5  # CPU per m^2 of a ceiling's (or floor's) judging, of a wall's (turned windows; 4.9 vs 3.2 ms)
 SPLIT_MIN_CELLS = 200_000  # raster cells (m^2 of enabled surface / cell^2) from which a second process judges half
+SPLIT_MIN_OBSERVED_CELLS = 100_000  # kept cells from which it checks half of them for observed space
 SPLIT_PATIENCE = 10.0  # s the second process may take beyond the caller's share before it is judged here
 
 
@@ -171,18 +172,38 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
         clock.lap("line_of_sight")
         return work
 
-    work, second_process = _judged(judge, oriented, config, clock)
+    # Each surface's judging costs about its raster's cells, a ceiling's (turned windows) 1.5 times a wall's.
+    judging_cost = [s.area / config.cell ** 2 * (ANY_YAW_COST if s.surface_class in ANY_YAW_CLASSES else 1.0)
+                    if class_enabled(s.surface_class, config) else 0.0 for s in oriented]
+    work, second_process = _shared_out(judge, judging_cost, SPLIT_MIN_CELLS, config, _evidence_at_alive,
+                                       _evidence_spread)
+    clock.lap("second_process")
     report(0.7, "reachability")
     reached = _reachability([w for w in work if w.raster is not None], grid, scene.mesh, config)
     clock.lap("reachability")
-    _per_surface(lambda pair: _observed(*pair, scene, up, config, mesh.viewpoints), reached,
-                 "observed space: surface", 0.85, 0.99)
+
+    def observe(indices: list[int]) -> list[tuple]:
+        """The observed-space rule on the reached surfaces `indices`: each one's removal, kept cells and
+        its two evidence maps at them (the rays are per kept cell; the maps are read nowhere else)."""
+        pairs = [reached[i] for i in indices]
+        _per_surface(lambda pair: _observed(*pair, scene, up, config, mesh.viewpoints), pairs,
+                     "observed space: surface", 0.85, 0.99)
+        return [(w.removal, kept, w.evidence["approach_observed"][kept], w.evidence["fall_observed"][kept])
+                for w, kept in pairs]
+
+    observed, observed_split = _shared_out(observe, [float(kept.sum()) for _, kept in reached],
+                                           SPLIT_MIN_OBSERVED_CELLS, config)
+    for (w, _), (removal, kept, approach, fall) in zip(reached, observed):
+        w.removal = removal
+        w.evidence.update(approach_observed=_spread(approach, kept), fall_observed=_spread(fall, kept))
+    reached = [(w, kept) for (w, _), (_, kept, _, _) in zip(reached, observed)]
+    removals = [w.removal for w in work]
+    second_process = second_process if observed_split in ("", "done") else observed_split
     clock.lap("observed")
     regions: list[PerchRegion] = []
     for w, kept in reached:
         regions.extend(_regions(w, kept, len(regions), mesh.frame_id, config))
     clock.lap("regions")
-    removals = [w.removal for w in work]
     result = FilterResult(regions, removals, oriented, "", floor_height, floor_ids,
                           [o.decided_by for o in orientations], time.perf_counter() - start, clock.laps,
                           second_process)
@@ -203,26 +224,48 @@ def _surface_threads() -> int:
     return work_threads()
 
 
-def _judged(judge, surfaces: list[Surface], config: FilterConfig, clock: Laps) -> tuple[list[_Work], str]:
-    """judge(all surface indices), in two processes when the surfaces hold enough cells to pay for the
-    fork: the surfaces are shared out by area (largest first, each to the lighter share)."""
-    cost = np.array([s.area * (ANY_YAW_COST if s.surface_class in ANY_YAW_CLASSES else 1.0)
-                     if class_enabled(s.surface_class, config) else 0.0 for s in surfaces])
-    if config.processes < 2 or cost.sum() / config.cell ** 2 < SPLIT_MIN_CELLS or np.count_nonzero(cost) < 2:
-        return judge(list(range(len(surfaces)))), ""
+def _shared_out(run, cost: list[float], min_cost: float, config: FilterConfig, send=None,
+                receive=None) -> tuple[list, str]:
+    """run(all indices) -> one result per index, in two processes when the items' `cost` (raster cells)
+    reaches `min_cost` (what pays for a fork): the items are shared out largest first, each to the
+    lighter share. `send`/`receive` shrink what the second process returns and restore it."""
+    cost = np.asarray(cost, np.float64)
+    if config.processes < 2 or cost.sum() < min_cost or np.count_nonzero(cost) < 2:
+        return run(list(range(len(cost)))), ""
     shares: tuple[list[int], list[int]] = ([], [])
     loads = [0.0, 0.0]
     for i in np.argsort(-cost, kind="stable"):
         lighter = int(loads[1] < loads[0])
         shares[lighter].append(int(i))
         loads[lighter] += cost[i]
+    mine, theirs = sorted(shares[0]), sorted(shares[1])
     # The child's share should take about as long as the caller's: past three times that (and a
-    # floor for a loaded machine), it is taken as lost and judged here.
-    split = in_two_processes(judge, sorted(shares[0]), sorted(shares[1]),
-                             patience=lambda own: max(SPLIT_PATIENCE, 2.0 * own))
-    clock.lap("second_process")
-    by_index = dict(zip(sorted(shares[0]), split.mine)) | dict(zip(sorted(shares[1]), split.theirs))
-    return [by_index[i] for i in range(len(surfaces))], split.child
+    # floor for a loaded machine), it is taken as lost and computed here.
+    split = in_two_processes(run, mine, theirs, patience=lambda own: max(SPLIT_PATIENCE, 2.0 * own), send=send)
+    theirs_result = receive(split.theirs) if receive is not None and split.child == "done" else split.theirs
+    by_index = dict(zip(mine, split.mine)) | dict(zip(theirs, theirs_result))
+    return [by_index[i] for i in range(len(cost))], split.child
+
+
+def _evidence_at_alive(work: list[_Work]) -> list[_Work]:
+    """What a second process sends of its judged surfaces: the evidence maps at the live cells only
+    (the later phases read them nowhere else; a building's maps are ~50 MB, 20x their live cells)."""
+    return [replace(w, evidence={name: values[w.alive] for name, values in w.evidence.items()})
+            if w.raster is not None else w for w in work]
+
+
+def _evidence_spread(work: list[_Work]) -> list[_Work]:
+    """_evidence_at_alive undone: whole maps again, zero where the cell is not alive (never read)."""
+    for w in work:
+        if w.raster is not None:
+            w.evidence = {name: _spread(values, w.alive) for name, values in w.evidence.items()}
+    return work
+
+
+def _spread(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    whole = np.zeros(mask.shape, values.dtype)
+    whole[mask] = values
+    return whole
 
 
 def _done(work, *args, **kwargs) -> Future:

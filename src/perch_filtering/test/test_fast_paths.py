@@ -201,7 +201,8 @@ def test_two_processes_give_the_one_process_answer(room, monkeypatch):
     from perch_filtering import core
 
     monkeypatch.setenv("OMP_NUM_THREADS", "2")
-    monkeypatch.setattr(core, "SPLIT_MIN_CELLS", 0)  # the room is below the size that pays for a fork
+    monkeypatch.setattr(core, "SPLIT_MIN_CELLS", 0)  # split whatever the size (a fork pays from ~a building)
+    monkeypatch.setattr(core, "SPLIT_MIN_OBSERVED_CELLS", 0)
     surfaces = filter_input_surfaces(room)
     one = core.filter_surfaces(room.mesh, surfaces, room.target, room.up, core.FilterConfig(processes=1))
     two = core.filter_surfaces(room.mesh, surfaces, room.target, room.up, core.FilterConfig(processes=2))
