@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import contextvars
 import multiprocessing
+import os
+import sys
 import time
 import traceback
 import warnings
@@ -33,6 +35,7 @@ from perch_common.threads import one_thread, work_threads
 T = TypeVar("T")
 
 WAIT_SLICE = 0.1   # s between cancel checks while the caller waits for the child
+REAP_WAIT = 5.0    # s a child that closed its pipe without an answer gets to exit (then it is killed)
 
 
 @dataclass
@@ -47,6 +50,10 @@ class SplitRun(Generic[T]):
 
 def _child_main(run: Callable, share, send: Callable | None, conn) -> None:
     """The child's side: run its share in a fresh context on one thread and send the result (or why not)."""
+    # What the caller had buffered for stdout and stderr when it forked is the caller's to write: the
+    # child flushes its streams as it exits (multiprocessing flushes the caller's before the fork, but
+    # another thread of the caller may have written in between), which would write it twice.
+    sys.stdout = sys.stderr = open(os.devnull, "w")  # noqa: SIM115 - the child ends with os._exit
     def work():
         with one_thread():
             result = run(share)
@@ -58,6 +65,12 @@ def _child_main(run: Callable, share, send: Callable | None, conn) -> None:
         conn.send(("failed", f"{type(error).__name__}: {error}\n{traceback.format_exc(limit=3)}"))
     finally:
         conn.close()
+
+
+def _exit_status(child) -> str:
+    """How a child that sent no answer ended (it closed its pipe: it is exiting)."""
+    child.join(REAP_WAIT)
+    return f"exit code {child.exitcode}" if child.exitcode is not None else "closed its pipe without exiting"
 
 
 def in_two_processes(run: Callable[[object], T], mine, theirs, patience: Callable[[float], float],
@@ -102,10 +115,10 @@ def in_two_processes(run: Callable[[object], T], mine, theirs, patience: Callabl
                 try:
                     status, payload = receiver.recv()
                 except (EOFError, OSError):
-                    status, payload = "died", f"exit code {child.exitcode}"
+                    status, payload = "died", _exit_status(child)
                 break
             if not child.is_alive() and not receiver.poll(0):
-                status, payload = "died", f"exit code {child.exitcode}"
+                status, payload = "died", _exit_status(child)
                 break
             if time.monotonic() >= deadline:
                 status, payload = "late", f"no answer {deadline - started:.1f} s after the split"

@@ -114,3 +114,20 @@ def test_a_daemonic_caller_computes_both_shares_itself():
     worker.join()
     assert child.startswith("no child process:") and "daemonic" in child
     assert (mine, theirs, here) == ([1], [4], True)
+
+
+def test_output_the_caller_buffered_before_the_fork_is_written_once(tmp_path):
+    """A command whose stdout is a file (block-buffered) must not see its lines twice: the child
+    inherits the caller's unwritten buffer and would flush it as it exits."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "out.txt"
+    script = ("import sys\nfrom perch_common.work_split import in_two_processes\n"
+              "print('written before the split')\n"
+              "split = in_two_processes(lambda share: share, [1], [2], lambda own: 60.0)\n"
+              "print('after', split.child)\n")
+    with out.open("w") as stdout:
+        subprocess.run([sys.executable, "-c", script], stdout=stdout, check=True, timeout=120,
+                       env={**__import__("os").environ, "OMP_NUM_THREADS": "2"})
+    assert out.read_text() == "written before the split\nafter done\n"
