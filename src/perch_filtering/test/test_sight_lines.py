@@ -108,31 +108,73 @@ def test_rounds_cast_fewer_sight_lines_than_every_one(room, monkeypatch):
     assert sum(cast) < 0.8 * every
 
 
-def test_cell_values_are_the_bilinear_interpolation_bit_for_bit():
-    """The rounds decide cells with `_Layout.cell_values`, which must be `_bilinear`'s arithmetic exactly,
-    on the full computation's node grid; the nodes it calls weighed are those some cell weighs."""
+def _layout_case(rng, step):
+    """A random mask, its node grid and weighed nodes built the plain way, and its `_Layout`."""
+    mask = rng.random((int(rng.integers(5, 40)), int(rng.integers(5, 40)))) < rng.uniform(0.05, 0.9)
+    mask[rng.integers(mask.shape[0]), rng.integers(mask.shape[1])] = True
+    rows, cols = np.nonzero(mask)
+    need = np.zeros((rows.max() // step + 2, cols.max() // step + 2), bool)
+    weighed = np.zeros_like(need)
+    for dr in (0, 1):
+        for dc in (0, 1):
+            need[rows // step + dr, cols // step + dc] = True
+            weight = ((rows % step) if dr else (step - rows % step)) * ((cols % step) if dc else (step - cols % step))
+            weighed[(rows // step + dr)[weight > 0], (cols // step + dc)[weight > 0]] = True
+    return mask, need, weighed, visibility._Layout.of(mask, step)
+
+
+def test_block_values_are_the_bilinear_interpolation_bit_for_bit():
+    """Cells near the threshold are decided with `_Layout.block_values`, which must be `_bilinear`'s
+    arithmetic exactly, on the full computation's node grid; the nodes it calls weighed are those
+    some cell weighs."""
     rng = np.random.default_rng(8)
     for step in (1, 2, 3, 4):
         for _ in range(3):
-            mask = rng.random((int(rng.integers(5, 40)), int(rng.integers(5, 40)))) < rng.uniform(0.05, 0.9)
-            rows, cols = np.nonzero(mask)
-            need = np.zeros((rows.max() // step + 2, cols.max() // step + 2), bool)
-            weighed = np.zeros_like(need)
-            for dr in (0, 1):
-                for dc in (0, 1):
-                    need[rows // step + dr, cols // step + dc] = True
-                    weight = ((rows % step) if dr else (step - rows % step)) * ((cols % step) if dc else (step - cols % step))
-                    weighed[(rows // step + dr)[weight > 0], (cols // step + dc)[weight > 0]] = True
-            layout = visibility._Layout.of(mask, step)
+            mask, need, weighed, layout = _layout_case(rng, step)
             np.testing.assert_array_equal(layout.need, need)
             np.testing.assert_array_equal(layout.weighed, weighed)
             grid = np.where(need, rng.integers(0, 65, need.shape) / 64, 0).astype(np.float32)
-            layout.first = 5
-            values = np.concatenate([np.zeros(5, np.float32), grid[need]])
-            cells = layout.cell_values(values, mask.shape)
+            rows, cols = np.nonzero(layout.filled)
+            values = layout.block_values(grid, rows, cols)
             expected = visibility._bilinear(grid, step, mask.shape, mask)
-            np.testing.assert_array_equal(cells[mask[:cells.shape[0], :cells.shape[1]]], expected[mask])
-            assert not mask[cells.shape[0]:].any() and not mask[:, cells.shape[1]:].any()
+            r = rows[:, None, None] * step + np.arange(step)[None, :, None]
+            c = cols[:, None, None] * step + np.arange(step)[None, None, :]
+            r, c = np.broadcast_arrays(r, c)
+            inside = (r < mask.shape[0]) & (c < mask.shape[1])
+            inside[inside] = mask[r[inside], c[inside]]
+            np.testing.assert_array_equal(values[inside], expected[r[inside], c[inside]])
+            assert inside.sum() == mask.sum()
+
+
+def test_cells_decided_by_their_blocks_as_by_their_own_values():
+    """Whole blocks decided from their four nodes' bounds decide every cell as its interpolated bounds
+    do, with node values on and next to the threshold (float32 neighbours of it)."""
+    rng = np.random.default_rng(14)
+    threshold = 0.2 - 1e-6
+    edge = np.float32(threshold)
+    near = np.array([np.nextafter(edge, np.float32(0)), edge, np.nextafter(edge, np.float32(1)), 0.0, 1.0,
+                     0.25, 0.15], np.float32)
+    for step in (1, 2, 3, 4):
+        layouts, masks, first = [], [], 0
+        for _ in range(4):
+            mask, need, _, layout = _layout_case(rng, step)
+            layout.first, first = first, first + int(need.sum())
+            layouts.append(layout)
+            masks.append(mask)
+        lower = rng.choice(near, first)
+        upper = np.maximum(lower, rng.choice(near, first))
+        exact = rng.random(first) < 0.3   # nodes cast in full: bounds equal
+        upper[exact] = lower[exact]
+        maps, undecided = visibility._decided_cells(layouts, masks, lower, upper, threshold)
+        for k, (layout, mask, grid) in enumerate(zip(layouts, masks, maps)):
+            low = visibility._bilinear(layout.node_grid(lower), step, mask.shape, mask)
+            high = visibility._bilinear(layout.node_grid(upper), step, mask.shape, mask)
+            open_ = mask & (low < threshold) & (high >= threshold)
+            np.testing.assert_array_equal((grid >= threshold)[mask & ~open_], (low >= threshold)[mask & ~open_])
+            rows, cols = undecided.get(k, (np.zeros(0, int), np.zeros(0, int)))
+            np.testing.assert_array_equal(np.sort(rows * mask.shape[1] + cols), np.flatnonzero(open_))
+            assert not grid[~mask].any()
+        assert any(undecided.values())
 
 
 def test_facing_per_raster_is_the_full_computation_bit_for_bit(room):
