@@ -235,14 +235,16 @@ def _bounded_shares(origins: np.ndarray, normals: np.ndarray, targets: np.ndarra
         useful = _counts(possible_a >= passing, member32[:, window].T) > 0
         cast = np.take(facing[window], active, axis=1) & useful
         # Point by point (cast's order): neighbouring nodes' rays traverse alike (~8 % faster). Flat
-        # indices and divmod: half the cost of a 2-D nonzero and scatter.
+        # indices and each row's count: a third of the cost of a 2-D nonzero (or of a divmod).
         flat = np.flatnonzero(cast)
-        points, columns = np.divmod(flat, len(active))
+        points = np.repeat(np.arange(cast.shape[0]), np.count_nonzero(cast, axis=1))
+        columns = flat - points * len(active)
         visible = np.zeros(cast.size, np.float32)
         visible[flat] = free(np.take(active, columns), points + position)
         visible = visible.reshape(cast.shape)
-        seen_a += _counts(visible, member32[:, window])
-        possible_a -= _counts(cast.astype(np.float32) - visible, member32[:, window])
+        seen_now = _counts(visible, member32[:, window])
+        seen_a += seen_now
+        possible_a -= _counts(cast, member32[:, window]) - seen_now   # the blocked ones
         still = _undecided(seen_a, possible_a, passing)
         done = active[~still]
         seen[:, done], possible[:, done] = seen_a[:, ~still], possible_a[:, ~still]
