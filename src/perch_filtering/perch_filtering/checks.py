@@ -61,7 +61,8 @@ def geometry_in_front(samples: MeshSamples, index: SampleIndex, raster: SurfaceR
     if len(own_faces):
         own = np.zeros(int(own_faces.max()) + 1, bool)
         own[own_faces[own_faces < len(own)]] = True
-        candidate = np.flatnonzero(keep)
+        # Beyond own_min_depth a sample is kept whoever's it is: only the nearer ones need their face.
+        candidate = np.flatnonzero(keep & (depth <= own_min_depth) if own_min_depth is not None else keep)
         face = index.face[at[candidate]]
         inside = face < len(own)
         mine = candidate[inside][own[face[inside]]]
