@@ -22,7 +22,7 @@ from perch_filtering.holes import patched_occlusion
 from perch_filtering.raster import SurfaceRaster
 
 CHUNK_PAIRS = 1 << 18  # origin-target pairs gathered and cast at once (3 MB of float32 segments)
-ROUND_POINTS = 8       # target points each undecided node casts per round of the bounded shares
+ROUND_POINTS = 8       # target points each undecided node casts per round of the bounded shares (middle rounds)
 FACING_NODES = 1 << 14  # nodes whose facing targets are found at once (temporaries of a few MB)
 ORDER_SEED = 0         # the fixed order in which a node's target points are cast (cost only, not answers)
 
@@ -201,9 +201,9 @@ def _bounded_shares(origins: np.ndarray, normals: np.ndarray, targets: np.ndarra
 
     Each node keeps, per group, the points seen so far and those seen plus the facing points not yet
     cast: `_shares`' arithmetic on them gives a lower and an upper bound of its share (division by a
-    fixed size, max and rounding to float32 are monotonic in each count). Every ROUND_POINTS target
-    points (a fixed order; groups interleaved, so a perch seeing one volume finds its points early) a
-    node casts those of the groups that can still reach `threshold`, until some group's seen count
+    fixed size, max and rounding to float32 are monotonic in each count). Each round (`_round_windows`,
+    target points in a fixed order; groups interleaved, so a perch seeing one volume finds its points
+    early) a node casts those of the groups that can still reach `threshold`, until some group's seen count
     reaches it or no group's upper count can. Bilinear weights are fixed and non-negative, so a cell
     is decided when its interpolated lower bound reaches `threshold` or its upper bound falls below
     it. The nodes of cells still undecided cast all their points anew, which makes their bounds exact
@@ -227,10 +227,10 @@ def _bounded_shares(origins: np.ndarray, normals: np.ndarray, targets: np.ndarra
     weighed = np.concatenate([layout.weighed[layout.need] for layout in layouts])
     active = np.flatnonzero(weighed & _undecided(seen, possible, passing))
     seen_a, possible_a = seen[:, active], possible[:, active]
-    for position in range(0, len(targets), ROUND_POINTS):
+    for window in _round_windows(len(targets)):
         if not len(active):
             break
-        window = slice(position, position + ROUND_POINTS)
+        position = window.start
         # Points of groups that can still reach the threshold (points of no group change no share).
         useful = _counts(possible_a >= passing, member32[:, window].T) > 0
         cast = np.take(facing[window], active, axis=1) & useful
@@ -266,6 +266,19 @@ def _bounded_shares(origins: np.ndarray, normals: np.ndarray, targets: np.ndarra
         for k, grid in zip(undecided, again):
             out[k] = grid
     return out
+
+
+def _round_windows(total: int) -> list[slice]:
+    """The target positions cast per round: twice ROUND_POINTS first (no node can be decided before a
+    few rays per group), ROUND_POINTS up to three quarters, then half of it: a failing node decides only
+    when nearly all its points are cast, so the last rounds are fine, less cast beyond the deciding
+    ray (on the building's 64 points 7.94 -> 7.65 M sight lines, and fewer node rounds)."""
+    windows, position = [], 0
+    while position < total:
+        size = 2 * ROUND_POINTS if not windows else ROUND_POINTS if position < 0.75 * total else ROUND_POINTS // 2
+        windows.append(slice(position, min(position + size, total)))
+        position += size
+    return windows
 
 
 def _undecided(seen: np.ndarray, possible: np.ndarray, passing: np.ndarray) -> np.ndarray:
