@@ -37,6 +37,15 @@ def child_environment(env: dict) -> dict:
     return {**env, PARENT_ENV: str(os.getpid())}
 
 
+def signal_at_parent_death(signum: int) -> None:
+    """Have Linux send `signum` to this process when the thread that started it ends (prctl
+    PR_SET_PDEATHSIG; nothing elsewhere). Check the parent is still there after calling it."""
+    with contextlib.suppress(OSError, AttributeError):
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signum, 0, 0, 0)
+
+
 def die_with_parent(env: dict | None = None) -> bool:
     """In a node process started by a Perch launcher (PERCH_PARENT_PID set): end when the launcher
     ends, however it ends (SIGKILL included). Returns whether the guard is on.
@@ -49,10 +58,7 @@ def die_with_parent(env: dict | None = None) -> bool:
     if not value.isdigit():
         return False
     parent = int(value)
-    with contextlib.suppress(OSError, AttributeError):
-        import ctypes
-
-        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
+    signal_at_parent_death(signal.SIGTERM)
 
     def watch() -> None:
         while os.getppid() == parent:

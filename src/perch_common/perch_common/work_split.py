@@ -22,6 +22,7 @@ from __future__ import annotations
 import contextvars
 import multiprocessing
 import os
+import signal
 import sys
 import time
 import traceback
@@ -30,6 +31,7 @@ from dataclasses import dataclass
 from typing import Callable, Generic, TypeVar
 
 from perch_common.cancellation import checkpoint
+from perch_common.processes import signal_at_parent_death
 from perch_common.threads import one_thread, work_threads
 
 T = TypeVar("T")
@@ -48,8 +50,12 @@ class SplitRun(Generic[T]):
     child_wait: float   # s the caller waited for the child after its own share
 
 
-def _child_main(run: Callable, share, send: Callable | None, conn) -> None:
+def _child_main(run: Callable, share, send: Callable | None, conn, caller: int) -> None:
     """The child's side: run its share in a fresh context on one thread and send the result (or why not)."""
+    # A node killed mid-call (a fault, a launcher's SIGKILL) takes its helper with it, at once.
+    signal_at_parent_death(signal.SIGKILL)
+    if os.getppid() != caller:
+        os._exit(1)
     # What the caller had buffered for stdout and stderr when it forked is the caller's to write: the
     # child flushes its streams as it exits (multiprocessing flushes the caller's before the fork, but
     # another thread of the caller may have written in between), which would write it twice.
@@ -89,7 +95,7 @@ def in_two_processes(run: Callable[[object], T], mine, theirs, patience: Callabl
     child = None
     try:
         try:
-            child = context.Process(target=_child_main, args=(run, theirs, send, sender), daemon=True,
+            child = context.Process(target=_child_main, args=(run, theirs, send, sender, os.getpid()), daemon=True,
                                     name="perch-share")
             with warnings.catch_warnings():  # Python >= 3.12 warns on any fork of a threaded process
                 warnings.filterwarnings("ignore", message=".*fork.*", category=DeprecationWarning)

@@ -131,3 +131,33 @@ def test_output_the_caller_buffered_before_the_fork_is_written_once(tmp_path):
         subprocess.run([sys.executable, "-c", script], stdout=stdout, check=True, timeout=120,
                        env={**__import__("os").environ, "OMP_NUM_THREADS": "2"})
     assert out.read_text() == "written before the split\nafter done\n"
+
+
+def test_the_child_dies_with_a_caller_that_is_killed(tmp_path):
+    """A node killed mid-call (a fault soak's SIGKILL) leaves no helper computing on."""
+    import subprocess
+    import sys
+
+    import psutil
+
+    pid_file = tmp_path / "child.pid"
+    script = f"""
+import os, pathlib, threading, time
+from perch_common.work_split import in_two_processes
+pid_file = pathlib.Path({str(pid_file)!r})
+def run(share):
+    if share == [2]:  # the child: say who it is, then compute forever
+        pid_file.with_suffix(".tmp").write_text(str(os.getpid()))
+        pid_file.with_suffix(".tmp").rename(pid_file)
+        threading.Event().wait()
+    while not pid_file.exists():  # the caller: killed once the child runs
+        time.sleep(0.01)
+    os.kill(os.getpid(), 9)
+in_two_processes(run, [1], [2], lambda own: 60.0)
+"""
+    caller = subprocess.run([sys.executable, "-c", script], timeout=120,
+                            env={**__import__("os").environ, "OMP_NUM_THREADS": "2"})
+    assert caller.returncode == -9
+    child = psutil.Process(int(pid_file.read_text()))
+    gone, alive = psutil.wait_procs([child], timeout=30)
+    assert not alive, "the child outlived its killed caller"
