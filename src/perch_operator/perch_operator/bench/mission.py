@@ -20,7 +20,7 @@ start-up, so it never uses a graph already running there, and never meets one. J
   transport_s  mission_s minus the stages' own seconds: (de)serialising, delivering and converting
                messages between client, coordinator and stages;
   peak_rss_mb  peak resident memory of the whole graph (client and node processes, sampled 10 Hz,
-               with the memory their forked helpers hold alone, and this process's own peak).
+               and this process's own peak).
 `--repeat N` runs N fresh processes one after another (each pays its own start-up and frees its
 memory before the next) and reports the median of each figure, of the stage times and of cameras,
 coverage and fitness, with each run's 1-minute load average; it exits 1 when any run failed.
@@ -111,16 +111,11 @@ class RssSampler:
         self._thread = threading.Thread(target=self._loop, daemon=True)
 
     def _loop(self) -> None:
-        pids = {proc.pid for proc in self.procs}
         while not self._stop.is_set():
             total = 0
             for proc in self.procs:
                 try:
                     total += proc.memory_info().rss
-                    # A stage's forked helper (perch_common.work_split) shares its parent's pages: only
-                    # what it holds alone (USS) adds to the graph's memory.
-                    total += sum(child.memory_full_info().uss for child in proc.children(recursive=True)
-                                 if child.pid not in pids)
                 except Exception:  # noqa: BLE001 - a process that ended counts as 0
                     pass
             self.peak_bytes = max(self.peak_bytes, total)
