@@ -83,16 +83,29 @@ def _dot(x: np.ndarray, y: np.ndarray, z: np.ndarray, axis: np.ndarray) -> np.nd
     return out
 
 
-def _in_image(pix: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """(N,2) (col, row) pixels inside an image of `shape` (rows, cols)."""
-    return (pix[:, 0] >= 0) & (pix[:, 0] < shape[1]) & (pix[:, 1] >= 0) & (pix[:, 1] < shape[0])
+def _padded_flat(pixels: np.ndarray, pad_u: int, pad_v: int, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Flat indices into an image of `shape` (rows, cols) padded by pad_v rows and pad_u columns on every
+    side of the (col, row) `pixels`, and which of them land in it."""
+    col = pixels[:, 0] + pad_u
+    row = pixels[:, 1] + pad_v
+    # Negative ones wrap to huge unsigned values: one comparison per axis.
+    inside = col.view(np.uint64) < shape[1]
+    inside &= row.view(np.uint64) < shape[0]
+    row *= shape[1]
+    row += col
+    return row, inside
 
 
 def scatter(ufunc: np.ufunc, image: np.ndarray, rows: np.ndarray, cols: np.ndarray, values: np.ndarray) -> None:
     """ufunc.at(image, (rows, cols), values) on the flat image with values in its dtype: numpy's fast
     path (4-7x; a float64 value into a float32 image took the casting loop). Same result: rounding to
     float32 keeps the order, so min / max of the rounded values is the rounded min / max."""
-    ufunc.at(image.reshape(-1), rows * image.shape[1] + cols, values.astype(image.dtype, copy=False))
+    scatter_flat(ufunc, image, rows * image.shape[1] + cols, values)
+
+
+def scatter_flat(ufunc: np.ufunc, image: np.ndarray, flat: np.ndarray, values: np.ndarray) -> None:
+    """scatter at flat indices into the image."""
+    ufunc.at(image.reshape(-1), flat, values.astype(image.dtype, copy=False))
 
 
 NO_OBSTACLE = -1e9  # height of "no obstacle below" in the wall fall image
@@ -144,9 +157,8 @@ def free_fall(raster: SurfaceRaster, near: NearbyGeometry, up: np.ndarray, floor
                   else np.ones((2 * half + 1, 2 * half + 1), np.uint8))
         half = kernel.shape[0] // 2
         depth = np.full((rows + 2 * half, cols + 2 * half), lookahead, np.float32)
-        pix = pix + half
-        usable = _in_image(pix, depth.shape)
-        scatter(np.minimum, depth, pix[usable, 1], pix[usable, 0], near.depth[usable] - spacing * GAP)
+        flat, usable = _padded_flat(pix, half, half, depth.shape)
+        scatter_flat(np.minimum, depth, flat[usable], near.depth[usable] - spacing * GAP)
         column = erode(depth, kernel, cv2.BORDER_REPLICATE)
         return np.minimum(fall, column[half:half + rows, half:half + cols])
     slope = float(f.axis_v @ up) * cell  # height per row (> 0: oriented frames' v axis follows up)
@@ -154,13 +166,19 @@ def free_fall(raster: SurfaceRaster, near: NearbyGeometry, up: np.ndarray, floor
         return np.zeros(raster.shape, np.float32)
     # A sample at height z is below every cell from height z - margin up; the fall there ends at z + margin.
     margin = spacing * GAP + SNAP * cell
-    start = np.ceil((near.height - margin - heights[0]) / slope).astype(np.int64)
-    col = pix[:, 0] + half
-    ok = (start < rows) & (col >= 0) & (col < cols + 2 * half)
-    ok &= near.depth <= corridor_depth + spacing * GAP
     width = cols + 2 * half
+    col = pix[:, 0] + half
+    ok = col.view(np.uint64) < width  # negative columns wrap to huge unsigned values
+    ok &= near.depth <= corridor_depth + spacing * GAP
+    height, col = near.height[ok], col[ok]  # the row of only the samples in the corridor's depth
+    start = np.ceil((height - margin - heights[0]) / slope).astype(np.int64)
+    below = start < rows
+    start, col, height = start[below], col[below], height[below]
+    np.clip(start, 0, rows - 1, out=start)
+    start *= width
+    start += col
     top = np.full((rows, width), NO_OBSTACLE, np.float32)
-    scatter(np.maximum, top, np.clip(start[ok], 0, rows - 1), col[ok], near.height[ok] + margin)
+    scatter_flat(np.maximum, top, start, height + margin)
     top = cv2.dilate(top, np.ones((1, 2 * half + 1), np.uint8), borderType=cv2.BORDER_REPLICATE)
     highest_below = np.maximum.accumulate(top, axis=0)[:, half:half + cols]
     return np.minimum(fall, heights[:, None] - highest_below).astype(np.float32)
@@ -188,8 +206,8 @@ def approach_clearance(raster: SurfaceRaster, near: NearbyGeometry, half_u: floa
         kernel = np.ones((2 * kv + 1, 2 * ku + 1), np.uint8)
     depth = np.full((rows + 2 * kv, cols + 2 * ku), lookahead, np.float32)
     if len(near.depth):
-        pix = near.pixels + [ku, kv]
-        usable = _in_image(pix, depth.shape) & (near.depth < lookahead)
-        scatter(np.minimum, depth, pix[usable, 1], pix[usable, 0], near.depth[usable] - spacing * GAP)
+        flat, usable = _padded_flat(near.pixels, ku, kv, depth.shape)
+        usable &= near.depth < lookahead
+        scatter_flat(np.minimum, depth, flat[usable], near.depth[usable] - spacing * GAP)
     prism = erode(depth, kernel, cv2.BORDER_REPLICATE)
     return np.maximum(prism[kv:kv + rows, ku:ku + cols], 0.0)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -166,8 +167,9 @@ def erode(image: np.ndarray, kernel: np.ndarray, border: int, border_value: floa
     exactly, and a replicated or constant border composes like the whole kernel's."""
     import cv2
 
-    levels = centred_runs(kernel)
     extra = {} if border_value is None else {"borderValue": border_value}
+    # A rectangle is OpenCV's own separable case; a disc's levels are worked out once per kernel.
+    levels = None if kernel.all() else _centred_runs(kernel.tobytes(), kernel.shape, kernel.dtype.str)
     # Three passes a level against one vectorised pass per kernel cell: measured even at ~50 cells a level.
     if levels is None or np.count_nonzero(kernel) < RUN_CELLS * len(levels) or image.size == 0:
         return cv2.erode(image, kernel, borderType=border, **extra)
@@ -187,6 +189,12 @@ def erode(image: np.ndarray, kernel: np.ndarray, border: int, border_value: floa
         combined = np.minimum(rows_min, along(combined, height - h, 0))
         width, height = w, h
     return along(combined, height, 0)
+
+
+@lru_cache(maxsize=16)
+def _centred_runs(data: bytes, shape: tuple[int, int], dtype: str) -> tuple[tuple[int, int], ...] | None:
+    levels = centred_runs(np.frombuffer(data, dtype).reshape(shape))
+    return None if levels is None else tuple(levels)
 
 
 def centred_runs(kernel: np.ndarray) -> list[tuple[int, int]] | None:
