@@ -17,7 +17,7 @@ import numpy as np
 from perch_common.mesh_samples import MeshSamples
 from perch_common.types import SurfaceClass
 from perch_filtering.raster import SurfaceRaster, any_yaw_radius, disc_kernel, erode
-from perch_filtering.sampling import SampleIndex
+from perch_filtering.sampling import SampleIndex, read_runs, run_positions
 
 SNAP = 0.35  # cells (the worst case, a point half a cell diagonal from its cell centre, is 0.71)
 GAP = 0.25  # share of the sample spacing (points of a face lie within ~0.5 spacing of a sample)
@@ -47,28 +47,30 @@ def geometry_in_front(samples: MeshSamples, index: SampleIndex, raster: SurfaceR
     v_lo, v_hi = raster.v0 - margin, raster.v0 + (rows - 1) * raster.cell + margin
     corners = [f.to_world(np.array([[u, v]]), np.array([d]))[0]
                for u in (u_lo, u_hi) for v in (v_lo, v_hi) for d in (min_depth, max_depth)]
-    at = index.positions_near_box(np.array(corners))
+    start, stop = index.runs_near_box(np.array(corners))
     # Depth first, then the plane coordinates of the samples within the depth range only (the
     # buckets' box holds the surface's own samples and those behind it): the same sums, a third of them.
-    # Coordinates come from the index's bucket-ordered columns (runs, not scattered rows), and every
-    # sum is project's: (p - origin) . axis, term by term in x, y, z order.
-    ox, oy, oz = (np.subtract(column[at], f.origin[axis]) for axis, column in enumerate((index.x, index.y, index.z)))
-    depth = _dot(ox, oy, oz, f.normal)
+    # Coordinates are slices of the index's bucket-ordered columns (a few dozen runs: no positions to
+    # gather by), and every sum is project's: (p - origin) . axis, term by term in x, y, z order.
+    x, y, z = (read_runs(column, start, stop) for column in (index.x, index.y, index.z))
+    depth = _dot(x - f.origin[0], y - f.origin[1], z - f.origin[2], f.normal)
     in_range = (depth > min_depth) & (depth <= max_depth)
-    at, depth, ox, oy, oz = at[in_range], depth[in_range], ox[in_range], oy[in_range], oz[in_range]
+    x, y, z, depth = x[in_range], y[in_range], z[in_range], depth[in_range]
+    ox, oy, oz = x - f.origin[0], y - f.origin[1], z - f.origin[2]
     u, v = _dot(ox, oy, oz, f.axis_u), _dot(ox, oy, oz, f.axis_v)
+    del ox, oy, oz
     keep = (u >= u_lo) & (u <= u_hi) & (v >= v_lo) & (v <= v_hi)
     if len(own_faces):
         own = np.zeros(int(own_faces.max()) + 1, bool)
         own[own_faces[own_faces < len(own)]] = True
         # Beyond own_min_depth a sample is kept whoever's it is: only the nearer ones need their face.
         candidate = np.flatnonzero(keep & (depth <= own_min_depth) if own_min_depth is not None else keep)
-        face = index.face[at[candidate]]
+        face = index.face[run_positions(np.flatnonzero(in_range)[candidate], start, stop)]
         inside = face < len(own)
         mine = candidate[inside][own[face[inside]]]
         keep[mine] = depth[mine] > own_min_depth if own_min_depth is not None else False
-    at, depth, u, v = at[keep], depth[keep], u[keep], v[keep]
-    height = _dot(index.x[at], index.y[at], index.z[at], up)
+    depth, u, v, x, y, z = depth[keep], u[keep], v[keep], x[keep], y[keep], z[keep]
+    height = _dot(x, y, z, up)
     pixels = np.empty((len(u), 2), np.int64)
     pixels[:, 0] = np.round((u - raster.u0) / raster.cell)  # raster.to_pixels, rounded
     pixels[:, 1] = np.round((v - raster.v0) / raster.cell)

@@ -79,23 +79,49 @@ class SampleIndex:
 
     def positions_near_box(self, corners: np.ndarray) -> np.ndarray:
         """near_box as positions in the index's bucket order (into x, y, z, face), ascending."""
-        local = project(np.asarray(corners, np.float64).reshape(-1, 3), self.rotation)
-        b0 = np.clip(np.floor((local.min(axis=0) - self.lo) / self.bucket).astype(np.int64), 0, self.dims - 1)
-        b1 = np.clip(np.floor((local.max(axis=0) - self.lo) / self.bucket).astype(np.int64), 0, self.dims - 1)
-        if np.any(local.max(axis=0) < self.lo) or np.any(b0 > b1):
-            return np.zeros(0, np.int64)
-        ix, iy = np.meshgrid(np.arange(b0[0], b1[0] + 1), np.arange(b0[1], b1[1] + 1), indexing="ij")
-        ix, iy = ix.ravel(), iy.ravel()
-        first = np.ravel_multi_index((ix, iy, np.full_like(ix, b0[2])), tuple(self.dims))
-        last = np.ravel_multi_index((ix, iy, np.full_like(ix, b1[2])), tuple(self.dims))
-        start = np.searchsorted(self.sorted_key, first, side="left")
-        stop = np.searchsorted(self.sorted_key, last, side="right")
+        start, stop = self.runs_near_box(corners)
         lengths = stop - start
         total = int(lengths.sum())
         if total == 0:
             return np.zeros(0, np.int64)
         offsets = np.repeat(start - np.concatenate([[0], np.cumsum(lengths)[:-1]]), lengths)
         return offsets + np.arange(total)
+
+    def runs_near_box(self, corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """positions_near_box as runs [start, stop) of positions, ascending, touching runs joined (a
+        box's candidates are a few dozen runs: read as slices, not gathered one by one)."""
+        none = np.zeros(0, np.int64)
+        local = project(np.asarray(corners, np.float64).reshape(-1, 3), self.rotation)
+        b0 = np.clip(np.floor((local.min(axis=0) - self.lo) / self.bucket).astype(np.int64), 0, self.dims - 1)
+        b1 = np.clip(np.floor((local.max(axis=0) - self.lo) / self.bucket).astype(np.int64), 0, self.dims - 1)
+        if np.any(local.max(axis=0) < self.lo) or np.any(b0 > b1):
+            return none, none
+        ix, iy = np.meshgrid(np.arange(b0[0], b1[0] + 1), np.arange(b0[1], b1[1] + 1), indexing="ij")
+        ix, iy = ix.ravel(), iy.ravel()
+        first = np.ravel_multi_index((ix, iy, np.full_like(ix, b0[2])), tuple(self.dims))
+        last = np.ravel_multi_index((ix, iy, np.full_like(ix, b1[2])), tuple(self.dims))
+        start = np.searchsorted(self.sorted_key, first, side="left")
+        stop = np.searchsorted(self.sorted_key, last, side="right")
+        filled = stop > start
+        start, stop = start[filled], stop[filled]
+        if len(start) == 0:
+            return none, none
+        join = np.flatnonzero(start[1:] != stop[:-1]) + 1  # where a run does not start at the last's stop
+        return start[np.r_[0, join]], stop[np.r_[join - 1, len(stop) - 1]]
+
+
+def read_runs(column: np.ndarray, start: np.ndarray, stop: np.ndarray) -> np.ndarray:
+    """column[positions] of the runs [start, stop): the slices joined."""
+    if len(start) == 0:
+        return column[:0].copy()
+    return np.concatenate([column[a:b] for a, b in zip(start.tolist(), stop.tolist())])
+
+
+def run_positions(where: np.ndarray, start: np.ndarray, stop: np.ndarray) -> np.ndarray:
+    """Positions (into the index) of the elements `where` of the joined runs [start, stop)."""
+    ends = np.cumsum(stop - start)
+    run = np.searchsorted(ends, where, side="right")
+    return start[run] + where - (ends[run] - (stop[run] - start[run]))
 
 
 def stable_sort(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
