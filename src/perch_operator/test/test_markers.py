@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from builtin_interfaces.msg import Time
 from visualization_msgs.msg import Marker
 
 from perch_interfaces import msg as pm
@@ -134,14 +135,23 @@ def scan(faces_per_side: int = 60, coloured: bool = True):
     return mesh
 
 
-def test_scan_marker_is_a_coloured_triangle_list_within_its_budget_in_the_input_frame():
+def scan_marker_message(*args, **kwargs) -> Marker:
+    """scan_marker as the message a viewer receives."""
+    from rclpy.serialization import deserialize_message
+
+    from perch_common.ros.marker_wire import serialized_marker
     from perch_operator.coordinator.markers import scan_marker
+
+    return deserialize_message(serialized_marker(*scan_marker(*args, **kwargs)), Marker)
+
+
+def test_scan_marker_is_a_coloured_triangle_list_within_its_budget_in_the_input_frame():
 
     mesh = scan()
     assert mesh.num_faces > 20_000
     to_input = np.eye(4)
     to_input[:3, 3] = [0.0, 0.0, 1.0]
-    marker = scan_marker(mesh, to_input, "map", None, max_triangles=5_000)
+    marker = scan_marker_message(mesh, to_input, "map", Time(), max_triangles=5_000)
     assert (marker.type, marker.header.frame_id, marker.ns) == (Marker.TRIANGLE_LIST, "map", "scan")
     triangles = len(marker.points) // 3
     assert len(marker.points) % 3 == 0 and 1_000 < triangles <= 5_000
@@ -158,7 +168,7 @@ def test_scan_marker_without_colours_is_grey_and_a_small_scan_is_sent_whole():
     from perch_operator.coordinator.markers import SCAN_GREY, scan_marker
 
     mesh = scan(faces_per_side=8, coloured=False)
-    marker = scan_marker(mesh, np.eye(4), "odom", None)
+    marker = scan_marker_message(mesh, np.eye(4), "odom", Time())
     assert len(marker.points) == 3 * mesh.num_faces and not marker.colors
     assert (marker.color.r, marker.color.a) == (pytest.approx(SCAN_GREY[0]), 1.0)
     with pytest.raises(ValueError, match="max_triangles must be positive"):

@@ -180,21 +180,24 @@ def display_mesh(mesh, max_triangles: int = SCAN_TRIANGLE_BUDGET):
 
 
 def scan_marker(mesh, to_input: np.ndarray, frame_id: str, stamp,
-                max_triangles: int = SCAN_TRIANGLE_BUDGET) -> Marker | None:
+                max_triangles: int = SCAN_TRIANGLE_BUDGET) -> tuple[Marker, np.ndarray, np.ndarray | None] | None:
     """The scan as one TRIANGLE_LIST marker with per-vertex colours (grey without), decimated to at
-    most `max_triangles`, in the input frame (`to_input` takes the mesh's frame there)."""
+    most `max_triangles`, in the input frame (`to_input` takes the mesh's frame there): the marker
+    without its arrays, its corners (N,3) and their RGBA colours (N,4, None when grey), for
+    perch_common.ros.marker_wire.serialized_marker (no Python object per corner)."""
     shown = display_mesh(mesh, max_triangles)
     if shown.num_faces == 0:
         return None
     marker = _marker(Marker.TRIANGLE_LIST, "scan", 0, frame_id, stamp, (1.0, 1.0, 1.0))
     corners = shown.faces.reshape(-1)
-    marker.points = _points(_apply(to_input, shown.vertices[corners]))
+    points = _apply(to_input, shown.vertices[corners])
+    colors = None
     if shown.vertex_colors is not None:
-        rgb = shown.vertex_colors[corners].astype(np.float64) / 255.0
-        marker.colors = [ColorRGBA(r=r, g=g, b=b, a=1.0) for r, g, b in rgb.tolist()]
+        colors = np.ones((len(corners), 4))
+        colors[:, :3] = shown.vertex_colors[corners, :3].astype(np.float64) / 255.0
     else:
         marker.color = _colour(SCAN_GREY)
-    return marker
+    return marker, points, colors
 
 
 def removal_label(surface: pm.Surface, removal: pm.FilterRemoval, to_input: np.ndarray, frame_id: str, stamp,

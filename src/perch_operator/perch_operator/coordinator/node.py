@@ -34,6 +34,7 @@ from perch_common.ros.conversions import (
     target_to_msg,
     to_array,
 )
+from perch_common.ros.marker_wire import serialized_marker
 from perch_common.ros.node_main import run_node
 from perch_common.ros.params import declare_config, read_config
 from perch_common.ros.service import answering, create_stage_service
@@ -482,7 +483,8 @@ class OperatorNode(Node):
         """The mission's scan for viewers (perch/scan_marker, decimated, on the view thread), in the input frame."""
         try:
             mesh = mesh_from_request(mesh_msg, "mission mesh")
-            marker = scan_marker(mesh, to_input, frame_id, self.get_clock().now().to_msg())
+            parts = scan_marker(mesh, to_input, frame_id, self.get_clock().now().to_msg())
+            marker = serialized_marker(*parts) if parts is not None else None
         except Exception as exc:  # noqa: BLE001 - a picture: the mission goes on, the log says why
             self.get_logger().warning(f"no scan marker: {type(exc).__name__}: {exc}")
             return
