@@ -105,7 +105,7 @@ class _Work:
     roughness: float = 0.0  # RMS distance (m) of the surface's vertices to its plane
     band: float = 0.0       # m, geometry nearer the plane is the scanned surface itself (surface_band)
     evidence: dict = field(default_factory=dict)  # PerchEvidence field -> per-cell map
-    window: np.ndarray | None = None  # the window's kernel (a disc of any yaw on ceilings and floors)
+    window: np.ndarray | None = None  # ceilings and floors: the any-yaw window's disc; None: upright (walls)
 
 
 def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, up: np.ndarray,
@@ -349,7 +349,7 @@ def _raster_filters(surface: Surface, mesh: Mesh, samples, index: SampleIndex, s
     alive &= approach_ok
     window_fall = -_window_max(-fall, window)
     return _Work(surface, raster, alive, removal, roughness, band,
-                 {"approach_clearance": clearance, "free_fall": window_fall}, window)
+                 {"approach_clearance": clearance, "free_fall": window_fall}, window if any_yaw else None)
 
 
 def _turned_windows(kernel: np.ndarray, config: FilterConfig) -> list[np.ndarray]:
