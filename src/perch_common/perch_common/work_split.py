@@ -60,6 +60,7 @@ def _child_main(run: Callable, share, send: Callable | None, conn, caller: int) 
     # child flushes its streams as it exits (multiprocessing flushes the caller's before the fork, but
     # another thread of the caller may have written in between), which would write it twice.
     sys.stdout = sys.stderr = open(os.devnull, "w")  # noqa: SIM115 - the child ends with os._exit
+
     def work():
         with one_thread():
             result = run(share)
