@@ -20,7 +20,8 @@ pytestmark = pytest.mark.ros
 CAMERAS = 3
 SCENE_SEED = 3
 # MB a mission, the typical (median) change of RSS from one mission to the next over missions 10-20: a leak
-# of a mission's mesh or reply adds several MB every mission; the allocator's plateaus do not (see the test).
+# of a mission's mesh or reply adds several MB every mission; the allocator's plateaus and swings do not
+# (see the test).
 MAX_RSS_STEP_MB = 1.0
 
 
@@ -558,6 +559,16 @@ def test_twenty_missions_without_crashes_or_memory_growth(graph, scene):
         # 234 MB for missions 2-13, then 274 MB, flat, in one run), so a slope or a peak over ten missions
         # reads one plateau change as a leak. A leak grows every mission: the median step between
         # consecutive missions is ~0 on plateaus whatever their jumps, and the leak's size with a leak.
-        steps = np.diff(values[9:])
-        assert float(np.median(steps)) < MAX_RSS_STEP_MB, (
-            f"{name}: RSS grows by a median {np.median(steps):.2f} MB a mission over missions 10-20 ({values})")
+        # A leak also accumulates. RSS that swings a few MB from mission to mission (the operator's, sigma
+        # ~3.5 MB, in one CI rehearsal) gives a median step >= 1 MB one run in six by chance
+        # (one CI rehearsal: +4.8 -7.8 +6.5 +1.6 -5.4 +5.1 -1.3 +0.4 +2.1 -1.8, flat over the ten). So a
+        # leak is growth both ways: the median step and the Theil-Sen slope (median of all pairs' slopes,
+        # which a plateau change moves but swings do not): 0.2 % false alarms on such swings, a 3 MB a
+        # mission leak caught 97 % of the time (simulated).
+        window = np.asarray(values[9:])
+        steps = np.diff(window)
+        first, second = np.triu_indices(len(window), 1)
+        slope = float(np.median((window[second] - window[first]) / (second - first)))
+        assert float(np.median(steps)) < MAX_RSS_STEP_MB or slope < MAX_RSS_STEP_MB, (
+            f"{name}: RSS grows by a median {np.median(steps):.2f} MB a mission (slope {slope:.2f} MB) over "
+            f"missions 10-20 ({values})")
