@@ -560,11 +560,11 @@ def test_twenty_missions_without_crashes_or_memory_growth(graph, scene):
         # reads one plateau change as a leak. A leak grows every mission: the median step between
         # consecutive missions is ~0 on plateaus whatever their jumps, and the leak's size with a leak.
         # A leak also accumulates. RSS that swings a few MB from mission to mission (the operator's, sigma
-        # ~3.5 MB, in one CI rehearsal) gives a median step >= 1 MB one run in six by chance
-        # (one CI rehearsal: +4.8 -7.8 +6.5 +1.6 -5.4 +5.1 -1.3 +0.4 +2.1 -1.8, flat over the ten). So a
-        # leak is growth both ways: the median step and the Theil-Sen slope (median of all pairs' slopes,
-        # which a plateau change moves but swings do not): 0.2 % false alarms on such swings, a 3 MB a
-        # mission leak caught 97 % of the time (simulated).
+        # 2.8 MB, in one CI rehearsal) gives a median step >= 1 MB one run in eight by chance (that run:
+        # +4.8 -7.8 +6.5 +1.6 -5.4 +5.1 -1.3 +0.4 +2.1 -1.8, flat over the ten). So a leak is growth both
+        # ways: the median step and the Theil-Sen slope (median of all pairs' slopes, which a plateau
+        # change moves but swings do not). Simulated on such swings: 0.03 % false alarms; a leak of 2 MB a
+        # mission caught 87 % of the time, of 3 MB 99 %.
         window = np.asarray(values[9:])
         steps = np.diff(window)
         first, second = np.triu_indices(len(window), 1)

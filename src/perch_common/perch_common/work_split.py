@@ -47,7 +47,6 @@ class SplitRun(Generic[T]):
     mine: T
     theirs: T
     child: str          # "done" (the child's share came from the child) or why the caller computed it
-    child_wait: float   # s the caller waited for the child after its own share
 
 
 def _child_main(run: Callable, share, send: Callable | None, conn, caller: int) -> None:
@@ -90,7 +89,7 @@ def in_two_processes(run: Callable[[object], T], mine, theirs, patience: Callabl
     """
     if work_threads() < 2:  # one core: the child would only take turns with the caller
         with one_thread():
-            return SplitRun(run(mine), run(theirs), "one thread allowed", 0.0)
+            return SplitRun(run(mine), run(theirs), "one thread allowed")
     context = multiprocessing.get_context("fork")
     receiver, sender = context.Pipe(duplex=False)
     child = None
@@ -111,10 +110,8 @@ def in_two_processes(run: Callable[[object], T], mine, theirs, patience: Callabl
             result = run(mine)
         if child is None:
             with one_thread():
-                return SplitRun(result, run(theirs), reason, 0.0)
-        own = time.monotonic() - started
-        waited_from = time.monotonic()
-        deadline = waited_from + max(0.0, patience(own))
+                return SplitRun(result, run(theirs), reason)
+        deadline = time.monotonic() + max(0.0, patience(time.monotonic() - started))
         status, payload = "", None
         while True:
             checkpoint("the second process's share")
@@ -130,11 +127,10 @@ def in_two_processes(run: Callable[[object], T], mine, theirs, patience: Callabl
             if time.monotonic() >= deadline:
                 status, payload = "late", f"no answer {deadline - started:.1f} s after the split"
                 break
-        waited = time.monotonic() - waited_from
         if status == "done":
-            return SplitRun(result, payload, "done", waited)
+            return SplitRun(result, payload, "done")
         with one_thread():
-            return SplitRun(result, run(theirs), f"{status}: {payload}".strip(), waited)
+            return SplitRun(result, run(theirs), f"{status}: {payload}".strip())
     finally:
         receiver.close()
         if child is not None:

@@ -49,6 +49,7 @@ from perch_filtering.raster import (
     SurfaceRaster,
     any_yaw_radius,
     disc_kernel,
+    erode,
     erode_window,
     rasterise,
     window_kernel,
@@ -249,7 +250,7 @@ def _shared_out(run, cost: list[float], min_cost: float, config: FilterConfig, s
 
 def _evidence_at_alive(work: list[_Work]) -> list[_Work]:
     """What a second process sends of its judged surfaces: the evidence maps at the live cells only
-    (the later phases read them nowhere else; a building's maps are ~50 MB, 20x their live cells)."""
+    (the later phases read them nowhere else; the building's second share pickles to 11.6 MB instead of 70.4)."""
     return [replace(w, evidence={name: values[w.alive] for name, values in w.evidence.items()})
             if w.raster is not None else w for w in work]
 
@@ -347,7 +348,7 @@ def _raster_filters(surface: Surface, mesh: Mesh, samples, index: SampleIndex, s
     approach_ok = clearance > config.approach_distance
     removal.obstacle_clearance = float((alive & ~approach_ok).sum() * cell_area)
     alive &= approach_ok
-    window_fall = -_window_max(-fall, window)
+    window_fall = _window_min(fall, window)
     return _Work(surface, raster, alive, removal, roughness, band,
                  {"approach_clearance": clearance, "free_fall": window_fall}, window if any_yaw else None)
 
@@ -376,11 +377,11 @@ def surface_band(noise: float, config: FilterConfig) -> float:
                          max(config.surface_depth, config.plane_tolerance)))
 
 
-def _window_max(values: np.ndarray, kernel: np.ndarray) -> np.ndarray:
-    """Largest value under the window centred on each cell."""
+def _window_min(values: np.ndarray, kernel: np.ndarray) -> np.ndarray:
+    """Smallest value under the window centred on each cell (raster.erode: a ceiling's disc by its rows)."""
     import cv2
 
-    return cv2.dilate(values.astype(np.float32), kernel, borderType=cv2.BORDER_REPLICATE)
+    return erode(values.astype(np.float32, copy=False), kernel, cv2.BORDER_REPLICATE)
 
 
 def _support(w: _Work, scene: RayScene, kernel: np.ndarray, config: FilterConfig) -> None:

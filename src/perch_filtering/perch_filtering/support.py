@@ -31,7 +31,7 @@ def first_surface_depth(scene: RayScene, raster: SurfaceRaster, cells: np.ndarra
         return depth
     normal = raster.frame.normal
     rows, cols = np.nonzero(cells)
-    origins = _origins_at(raster, rows, cols, probe, box)
+    origins = _ray_origins(raster, rows, cols, probe, box)
     directions = np.empty_like(origins)
     directions[:] = -normal
     distance = scene.first_hit_distance(origins, directions)
@@ -44,19 +44,11 @@ def first_surface_depth(scene: RayScene, raster: SurfaceRaster, cells: np.ndarra
 ORIGIN_CHUNK = 1 << 14  # cells whose float64 temporaries stay in cache
 
 
-def _ray_origins(raster: SurfaceRaster, cells: np.ndarray, probe: float,
+def _ray_origins(raster: SurfaceRaster, rows: np.ndarray, cols: np.ndarray, probe: float,
                  box: tuple[slice, slice] | None = None) -> np.ndarray:
-    """float32 (N,3) points `probe` in front of the cells' centres (row-major; `cells` covers `box`
-    when given): raster.cell_world(cells) + probe * normal with the same float64 operations (origin +
-    u * axis_u per column, v * axis_v per row), taken in chunks and rounded to float32 (what the ray
-    caster takes)."""
-    rows, cols = np.nonzero(cells)
-    return _origins_at(raster, rows, cols, probe, box)
-
-
-def _origins_at(raster: SurfaceRaster, rows: np.ndarray, cols: np.ndarray, probe: float,
-                box: tuple[slice, slice] | None = None) -> np.ndarray:
-    """_ray_origins of the cells (rows, cols) (of `box` when given)."""
+    """float32 (N,3) points `probe` in front of the centres of the cells (rows, cols) (of `box` when
+    given): raster.cell_world + probe * normal with the same float64 operations (origin + u * axis_u
+    per column, v * axis_v per row), taken in chunks and rounded to float32 (what the ray caster takes)."""
     frame = raster.frame
     if box is not None:
         rows, cols = rows + box[0].start, cols + box[1].start

@@ -213,7 +213,7 @@ def test_ray_origins_are_the_cell_centres_in_front_in_float32():
     raster = SurfaceRaster(frame, 0.02, -3.117, 1.203, (300, 700), np.ones((300, 700), bool))
     cells = rng.random(raster.shape) < 0.7
     expected = np.asarray(raster.cell_world(cells) + 0.07 * normal, np.float32)
-    np.testing.assert_array_equal(_ray_origins(raster, cells, 0.07), expected)
+    np.testing.assert_array_equal(_ray_origins(raster, *np.nonzero(cells), 0.07), expected)
 
 
 def test_turned_kernels_are_made_once_and_not_shared_writable():
