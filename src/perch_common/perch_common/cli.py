@@ -12,6 +12,7 @@ import sys
 from importlib.metadata import entry_points
 
 from perch_common.errors import report_errors
+from perch_common.memory import tune_memory
 from perch_common.namespace import NAMESPACE_ENV, normalise
 from perch_common.threads import limit_threads
 
@@ -73,6 +74,7 @@ def load_plugins(group: str, subparsers, level: int | None = None) -> None:
 def main(argv: list[str] | None = None) -> int:
     """Run the `perch` command line; returns the exit code."""
     limit_threads()
+    tune_memory()   # commands run stages in this process too (plan, bench, batch)
     argv = sys.argv[1:] if argv is None else list(argv)
     parser = build_parser(argv)
     args = parser.parse_args(argv)

@@ -1,6 +1,11 @@
-"""Start-up objects are frozen out of garbage collection; what comes later is still collected."""
+"""Start-up objects are frozen out of garbage collection; what comes later is still collected. Freed
+memory is reused without page faults and numpy's arrays get no huge pages, unless the user says so."""
 
 import gc
+import json
+import os
+import subprocess
+import sys
 import weakref
 
 import pytest
@@ -60,3 +65,42 @@ def test_traced_records_show_which_line_grew(tmp_path):
 def _line_of(text: str) -> int:
     source = open(__file__).read().splitlines()
     return next(i for i, line in enumerate(source, 1) if text in line and "_line_of" not in line)
+
+
+_PAGE_FAULTS = """
+import json, resource, sys
+import numpy as np
+from perch_common.memory import tune_memory
+settings = tune_memory() if sys.argv[1] == "tuned" else {}
+faults = lambda: resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+a = np.ones(16 << 17)      # 16 MB, as a stage's work arrays are
+del a
+before = faults()
+b = np.ones(16 << 17)      # the same size again, every page written
+print(json.dumps({"faults": faults() - before, "settings": settings,
+                  "huge_pages_were_on": bool(np._core.multiarray._set_madvise_hugepage(True))}))
+"""
+
+
+def _page_faults(mode: str, **env: str) -> dict:
+    environment = {k: v for k, v in os.environ.items() if k != "NUMPY_MADVISE_HUGEPAGE"} | env
+    run = subprocess.run([sys.executable, "-c", _PAGE_FAULTS, mode], capture_output=True, text=True,
+                         env=environment, timeout=60, check=True)
+    return json.loads(run.stdout)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's malloc and numpy's madvise: Linux only")
+def test_tuned_memory_reuses_freed_pages_without_huge_pages():
+    plain, tuned = _page_faults("plain", NUMPY_MADVISE_HUGEPAGE="0"), _page_faults("tuned")
+    pages = (16 << 20) // os.sysconf("SC_PAGE_SIZE")
+    # Untuned (and in small pages, to count them), glibc maps the first 16 MB array and unmaps it on
+    # free; the second one comes from a heap grown for it: every page is touched for the first time.
+    assert plain["faults"] > 0.9 * pages
+    assert tuned["settings"] == {"heap": True, "huge_pages_off": True}
+    assert tuned["faults"] < 0.05 * pages     # the freed array's pages, reused
+    assert _page_faults("plain")["huge_pages_were_on"] and not tuned["huge_pages_were_on"]
+
+
+def test_a_huge_page_choice_the_user_made_is_kept():
+    kept = _page_faults("tuned", NUMPY_MADVISE_HUGEPAGE="1")
+    assert kept["settings"]["huge_pages_off"] is False and kept["huge_pages_were_on"]

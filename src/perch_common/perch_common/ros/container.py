@@ -16,7 +16,7 @@ import threading
 
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 
-from perch_common.memory import freeze_startup_objects, limit_heap_growth
+from perch_common.memory import freeze_startup_objects, tune_memory
 from perch_common.mesh_cache import PROCESS_CACHE
 from perch_common.threads import limit_threads
 
@@ -45,7 +45,7 @@ class NodeContainer:
 
     def create(self) -> "NodeContainer":
         """Import each node's module and create its COMPONENT; all on one new executor."""
-        limit_heap_growth()  # big request buffers go back to the system once freed (as run_node does)
+        tune_memory()  # freed memory reused within a request, given back after it (as run_node does)
         self.executor = MultiThreadedExecutor(num_threads=max(MIN_THREADS, THREADS_PER_NODE * len(self.names)),
                                               context=self.context)
         # Every module first, then the nodes: each rclpy log line (a node's "ready") looks its caller

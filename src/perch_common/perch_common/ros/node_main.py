@@ -11,7 +11,7 @@ from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, Si
 from rclpy.node import Node
 
 from perch_common.config import ConfigError
-from perch_common.memory import freeze_startup_objects, limit_heap_growth
+from perch_common.memory import freeze_startup_objects, tune_memory
 from perch_common.mesh_cache import PROCESS_CACHE
 from perch_common.processes import die_with_parent
 from perch_common.threads import limit_threads
@@ -41,7 +41,7 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None, threads
     one line on stderr naming the node, the parameter and what it accepts, and exit code 2."""
     die_with_parent()    # started by a launcher: never outlive it
     limit_threads()
-    limit_heap_growth()  # big request buffers go back to the system once freed
+    tune_memory()  # freed memory reused within a request, given back after it
     with ros_context(args if args is not None else sys.argv):
         try:
             node = factory()
