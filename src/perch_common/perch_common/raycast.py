@@ -72,6 +72,7 @@ class RayScene:
         self.mesh = mesh
         self._scene = None
         self._closest = None   # Open3D's scene, for closest_points only
+        self._closest_lock = threading.Lock()   # built once, by a preparing thread or the first query
         self._normals = None   # unit face normals, for cast
         if mesh.num_faces:
             # robust: watertight edge and vertex hits (a ray through a shared edge hits one face).
@@ -149,21 +150,27 @@ class RayScene:
         blocked = self._scene.run(starts, delta, dists=np.ones(len(starts), np.float32), query="OCCLUDED") == 0
         return blocked & usable
 
+    def closest_point_scene(self):
+        """(open3d, its RaycastingScene of the mesh) for closest_points: imported and built on first
+        use (0.3-0.45 s, mostly the import), which a stage can pay ahead of its request (prepare_mesh)."""
+        with self._closest_lock:
+            if self._closest is None:
+                from perch_common.open3d_loader import open3d
+
+                o3d = open3d()
+                scene = o3d.t.geometry.RaycastingScene()
+                scene.add_triangles(o3d.core.Tensor(_float32_rows(self.mesh.vertices)),
+                                    o3d.core.Tensor(np.ascontiguousarray(self.mesh.faces, np.uint32)))
+                self._closest = o3d, scene
+            return self._closest
+
     def closest_points(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Closest mesh point, its face and the distance for each query point (Open3D, loaded and
         built on first use; the stages ask `perch_common.proximity.clear_of_mesh` instead)."""
         pts = _float32_rows(points)
         if len(pts) == 0:
             return np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0)
-        if self._closest is None:
-            from perch_common.open3d_loader import open3d
-
-            o3d = open3d()
-            scene = o3d.t.geometry.RaycastingScene()
-            scene.add_triangles(o3d.core.Tensor(_float32_rows(self.mesh.vertices)),
-                                o3d.core.Tensor(np.ascontiguousarray(self.mesh.faces, np.uint32)))
-            self._closest = o3d, scene
-        o3d, scene = self._closest
+        o3d, scene = self.closest_point_scene()
         ans = scene.compute_closest_points(o3d.core.Tensor(pts))
         closest = ans["points"].numpy().astype(np.float64)
         face = ans["primitive_ids"].numpy().astype(np.int64)

@@ -69,9 +69,11 @@ class FilterNode(Node):
         RayScene(Mesh(np.eye(3), np.array([[0, 1, 2]]))).occluded(np.zeros((1, 3)), np.ones((1, 3)))
 
     def _prepare_mesh(self, mesh) -> None:
-        """What the filter derives from a mesh before knowing its request: the ray scene and the
-        surface samples at the configured voxel size (kept with the mesh, see mesh_cache.prepare)."""
-        prepare_mesh(mesh, float(self.get_parameter("voxel_size").value))
+        """What the filter derives from a mesh before knowing its request: the ray scene, the surface
+        samples at the configured voxel size and, for a large mesh, the closest-point scene (kept with
+        the mesh, see mesh_cache.prepare)."""
+        prepare_mesh(mesh, float(self.get_parameter("voxel_size").value),
+                     float(self.get_parameter("raster_density").value))
 
     def destroy_node(self) -> None:
         """Stop preparing this process's meshes for a filter that is gone, then destroy the node."""

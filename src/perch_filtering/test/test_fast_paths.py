@@ -213,3 +213,23 @@ def test_two_processes_give_the_one_process_answer(room, monkeypatch):
     for a, b in zip(one.regions, two.regions):
         np.testing.assert_array_equal(a.mesh.vertices, b.mesh.vertices)
         np.testing.assert_array_equal(a.mesh.faces, b.mesh.faces)
+
+
+def test_a_prepared_mesh_has_its_closest_point_scene_only_when_its_cells_can_reach_a_large_query():
+    from perch_common.mesh import Mesh
+    from perch_common.proximity import LARGE_QUERY
+    from perch_common.raycast import ray_scene
+    from perch_filtering.core import prepare_mesh
+
+    # A fresh copy: the module's room may have its scenes from other tests (Mesh.derived keeps them).
+    room = generate_scene(3, "two_rooms").mesh
+    area = float(room.face_areas().sum())
+    small = Mesh(room.vertices.copy(), room.faces.copy())
+    prepare_mesh(small, 0.05, raster_density=0.9 * np.sqrt(LARGE_QUERY / area))
+    assert ray_scene(small)._closest is None
+    large = Mesh(room.vertices.copy(), room.faces.copy())
+    prepare_mesh(large, 0.05, raster_density=1.1 * np.sqrt(LARGE_QUERY / area))
+    assert ray_scene(large)._closest is not None
+    # The prepared scene answers as one built by the query itself.
+    points = room.vertices[:50] + 0.3
+    assert np.allclose(ray_scene(large).closest_points(points)[2], ray_scene(small).closest_points(points)[2])
