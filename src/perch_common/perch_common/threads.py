@@ -12,7 +12,10 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import os
-from typing import Iterator
+from concurrent.futures import ThreadPoolExecutor
+from typing import Callable, Iterator, TypeVar
+
+T = TypeVar("T")
 
 BLAS_THREADS = 1
 OPENMP_THREADS = min(os.cpu_count() or 1, 2)
@@ -67,3 +70,15 @@ def one_thread() -> Iterator[None]:
         yield
     finally:
         _threads_override.reset(reset)
+
+
+def side_by_side(*work: Callable[[], T]) -> list[T]:
+    """[w() for w in work]: the first on the calling thread and the others on threads of their own,
+    or one after another where one thread is allowed (`work_threads`). For work that releases the
+    GIL (numpy, OpenCV, scipy.ndimage on large arrays); an error in any is raised once all have ended."""
+    if len(work) < 2 or work_threads() < 2:
+        return [w() for w in work]
+    with ThreadPoolExecutor(max_workers=len(work) - 1, thread_name_prefix="perch-side") as pool:
+        others = [pool.submit(w) for w in work[1:]]
+        first = work[0]()
+        return [first] + [f.result() for f in others]

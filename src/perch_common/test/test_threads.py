@@ -7,6 +7,8 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 from perch_common.threads import BLAS_THREADS, OPENMP_THREADS, thread_environment
 
 THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS")
@@ -96,3 +98,25 @@ print(json.dumps({"before": before, "cli": [code, after_cli], "node": [node_code
 """)
     assert result["cli"] == [0, [BLAS_THREADS]]
     assert result["node"] == [2, [BLAS_THREADS]]
+
+
+def test_side_by_side_keeps_the_order_uses_a_second_thread_and_raises_an_error():
+    import threading
+
+    from perch_common.threads import one_thread, side_by_side, work_threads
+
+    def ident(value):
+        return lambda: (value, threading.get_ident())
+
+    results = side_by_side(ident("a"), ident("b"))
+    assert [r[0] for r in results] == ["a", "b"]
+    assert results[0][1] == threading.get_ident()
+    assert (results[1][1] != threading.get_ident()) == (work_threads() > 1)
+    with one_thread():
+        assert {r[1] for r in side_by_side(ident("a"), ident("b"))} == {threading.get_ident()}
+
+    def fails():
+        raise ValueError("second share")
+
+    with pytest.raises(ValueError, match="second share"):
+        side_by_side(ident("a"), fails)

@@ -8,6 +8,7 @@ import numpy as np
 from scipy import ndimage
 
 from perch_common.target import TargetVolume
+from perch_common.threads import side_by_side
 from perch_common.transforms import rotation_between
 from perch_filtering.sampling import cell_keys, project
 
@@ -91,10 +92,10 @@ def build_flight_grid(points: np.ndarray, rotation: np.ndarray, target: TargetVo
     grid = FlightGrid(rotation, lo, voxel, occupied, occupied, occupied)
     seeds = grid.indices(target.sample(count=4000, seed=seed))
     seeds = seeds[np.all((seeds >= 0) & (seeds < shape), axis=1)]
-    labels = np.empty(occupied.shape, np.int32)  # one buffer for both labellings
-    grid.open_space = _connected_to(distance > OPEN_SPACE_VOXELS, seeds, labels)
-    grid.reachable = _connected_to(distance >= drone_radius / voxel, seeds, labels)
-    del labels
+    # The two labellings are independent and scipy's releases the GIL: side by side when two threads may run.
+    grid.open_space, grid.reachable = side_by_side(
+        lambda: _connected_to(distance > OPEN_SPACE_VOXELS, seeds),
+        lambda: _connected_to(distance >= drone_radius / voxel, seeds))
     grid.hover = grid.reachable & (distance >= hover_voxels)
     grid.reachable_near = _grown(grid.reachable)
     return grid
@@ -117,22 +118,30 @@ def free_distance(occupied: np.ndarray, reach: int = 16) -> np.ndarray:
     # OpenCV a third less time, with the same exact distances.
     stack = np.ones((nz, ny + sep, nx), np.uint8)
     stack[:, :ny, :] = ~np.transpose(occupied, (2, 1, 0))
+    # One image: OpenCV's float distances differ in the last bit with the image's height, and thresholds
+    # at whole voxel distances (a drone radius of 7 voxels) would read them.
     d2 = cv2.distanceTransform(stack.reshape(-1, nx), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
     d2 = d2.reshape(nz, ny + sep, nx)
     out = np.empty((nx, ny, nz), np.float32)
     rows = max(1, SLAB_BYTES // (4 * nz * nx))
-    for y0 in range(0, ny, rows):
-        y1 = min(ny, y0 + rows)
-        slab = np.minimum(d2[:, y0:y1, :], reach).astype(np.float32) ** 2
-        best = slab.copy()
-        shifted = np.empty_like(slab)
-        for dz in range(1, min(reach, nz - 1) + 1):
-            np.add(slab[dz:], dz * dz, out=shifted[dz:])
-            np.minimum(best[:-dz], shifted[dz:], out=best[:-dz])
-            np.add(slab[:-dz], dz * dz, out=shifted[dz:])
-            np.minimum(best[dz:], shifted[dz:], out=best[dz:])
-        np.sqrt(best, out=best)
-        out[:, y0:y1, :] = np.transpose(best, (2, 1, 0))
+
+    def combine(y_start: int, y_stop: int) -> None:
+        for y0 in range(y_start, y_stop, rows):
+            y1 = min(y_stop, y0 + rows)
+            slab = np.minimum(d2[:, y0:y1, :], reach).astype(np.float32) ** 2
+            best = slab.copy()
+            shifted = np.empty_like(slab)
+            for dz in range(1, min(reach, nz - 1) + 1):
+                np.add(slab[dz:], dz * dz, out=shifted[dz:])
+                np.minimum(best[:-dz], shifted[dz:], out=best[:-dz])
+                np.add(slab[:-dz], dz * dz, out=shifted[dz:])
+                np.minimum(best[dz:], shifted[dz:], out=best[dz:])
+            np.sqrt(best, out=best)
+            out[:, y0:y1, :] = np.transpose(best, (2, 1, 0))
+
+    # The slabs are independent and numpy releases the GIL: two halves side by side when two threads may.
+    middle = min(ny, (ny // 2 + rows - 1) // rows * rows)   # whole slabs to each half
+    side_by_side(*(lambda y0=y0, y1=y1: combine(y0, y1) for y0, y1 in [(0, middle), (middle, ny)] if y1 > y0))
     return out
 
 

@@ -43,12 +43,20 @@ def _random_occupancy(seed: int, shape=(37, 29, 23), fill=0.02) -> np.ndarray:
     return occupied
 
 
+@pytest.mark.parametrize("threads", [1, 2])
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_free_distance_equals_the_whole_grid_transform(seed, monkeypatch):
+def test_free_distance_equals_the_whole_grid_transform(seed, threads, monkeypatch):
+    import contextlib
+
+    from perch_common.threads import one_thread, work_threads
+
     occupied = _random_occupancy(seed)
     monkeypatch.setattr(voxels, "SLAB_BYTES", 4 * 23 * 37 * 3)  # several slabs, one shorter
-    for reach in (3, 8, 10):
-        np.testing.assert_array_equal(voxels.free_distance(occupied, reach), _free_distance_plain(occupied, reach))
+    with one_thread() if threads == 1 else contextlib.nullcontext():   # two: the slabs in two halves
+        if work_threads() != threads:
+            pytest.skip(f"{threads} threads are not allowed here (OMP_NUM_THREADS)")
+        for reach in (3, 8, 10):
+            np.testing.assert_array_equal(voxels.free_distance(occupied, reach), _free_distance_plain(occupied, reach))
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -101,9 +109,13 @@ def test_cell_keys_equal_the_raveled_cells(monkeypatch):
         tuple(floor_cells(local, local.min(axis=0), 0.25).max(axis=0) + 1)
 
 
-def test_project_equals_the_row_sums():
+@pytest.mark.parametrize("count", [1000, 5001])
+def test_project_equals_the_row_sums(count, monkeypatch):
+    from perch_filtering import sampling
+
+    monkeypatch.setattr(sampling, "PROJECT_SPLIT", 2000)   # 5001 points: two halves on two threads
     rng = np.random.default_rng(4)
-    points, axes, origin = rng.normal(size=(1000, 3)) * 10, rng.normal(size=(3, 3)), rng.normal(size=3)
+    points, axes, origin = rng.normal(size=(count, 3)) * 10, rng.normal(size=(3, 3)), rng.normal(size=3)
     p = points - origin
     plain = np.column_stack([p[:, 0] * a[0] + p[:, 1] * a[1] + p[:, 2] * a[2] for a in axes])
     np.testing.assert_array_equal(project(points, axes, origin), plain)
