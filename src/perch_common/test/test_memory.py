@@ -70,14 +70,21 @@ def _line_of(text: str) -> int:
 _PAGE_FAULTS = """
 import json, resource, sys
 import numpy as np
-from perch_common.memory import tune_memory
+from perch_common.memory import KEEP_FREED_MEMORY, tune_memory
 settings = tune_memory() if sys.argv[1] == "tuned" else {}
 faults = lambda: resource.getrusage(resource.RUSAGE_SELF).ru_minflt
-a = np.ones(16 << 17)      # 16 MB, as a stage's work arrays are
-del a
-before = faults()
-b = np.ones(16 << 17)      # the same size again, every page written
-print(json.dumps({"faults": faults() - before, "settings": settings,
+rss = lambda: int(open("/proc/self/statm").read().split()[1]) * resource.getpagesize()
+with KEEP_FREED_MEMORY:        # a stage call running
+    a = np.ones(16 << 17)      # 16 MB, as a stage's work arrays are
+    del a
+    before = faults()
+    b = np.ones(16 << 17)      # the same size again, every page written
+    during_call = faults() - before
+    del b
+idle = rss()
+c = np.ones(16 << 17)          # between calls
+del c
+print(json.dumps({"faults": during_call, "settings": settings, "kept_when_idle": rss() - idle,
                   "huge_pages_were_on": bool(np._core.multiarray._set_madvise_hugepage(True))}))
 """
 
@@ -90,14 +97,15 @@ def _page_faults(mode: str, **env: str) -> dict:
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's malloc and numpy's madvise: Linux only")
-def test_tuned_memory_reuses_freed_pages_without_huge_pages():
+def test_tuned_memory_reuses_freed_pages_in_a_call_returns_them_between_calls_without_huge_pages():
     plain, tuned = _page_faults("plain", NUMPY_MADVISE_HUGEPAGE="0"), _page_faults("tuned")
     pages = (16 << 20) // os.sysconf("SC_PAGE_SIZE")
     # Untuned (and in small pages, to count them), glibc maps the first 16 MB array and unmaps it on
     # free; the second one comes from a heap grown for it: every page is touched for the first time.
     assert plain["faults"] > 0.9 * pages
     assert tuned["settings"] == {"heap": True, "huge_pages_off": True}
-    assert tuned["faults"] < 0.05 * pages     # the freed array's pages, reused
+    assert tuned["faults"] < 0.05 * pages     # the freed array's pages, reused within the call
+    assert tuned["kept_when_idle"] < (1 << 20)  # between calls a freed array goes back at once
     assert _page_faults("plain")["huge_pages_were_on"] and not tuned["huge_pages_were_on"]
 
 

@@ -34,7 +34,7 @@ from typing import Callable
 
 from perch_common.cancellation import CancelToken, cancellable, checkpoint
 from perch_common.errors import EXPECTED
-from perch_common.memory import release_memory
+from perch_common.memory import KEEP_FREED_MEMORY, release_memory
 from perch_common.request_validation import validate_request
 from perch_common.work import SOUP_HINT, WorkContext, current, work_budget
 
@@ -192,7 +192,7 @@ class StageWork:
             if early is not None:
                 token.cancel(early)
             try:
-                with self._serial if serial else contextlib.nullcontext(), cancellable(token):
+                with KEEP_FREED_MEMORY, self._serial if serial else contextlib.nullcontext(), cancellable(token):
                     return callback(request, response)
             finally:
                 with self._lock:
