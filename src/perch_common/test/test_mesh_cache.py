@@ -161,14 +161,22 @@ def test_a_reply_mesh_is_prepared_in_the_background_for_the_stages_that_get_it_b
     monkeypatch.setattr(perch_common.mesh_cache, "PROCESS_CACHE", MeshCache(10**9))
     prepared, done = [], threading.Event()
 
+    import os
+
+    niceness = []
+
     def preparer(mesh):
         prepared.append(mesh.derived("prepared", lambda: mesh.num_faces))
+        niceness.append(os.getpriority(os.PRIO_PROCESS, threading.get_native_id()))
         done.set()
 
     add_preparer(preparer)
     try:
         reply = cached_mesh_to_msg(_mesh(300, 3.0))
         assert done.wait(30) and prepared == [600]
+        # Behind the stages (Linux: niceness per thread); the test's own thread keeps its own.
+        own = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+        assert niceness == [max(perch_common.mesh_cache.PREPARE_NICENESS, own)]
         stage_mesh = mesh_from_request(id_only_msg(reply))
         assert stage_mesh.derived("prepared", lambda: -1) == 600   # built by the preparer, shared
     finally:
