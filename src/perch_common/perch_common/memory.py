@@ -71,9 +71,9 @@ class _KeepFreedMemory:
     """`with KEEP_FREED_MEMORY:` around a stage call. While any call of the process runs, memory freed
     at the heap's top stays (up to TRIM_WHILE_WORKING) for the call's next arrays (a building mission:
     0.82 M page faults against 1.14 M, mission 8.1-8.3 s against 8.5-8.7); when none runs, what is
-    freed goes back at once, so buffers a transport frees after the reply's trim are not kept (a
-    stage node kept 24 MB of a 14.5 MB request with the large threshold kept, test_stage_calls).
-    Nothing unless tune_memory set the heap up (glibc)."""
+    freed goes back at once, so buffers a transport frees after the reply's trim are not kept (with
+    the large threshold between calls too, a stage node kept 24 MB after a 14.5 MB request,
+    test_stage_calls). Nothing unless tune_memory set the heap up (glibc)."""
 
     def __init__(self) -> None:
         self.enabled = False
