@@ -36,9 +36,10 @@ def tune_memory() -> dict[str, bool]:
     """Reuse freed memory within a request and give it back after it; no huge pages for numpy's arrays.
 
     Every page a process touches for the first time costs a page fault, and a fresh mapping is all
-    first touches. A building mission (2.31 M faces, one process) made 1.75 M faults and 3-6 s of
-    system time when every array of 4 MB and more had its own mapping, returned on free. Now only
-    arrays of 32 MB and more are mapped; the others come from one heap for all threads (one arena:
+    first touches. A building mission (2.31 M faces, one process) spent 4.7-5.9 s in the kernel when
+    every array of 4 MB and more had its own mapping, returned on free (3.0 s and 1.75 M faults with
+    numpy's huge pages off, below). Now only arrays of 32 MB and more are mapped; the others come
+    from one heap for all threads (one arena:
     malloc_trim gives back a thread arena's free chunks but not its top), whose freed pages the next
     arrays reuse while a call runs (KEEP_FREED_MEMORY): 0.82 M faults, 1.7 s of system time. The
     heap is still trimmed after each stage's reply (release_memory). The fixed values also stop
