@@ -205,8 +205,9 @@ class Mission:
         mesh_msg = goal.mesh if len(goal.mesh.triangles) else mesh_to_msg(load_mesh(goal.mesh_path))
         if not mesh_msg.header.frame_id:
             mesh_msg.header.frame_id = self.options.frame_id
-        self.alignment = self._given_mesh_alignment(goal, mesh_msg)
-        aligned = mesh_from_msg(mesh_msg, "mission mesh").transformed(self.alignment.to_aligned())
+        given = mesh_from_msg(mesh_msg, "mission mesh")   # decoded once: for the up axis and to align it
+        self.alignment = self._given_mesh_alignment(goal, mesh_msg.header.frame_id, given)
+        aligned = given.transformed(self.alignment.to_aligned())
         aligned.frame_id = self.alignment.aligned_frame
         aligned_msg = mesh_to_msg(aligned, stamp=mesh_msg.header.stamp)
         if not self.options.clean_given_mesh:
@@ -220,7 +221,7 @@ class Mission:
                                    self.alignment.up_source, self.alignment.up_confidence)
         return reply.mesh
 
-    def _given_mesh_alignment(self, goal: PlanPerches.Goal, mesh_msg) -> Alignment:
+    def _given_mesh_alignment(self, goal: PlanPerches.Goal, frame_id: str, mesh) -> Alignment:
         """Up from the goal's up_axis (or the node's input_up): estimated, given, or the file's convention.
 
         A given axis the mesh contradicts fails the mission (UpAxisError) with the axis to pass instead.
@@ -228,12 +229,11 @@ class Mission:
         text = goal.up_axis or self.options.input_up
         convention = goal.up_convention or file_convention(goal.mesh_path or None)
         # Auto-accepted, nobody checks the up axis: an unsure estimate stops the mission (UnsureUpError).
-        choice = choose_up(text, mesh_from_msg(mesh_msg, "mission mesh"), convention,
-                           require_confident=self.options.auto_accept or goal.auto_accept)
+        choice = choose_up(text, mesh, convention, require_confident=self.options.auto_accept or goal.auto_accept)
         for warning in choice.warnings:
             self.notes.append(warning)
             self.feedback("clean", self._fraction(), warning)
-        return Alignment(mesh_msg.header.frame_id, choice.estimate.aligned_rotation(choice.up), choice.source,
+        return Alignment(frame_id, choice.estimate.aligned_rotation(choice.up), choice.source,
                          choice.estimate.confidence)
 
     def _reviewed(self, surfaces: list, count: int, mesh_msg) -> list:
