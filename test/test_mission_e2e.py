@@ -490,6 +490,7 @@ def test_killing_the_node_holding_a_cached_mesh_mid_mission_is_recovered_by_rese
     from rclpy.qos import qos_profile_services_default
 
     from perch_common.mesh_cache import MESH_NOT_CACHED
+    from perch_common.ros.servers import server_endpoints
     from perch_interfaces.msg import SurfaceReview
     from perch_interfaces.srv import Filter, ReviewSurfaces
     from perch_operator.api.client import run_mission
@@ -512,6 +513,8 @@ def test_killing_the_node_holding_a_cached_mesh_mid_mission_is_recovered_by_rese
         mission.start()
         review = wait_for(lambda: reviews[-1] if reviews and reviews[-1].review_id not in earlier else None, 120,
                           "the surface review (the mission is paused after segment)")
+        killed = set(server_endpoints(graph.node, "/perch/filter"))
+        assert killed, "the filter's server is not in the graph before the kill"
         graph.processes.processes["perch_filtering"].kill()        # SIGKILL: its mesh cache is gone
         graph.processes.processes["perch_filtering"].wait()
         log = graph.tmp / "logs" / "perch_filtering.log"
@@ -519,7 +522,9 @@ def test_killing_the_node_holding_a_cached_mesh_mid_mission_is_recovered_by_rese
         graph.processes.start_node("perch_filtering")
         wait_for(lambda: log.read_text(errors="replace").count("ready") > ready_before, 120,
                  "the restarted filter node")
-        time.sleep(4.0)   # the killed process's endpoints leave the graph (3 s lease)
+        # The killed process's server leaves the graph at its lease's end (3 s), the restarted one's arrives.
+        wait_for(lambda: (now := set(server_endpoints(graph.node, "/perch/filter"))) and not now & killed, 60,
+                 "the killed filter's server leaving the graph and the restarted one's arriving")
         ok = client.call_async(ReviewSurfaces.Request(review_id=review.review_id))
         assert wait_for(lambda: ok.result() if ok.done() else None, 30, "the review reply").success
         result = mission.result()

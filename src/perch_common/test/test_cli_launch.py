@@ -2,7 +2,6 @@
 
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -104,13 +103,19 @@ def test_the_coordinator_runs_on_glibc_malloc_unless_the_user_chose_an_allocator
 def test_launch_starts_and_stops_cleanly_on_ctrl_c(tmp_path):
     import signal
 
-    from perch_common.ros.testing import isolated_ros_env
+    from perch_common.ros.testing import isolated_ros_env, poll_until
     config = tmp_path / "p.yaml"
     config.write_text("perch_mesh_tools:\n  ros__parameters:\n    service_name: /perch/inspect_mesh\n")
     proc = subprocess.Popen(PERCH + ["launch", "--config", str(config), "--log-dir", str(tmp_path / "logs")],
                             env=isolated_ros_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(4)
-    assert proc.poll() is None
+    log = tmp_path / "logs" / "perch_mesh_tools.log"
+    try:   # Ctrl-C once the node serves (a loaded machine starts it later than a fixed wait would allow)
+        poll_until(lambda: proc.poll() is not None or (log.is_file() and "serving" in log.read_text(errors="replace")),
+                   120, "perch_mesh_tools serving (or perch launch ending)")
+    except AssertionError:
+        proc.kill()
+        raise
+    assert proc.poll() is None, proc.communicate()[1][-2000:]
     proc.send_signal(signal.SIGINT)
     out, err = proc.communicate(timeout=20)
     assert proc.returncode == 0, err
