@@ -14,7 +14,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from perch_common.threads import side_by_side
 from perch_common.types import ExclusionZone
 from perch_placement.cache import PlacementCache
 from perch_placement.camera import on_sensor
@@ -178,21 +177,15 @@ def build_candidates(perches: Perches, evaluator: Evaluator, spacing: float, ang
     # read at the reached points only (about 1 in 25 on a building).
     live = np.flatnonzero(reach.any(axis=1))
     per_chunk = max(1, chunk // (a * len(targets)))
-
-    def fill(starts: range) -> None:
-        for start in starts:
-            rows = live[start:start + per_chunk]
-            index = (rows[:, None] * a + np.arange(a)).reshape(-1)
-            rotations = _pose(perches, region, points, mounts, gimbal, index).camera_rotation
-            rotations = rotations.reshape(-1, a, 3, 3).transpose(0, 2, 1, 3).reshape(-1, 3, a * 3)
-            delta = targets[None] - cam_pos[rows][:, None]   # as Evaluator.reach computes it
-            local = np.matmul(delta.astype(np.float32), rotations.astype(np.float32))
-            p, n = np.nonzero(reach[rows])
-            visible[rows[p], :, n] = on_sensor(evaluator.camera, local[p, n].reshape(len(p), a, 3))
-
-    # Alternate chunks on two threads (numpy's large products release the GIL); each writes its own rows.
-    starts = range(0, len(live), per_chunk)
-    side_by_side(lambda: fill(starts[0::2]), lambda: fill(starts[1::2]))
+    for start in range(0, len(live), per_chunk):
+        rows = live[start:start + per_chunk]
+        index = (rows[:, None] * a + np.arange(a)).reshape(-1)
+        rotations = _pose(perches, region, points, mounts, gimbal, index).camera_rotation
+        rotations = rotations.reshape(-1, a, 3, 3).transpose(0, 2, 1, 3).reshape(-1, 3, a * 3)
+        delta = targets[None] - cam_pos[rows][:, None]   # as Evaluator.reach computes it
+        local = np.matmul(delta.astype(np.float32), rotations.astype(np.float32))
+        p, n = np.nonzero(reach[rows])
+        visible[rows[p], :, n] = on_sensor(evaluator.camera, local[p, n].reshape(len(p), a, 3))
     reach = visible.any(axis=1)
     p, n = np.nonzero(reach)
     delta = targets[n] - cam_pos[p]

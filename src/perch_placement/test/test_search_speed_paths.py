@@ -104,22 +104,6 @@ def test_candidate_set_is_the_dense_one(constrained):
     assert np.array_equal(fast.subset(keep).info, dense.dense_info[keep])
 
 
-def test_candidates_built_in_chunks_on_two_threads_are_those_of_one_pass():
-    """build_candidates' chunks run alternately on two threads: many small chunks on two threads give
-    the candidates of one chunk on one thread, bit for bit."""
-    from perch_common.threads import one_thread, work_threads
-
-    ev = evaluator()
-    perches = Perches(REGIONS, TARGET.centroid(), CONFIG.drone)
-    with one_thread():
-        whole = build_candidates(perches, ev, 0.4, 5)
-    if work_threads() < 2:
-        pytest.skip("one thread allowed here (OMP_NUM_THREADS=1): nothing runs side by side")
-    chunked = build_candidates(perches, ev, 0.4, 5, chunk=25 * len(ev.points))   # one position per chunk
-    for name in ("visible", "pair_info", "reach", "region", "points", "gimbal", "info"):
-        assert np.array_equal(getattr(chunked, name), getattr(whole, name)), name
-
-
 def test_kept_gains_are_the_fresh_gains_as_cameras_come_and_go():
     ev = evaluator()
     cands = build_candidates(Perches(REGIONS, TARGET.centroid(), CONFIG.drone), ev, 0.4, 5)
