@@ -498,9 +498,10 @@ def test_killing_the_node_holding_a_cached_mesh_mid_mission_is_recovered_by_rese
 
     warm = run_mission(graph.node, make_goal(scene), timeout=300)   # every stage now holds the meshes
     assert warm.success, warm.message
-    replies: list = []
+    calls: list = []   # (the calling client's GID, the event's response if any) of every filter event
     events = graph.node.create_subscription(Filter.Event, "/perch/filter/_service_event",
-                                            lambda e: replies.extend(e.response), qos_profile_services_default)
+                                            lambda e: calls.append((bytes(e.info.client_gid), list(e.response))),
+                                            qos_profile_services_default)
     reviews: list = []
     sub = graph.node.create_subscription(SurfaceReview, "/perch/surface_review", reviews.append, LATCHED_LAST)
     goal = make_goal(scene)
@@ -525,15 +526,35 @@ def test_killing_the_node_holding_a_cached_mesh_mid_mission_is_recovered_by_rese
         # The killed process's server leaves the graph at its lease's end (3 s), the restarted one's arrives.
         wait_for(lambda: (now := set(server_endpoints(graph.node, "/perch/filter"))) and not now & killed, 60,
                  "the killed filter's server leaving the graph and the restarted one's arriving")
+        # The restarted node's events reach this test once its event publisher has matched the subscription:
+        # probe it (an empty request, answered with an error) until one of its events is heard.
+        probe, sent = graph.node.create_client(Filter, "/perch/filter"), [0.0]
+
+        def heard() -> bool:
+            if calls:
+                return True
+            if time.monotonic() - sent[0] > 1.0:   # resent: discovery may still drop a first request
+                probe.call_async(Filter.Request())
+                sent[0] = time.monotonic()
+            return False
+
+        wait_for(heard, 60, "an event of the restarted filter node")
+        probes = {gid for gid, _ in calls}   # only the probe has called the new node so far
+
+        def mission_replies() -> list:
+            return [r for gid, responses in list(calls) if gid not in probes for r in responses]
+
         ok = client.call_async(ReviewSurfaces.Request(review_id=review.review_id))
         assert wait_for(lambda: ok.result() if ok.done() else None, 30, "the review reply").success
         result = mission.result()
-        wait_for(lambda: any(r.success for r in replies), 10, "the filter's successful reply event")
+        wait_for(lambda: any(r.success for r in mission_replies()), 10, "the filter's successful reply event")
     graph.node.destroy_subscription(events)
     graph.node.destroy_subscription(sub)
     graph.node.destroy_client(client)
+    graph.node.destroy_client(probe)
     mission.close()
     assert result.success, result.message
+    replies = mission_replies()
     misses = [r for r in replies if not r.success]
     assert misses and all(r.message.startswith(MESH_NOT_CACHED) for r in misses), [r.message for r in replies]
     assert "send the mesh arrays again" in misses[0].message
