@@ -145,8 +145,10 @@ class Soak:
     """Runs the missions against a LaunchedGraph with the client node `node`."""
 
     def __init__(self, graph: LaunchedGraph, node, work: Path, seed: int = 0, log=None, traces: Path | None = None,
-                 heaptrack: "CoordinatorHeaptrack | None" = None, smaps: Path | None = None):
+                 heaptrack: "CoordinatorHeaptrack | None" = None, smaps: Path | None = None,
+                 interrupt_at: tuple[str, ...] = INTERRUPT_AT):
         self.graph = graph
+        self.interrupt_at = interrupt_at   # the progress lines a killed or interrupted client waits for
         self.traces = traces   # the graph's record_traced folder (--tracemalloc), else None
         self.heaptrack = heaptrack
         self.smaps = smaps   # a folder for the coordinator's /proc/PID/smaps after each mission, else None
@@ -245,7 +247,7 @@ class Soak:
 
     def _interrupt(self, proc: subprocess.Popen, log_path: Path, sig: int) -> None:
         """Once the mission reaches a stage chosen at random, wait a random moment and send `sig`."""
-        line = self.rng.choice(INTERRUPT_AT)
+        line = self.rng.choice(self.interrupt_at)
         delay = self.rng.uniform(0.0, INTERRUPT_JITTER)
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline and proc.poll() is None:
