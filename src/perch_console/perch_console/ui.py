@@ -383,13 +383,19 @@ class Console:
             self._shown_proposals = None
             target = (f"footprint of {len(self.footprint_points)} floor points, {self.footprint_height.value:g} m high"
                       if self.target_shape.value == "floor footprint" else self.box_of(self.target).describe())
-            decision = self.desk.decide(who, "started", "a mission", target,
+            # What the goal holds, said back: viser's client drops an edit followed within 50 ms by
+            # another, so the page can show a value the console never received.
+            planned = (f"{goal.num_cameras} camera(s), "
+                       + (f"review of the {goal.review_surfaces} largest surfaces, " if goal.review_surfaces else "")
+                       + f"target {target}")
+            decision = self.desk.decide(who, "started", "a mission", planned,
                                         lambda: _ok(self.graph.start_mission(goal)))
         except ValueError as exc:
             self.start_note.content = f"**Cannot start:** {exc}"
             self.start.disabled = False
             return
-        self.start_note.content = ("mission started by " + who) if decision.success else f"**{decision.message}**"
+        self.start_note.content = (f"mission started by {who}: {planned}" if decision.success
+                                   else f"**{decision.message}**")
         self.start.disabled = False
         with self._ui_lock:
             self._show_log()

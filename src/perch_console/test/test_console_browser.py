@@ -4,7 +4,10 @@ Open the console, set a target box (typed, then one face dragged with the mouse)
 (with a surface review) on a generated room, reject one surface and crop another, reject one
 proposal, accept the rest, and check that the waypoints published on
 perch/mission_waypoints are the accepted perches the console showed. Every wait is on a page or
-graph condition (Playwright's auto-waiting locators, polled topics), never a fixed sleep. Screenshots
+graph condition (Playwright's auto-waiting locators, polled topics), never a fixed sleep. Each edit
+is waited for in the console (the server) before the next: viser's client sends its GUI messages
+through one 50 ms throttle that keeps only the latest, so an edit followed within 50 ms by another
+is never sent (a CI run planned 4 cameras while the page showed 3). Screenshots
 of each step go to perch-console-shots/ in the temporary folder; with PERCH_UPDATE_DOC_SCREENSHOTS=1 they replace the
 README's in src/perch_console/doc/ (a plain test run leaves the checkout as it was).
 """
@@ -111,6 +114,11 @@ def shot(page, name: str) -> None:
     page.screenshot(path=str(SHOTS / name))
 
 
+def review_choice(console_obj, label: str):
+    """The console's own dropdown for a reviewed surface, by the label the page shows."""
+    return next(h for h in console_obj._review_handles if getattr(h, "label", None) == label.strip())
+
+
 def until(condition, what: str, timeout: float = WAIT_MS / 1000, page=None):
     """Poll `condition` (a page's event loop kept running) until it holds; its value."""
     deadline = time.monotonic() + timeout
@@ -191,6 +199,8 @@ def test_first_time_operator_flow_in_chromium(graph, console):
         page.get_by_text("Stage: idle").wait_for()
         text_field(page, "Your name").fill("alice")   # who decides, as the log and the reasons say
         text_field(page, "Your name").press("Tab")
+        until(lambda: [f.value for f in console_obj._names.values()] == ["alice"], "the name to reach the console",
+              page=page)
         shot(page, "console_1_open.png")
         # 2. set the target box (the fields and the 3D handles move together) and ask for a surface review
         low, high = scene.mesh.vertices.min(axis=0), scene.mesh.vertices.max(axis=0)
@@ -198,18 +208,17 @@ def test_first_time_operator_flow_in_chromium(graph, console):
         center[2] = low[2] + 1.0
         size = [(high[0] - low[0]) * 0.5, (high[1] - low[1]) * 0.5, 1.6]
         set_vector(page, "Target centre", center)
+        until(lambda: np.allclose(console_obj.box_of(console_obj.target).center, center, atol=0.01),
+              "the target centre to reach the console", page=page)
         set_vector(page, "Target size", size)
+        until(lambda: np.allclose(console_obj.box_of(console_obj.target).size, size, atol=0.01),
+              "the target size to reach the console", page=page)
         page.get_by_label("Cameras").fill(str(CAMERAS))
         page.get_by_label("Cameras").press("Tab")
+        until(lambda: int(console_obj.cameras.value) == CAMERAS, "the camera count to reach the console", page=page)
         page.get_by_label("Review largest surfaces").fill("3")
         page.get_by_label("Review largest surfaces").press("Tab")
-        box = console_obj.box_of(console_obj.target)
-        deadline = time.monotonic() + WAIT_MS / 1000
-        while (abs(box.size[0] - size[0]) > 0.01 or int(console_obj.review_count.value) != 3) \
-                and time.monotonic() < deadline:   # the browser's edits reached the server
-            page.wait_for_timeout(50)
-            box = console_obj.box_of(console_obj.target)
-        assert abs(box.center[0] - center[0]) < 0.01 and abs(box.size[1] - size[1]) < 0.01
+        until(lambda: int(console_obj.review_count.value) == 3, "the review count to reach the console", page=page)
         # then drag the box's +x face handle outwards: the box grows along x, its -x face stays
         typed = console_obj.box_of(console_obj.target)
         drag_face(page, console_obj, console_obj.target, 0, 1.0, 90)
@@ -221,7 +230,7 @@ def test_first_time_operator_flow_in_chromium(graph, console):
               "the size field to follow the handle", page=page)
         shot(page, "console_2_target.png")
         page.get_by_role("button", name="Start mission").click()
-        page.get_by_text("mission started by alice").wait_for()
+        page.get_by_text(f"mission started by alice: {CAMERAS} camera(s), review of the 3 largest surfaces").wait_for()
         # 3. the surface review: reject the first (largest) surface, crop the second to 60 % of its
         #    length (its crop box starts around it; the size is typed here), approve the rest
         page.get_by_role("button", name="Submit review").wait_for()
@@ -229,8 +238,12 @@ def test_first_time_operator_flow_in_chromium(graph, console):
         surface_label, crop_label = labels.nth(0).inner_text(), labels.nth(1).inner_text()
         page.get_by_label(surface_label).click()
         page.get_by_role("option", name="reject").click()
+        until(lambda: review_choice(console_obj, surface_label).value == "reject", "the rejection to reach the console",
+              page=page)
         page.get_by_label(crop_label).click()
         page.get_by_role("option", name="crop").click()
+        until(lambda: review_choice(console_obj, crop_label).value == "crop", "the crop choice to reach the console",
+              page=page)
         cropped = int(re.match(r"S(\d+)", crop_label.strip()).group(1))
         editor = until(lambda: console_obj._crop_editors.get(cropped), "the crop box of the second surface")
         whole = console_obj.box_of(editor)
@@ -239,6 +252,8 @@ def test_first_time_operator_flow_in_chromium(graph, console):
         until(lambda: abs(console_obj.box_of(editor).size[0] - 0.6 * whole.size[0]) < 0.01,
               "the crop size to reach the console", page=page)
         text_field(page, "Reason").fill("segmentation ran over the door")
+        until(lambda: console_obj.reason.value == "segmentation ran over the door", "the reason to reach the console",
+              page=page)
         shot(page, "console_3_review.png")
         page.get_by_role("button", name="Submit review").click()
         page.get_by_text(re.compile(rf"decided surface review \d+, rejecting \[\d+\], cropping \[{cropped}\]"
@@ -252,6 +267,7 @@ def test_first_time_operator_flow_in_chromium(graph, console):
         shot(page, "console_4_proposals.png")
         rejected = proposals[0]
         text_field(page, "Reason").fill("blocks the door")
+        until(lambda: console_obj.reason.value == "blocks the door", "the reason to reach the console", page=page)
         page.get_by_role("button", name=f"Reject #{rejected}").click()
         page.get_by_text(f"alice rejected proposal {rejected} (blocks the door): ok").wait_for()
         # a second browser watching sees the same mission and who decided, without deciding itself
@@ -263,6 +279,7 @@ def test_first_time_operator_flow_in_chromium(graph, console):
         watcher.close()
         accepted: list[int] = []
         text_field(page, "Reason").fill("")
+        until(lambda: console_obj.reason.value == "", "the reason to reach the console", page=page)
         deadline = time.monotonic() + WAIT_MS / 1000
         while time.monotonic() < deadline:
             page.get_by_text(re.compile(r"Stage: (done|failed)|Accept #\d+")).first.wait_for()
