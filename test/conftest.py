@@ -49,8 +49,9 @@ def graph_parts():
 
 
 @pytest.fixture(scope="module")
-def graph(tmp_path_factory):
-    """Every stage node as its own process on an isolated domain, and a client node spun in a thread."""
+def graph(tmp_path_factory, request):
+    """Every stage node as its own process on an isolated domain, and a client node spun in a thread.
+    A test module's GRAPH_CHANGES ({node: {param: value}}) are added to the graph's config."""
     missing = missing_nodes()
     if missing:
         pytest.skip(f"stage node(s) not installed yet: {', '.join(missing)}")
@@ -62,7 +63,10 @@ def graph(tmp_path_factory):
     from perch_common.launch import GraphProcesses
 
     tmp = tmp_path_factory.mktemp("graph")
-    config = write_config(tmp / "perch.yaml", {"perch_operator": {"service_wait": 3.0, "gone_grace": 1.0}})
+    changes = {"perch_operator": {"service_wait": 3.0, "gone_grace": 1.0}}
+    for node, params in getattr(request.module, "GRAPH_CHANGES", {}).items():
+        changes.setdefault(node, {}).update(params)
+    config = write_config(tmp / "perch.yaml", changes)
     rclpy.init()
     processes = GraphProcesses(config, list(STAGE_NODES), log_dir=tmp / "logs")
     processes.start()

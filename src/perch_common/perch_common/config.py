@@ -98,6 +98,11 @@ class StageNodeConfig(Generic[T]):
 
     introspection: bool = param(True, "publish service introspection events (requests and replies) for the recorder",
                                 read_only=True)
+    # nav2's name for rclpy's result_timeout. rclpy keeps a finished goal 900 s; a stage's result can be
+    # big (the segmentation's face labels) and clients ask for it as the goal is accepted.
+    action_server_result_timeout: float = param(60.0, "seconds a finished goal's result stays with the stage's "
+                                                "action server for a late get_result (whole seconds)", "s", low=1.0, high=86400.0,
+                                                read_only=True)
     # Work budget (perch_common.work): a call may work base + rate x (input faces / 1000) CPU seconds, then it
     # is refused naming the budget. Time is not proportional to faces alone (the filter: 0.01-0.02 s per 1000
     # faces on the apartment and multi_storey, 0.4 s on a 38k-face generated room, which took over 38 s

@@ -64,7 +64,8 @@ def test_a_stage_node_config_hands_its_stage_the_settings_alone():
     assert (node.introspection, node.queue) == (False, 9)
     stage = node.stage_config()
     assert type(stage) is Outer and stage == Outer(name="zed2", camera=Inner(width=640))
-    node_only = {"introspection", "work_budget_base", "work_budget_rate", "queue"}   # StageNodeConfig's + its own
+    node_only = {"introspection", "action_server_result_timeout", "work_budget_base", "work_budget_rate",
+                 "queue"}   # StageNodeConfig's + its own
     assert set(to_parameters(node)) == set(to_parameters(stage)) | node_only
 
 

@@ -20,10 +20,17 @@ WAIT = 60.0   # s, generous deadline for anything that crosses the executor
 
 
 @pytest.fixture
-def graph():
+def result_timeout() -> float:
+    """The action server's action_server_result_timeout (a test parametrises it to change it)."""
+    return 60.0
+
+
+@pytest.fixture
+def graph(result_timeout):
     """A node serving perch/segment (service and action, introspection on) with a callback that works until
     cancelled or released, and a client node that also reads the service's events; both spun by one
-    multi-threaded executor. Yields (action client, release event, events received)."""
+    multi-threaded executor. Yields (action client, release event, events received); the server node
+    is `client.server` (its action server `client.server.action`)."""
     import rclpy
     from rclpy.action import ActionClient
     from rclpy.executors import MultiThreadedExecutor
@@ -43,7 +50,8 @@ def graph():
         def __init__(self):
             super().__init__("stage_action_test_server", context=context)
             create_stage_service(self, srv.Segment, "perch/segment", self._segment, introspection=True)
-            create_stage_action(self, action.Segment, srv.Segment, "perch/segment", self._segment)
+            self.action = create_stage_action(self, action.Segment, srv.Segment, "perch/segment", self._segment,
+                                              result_timeout=result_timeout)
 
         @answering
         def _segment(self, request, response):
@@ -59,6 +67,7 @@ def graph():
     server = Server()
     client_node = rclpy.create_node("stage_action_test_client", context=context)
     client = ActionClient(client_node, action.Segment, "perch/segment")
+    client.server = server
     events = []
     subscription = client_node.create_subscription(srv.Segment.Event, "perch/segment/_service_event", events.append,
                                                    qos_profile_services_default)
@@ -115,13 +124,8 @@ def test_a_goal_gives_feedback_and_the_services_reply_as_its_result(graph):
     assert feedback[0].phase == "waiting for the test" and 0.25 <= feedback[0].fraction <= 0.5
 
 
-@pytest.fixture
-def short_results(monkeypatch):
-    """Stage action servers created after it keep a finished goal 1 s (STAGE_RESULT_SECONDS)."""
-    monkeypatch.setattr("perch_common.ros.service.STAGE_RESULT_SECONDS", 1)
-
-
-def test_a_finished_goal_is_let_go_after_the_result_time(short_results, graph):
+@pytest.mark.parametrize("result_timeout", [1.0])
+def test_a_finished_goal_is_let_go_after_the_result_time(graph):
     from action_msgs.msg import GoalStatus
 
     client, release, _ = graph
@@ -131,6 +135,26 @@ def test_a_finished_goal_is_let_go_after_the_result_time(short_results, graph):
     # Its request and result are freed: a late get_result finds no such goal (rclpy keeps them 900 s).
     poll_until(lambda: _wait(handle.get_result_async()).status == GoalStatus.STATUS_UNKNOWN, WAIT,
                "the finished goal let go")
+
+
+def test_a_finished_goal_keeps_its_result_but_not_its_request(graph):
+    """rclpy keeps a finished goal's handle, with its request, until the result expires (60 s here):
+    each mission's meshes would stay in every stage that long. The request is dropped once it has run."""
+    from action_msgs.msg import GoalStatus
+
+    from perch_interfaces.action import Segment
+
+    client, release, _ = graph
+    goal = Segment.Goal(request_id="goal/1")
+    goal.mesh.vertices = [0.0, 1.0, 2.0] * 1000
+    handle = _wait(client.send_goal_async(goal))
+    release.set()
+    answer = _wait(handle.get_result_async())
+    assert answer.status == GoalStatus.STATUS_SUCCEEDED and answer.result.message == "released goal/1"
+    kept = client.server.action._goal_handles[bytes(handle.goal_id.uuid)]
+    assert kept.request.request_id == "" and len(kept.request.mesh.vertices) == 0
+    late = _wait(handle.get_result_async())   # the result itself stays for a late get_result
+    assert late.status == GoalStatus.STATUS_SUCCEEDED and late.result.message == "released goal/1"
 
 
 def test_the_standard_cancel_stops_the_goal_at_its_next_checkpoint(graph):

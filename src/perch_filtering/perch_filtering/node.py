@@ -57,7 +57,8 @@ class FilterNode(Node):
             self._preparer = self._prepare_mesh
             add_preparer(self._preparer)
         self.service = create_stage_service(self, srv.Filter, STAGE_SERVICES["filter"], self._filter, config.introspection)
-        self.action = create_stage_action(self, action.Filter, srv.Filter, STAGE_SERVICES["filter"], self._filter)
+        self.action = create_stage_action(self, action.Filter, srv.Filter, STAGE_SERVICES["filter"], self._filter,
+                                          result_timeout=config.action_server_result_timeout)
         self.get_logger().info(f"ready: {STAGE_SERVICES['filter']}")
 
     @staticmethod

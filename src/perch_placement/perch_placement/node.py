@@ -51,7 +51,8 @@ class PlacementNode(Node):
         self.cache = PlacementCache(max_scene_faces=config.scene_cache_faces)
         self.service = create_stage_service(self, srv.Optimise, STAGE_SERVICES["optimise"], self.optimise,
                                             config.introspection)
-        self.action = create_stage_action(self, action.Optimise, srv.Optimise, STAGE_SERVICES["optimise"], self.optimise)
+        self.action = create_stage_action(self, action.Optimise, srv.Optimise, STAGE_SERVICES["optimise"], self.optimise,
+                                          result_timeout=config.action_server_result_timeout)
         self.get_logger().info(f"ready: {STAGE_SERVICES['optimise']}")
 
     def _request_config(self, request) -> PlacementConfig:

@@ -117,7 +117,8 @@ class ReconstructionNode(Node):
                                          (srv.CleanMesh, STAGE_SERVICES["clean"], self._clean)):
             create_stage_service(self, srv_type, name, callback, c.introspection, callback_group=services)
         self.reconstruct_action = create_stage_action(self, action.Reconstruct, srv.Reconstruct,
-                                                      STAGE_SERVICES["reconstruct"], self._reconstruct)
+                                                      STAGE_SERVICES["reconstruct"], self._reconstruct,
+                                                      result_timeout=c.action_server_result_timeout)
         self.get_logger().info(f"ready: /perch/reconstruct, /perch/clean_mesh; listening on {c.color_topic}, "
                                f"{c.depth_topic}, {c.camera_info_topic}" + (", /tf" if c.pose_type == "tf" else
                                                                             f", {c.pose_topic}" if c.pose_topic else ""))

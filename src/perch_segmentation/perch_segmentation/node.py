@@ -32,7 +32,8 @@ class SegmentationNode(Node):
         super().__init__("perch_segmentation")
         config = declare_config(self, SegmentationNodeConfig, check=lambda c: c.stage_config().validate())
         self.service = create_stage_service(self, srv.Segment, SERVICE, self._segment, config.introspection)
-        self.action = create_stage_action(self, action.Segment, srv.Segment, SERVICE, self._segment)
+        self.action = create_stage_action(self, action.Segment, srv.Segment, SERVICE, self._segment,
+                                          result_timeout=config.action_server_result_timeout)
         self.get_logger().info(f"ready: {SERVICE}")
 
     @answering

@@ -302,14 +302,8 @@ class ActionIntrospection:
         self.publisher.publish(event)
 
 
-# Seconds a finished goal (its request, meshes included, and its result) stays with a stage's action server for a
-# late get_result; rclpy's 900 s kept every mission's stage inputs of the last quarter hour in memory.
-# Callers ask for the result as the goal is accepted (rclpy's ActionClient, the coordinator).
-STAGE_RESULT_SECONDS = 60
-
-
 def create_stage_action(node, action_type, srv_type, name: str, callback: Callable,
-                        introspection: bool | None = None):
+                        introspection: bool | None = None, result_timeout: float = 60.0):
     """The long-running form of a stage service: action `name` (the service's own name) of `action_type`,
     whose goal and result have the service's request and response fields. The goal runs the very callback
     the service runs (validation, work budget, one call at a time with the service's calls); feedback
@@ -318,7 +312,9 @@ def create_stage_action(node, action_type, srv_type, name: str, callback: Callab
     signed StageCancel on CANCEL_TOPIC still stops a goal by its request_id.
 
     introspection: publish each goal as the service's introspection events (ActionIntrospection);
-    default: as the stage's service created before it is configured (on when there is none)."""
+    default: as the stage's service created before it is configured (on when there is none).
+    result_timeout: seconds a finished goal's result stays for a late get_result (the node's
+    action_server_result_timeout). The goal's request (its meshes) is dropped as soon as it has run."""
     import uuid
 
     from rclpy.action import ActionServer, CancelResponse, GoalResponse
@@ -361,6 +357,10 @@ def create_stage_action(node, action_type, srv_type, name: str, callback: Callab
             response = run(request, srv_type.Response(), feedback)
         finally:
             goals.pop(goal_id, None)
+            # rclpy keeps the goal handle, and with it the goal's request, until the result expires:
+            # every stage input of the last minute (each mission's meshes) would stay in memory.
+            del request
+            clear_fields(goal_handle.request)
         if events is not None:   # before the result, so a recording that ends with the call holds it
             events.publish(events.RESPONSE_SENT, goal_id, sequence, response=response)
         result = copy_fields(response, action_type.Result())
@@ -385,7 +385,14 @@ def create_stage_action(node, action_type, srv_type, name: str, callback: Callab
     # Reentrant: a cancel must get through while the goal runs (StageWork serialises the calls themselves).
     return StageActionServer(node, action_type, name, execute, callback_group=ReentrantCallbackGroup(),
                              goal_callback=lambda goal: GoalResponse.ACCEPT, cancel_callback=on_cancel,
-                             result_timeout=STAGE_RESULT_SECONDS)
+                             result_timeout=max(1, round(result_timeout)))
+
+
+def clear_fields(message) -> None:
+    """Set every field of `message` back to its default (drops the arrays it holds)."""
+    empty = type(message)()
+    for field in message.get_fields_and_field_types():
+        setattr(message, field, getattr(empty, field))
 
 
 def copy_fields(source, target):
