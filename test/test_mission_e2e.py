@@ -7,6 +7,7 @@ replay test reuses the first test's recording.
 from __future__ import annotations
 
 import io
+import re
 import time
 
 import numpy as np
@@ -18,6 +19,7 @@ from perch_common.ros.testing import poll_until as wait_for
 pytestmark = pytest.mark.ros
 
 CAMERAS = 3
+WAITING = re.compile(r"waiting for decisions on proposal\(s\) \[([\d, ]+)\]")   # the coordinator's feedback
 SCENE_SEED = 3
 
 
@@ -240,16 +242,18 @@ class LiveMission:
         self.proposals[msg.id] = msg
 
     def start(self) -> None:
-        time.sleep(0.5)  # latched proposals of earlier missions arrive first
-        self.first_id = max(self.proposals, default=0) + 1
         sent = self.client.send_goal_async(self.goal, feedback_callback=lambda m: self.feedback.append(m.feedback))
         handle = wait_for(lambda: sent.result() if sent.done() else None, 30, "goal acceptance")
         assert handle.accepted
         self.result_future = handle.get_result_async()
 
     def mine(self, status=None) -> list:
-        return [p for i, p in sorted(self.proposals.items())
-                if i >= self.first_id and (status is None or p.status == status)]
+        """This mission's proposals (latched ones of earlier missions may arrive at any time): from the
+        first id the mission's feedback names as waiting for a decision."""
+        named = [WAITING.search(f.message) for f in list(self.feedback)]
+        first = next((min(int(i) for i in m.group(1).split(",")) for m in named if m), None)
+        return [] if first is None else [p for i, p in sorted(self.proposals.items())
+                                         if i >= first and (status is None or p.status == status)]
 
     def decide(self, proposal_id: int, decision: int, reason: str = ""):
         from perch_interfaces.srv import Confirm
