@@ -130,8 +130,9 @@ def test_a_finished_goal_is_let_go_after_the_result_time(graph):
 
     client, release, _ = graph
     handle = _start(client, [])
+    result = handle.get_result_async()   # asked before the goal ends: a slow ask could come after the expiry
     release.set()
-    assert _wait(handle.get_result_async()).status == GoalStatus.STATUS_SUCCEEDED
+    assert _wait(result).status == GoalStatus.STATUS_SUCCEEDED
     # Its request and result are freed: a late get_result finds no such goal (rclpy keeps them 900 s).
     poll_until(lambda: _wait(handle.get_result_async()).status == GoalStatus.STATUS_UNKNOWN, WAIT,
                "the finished goal let go")
