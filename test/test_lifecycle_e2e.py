@@ -168,6 +168,7 @@ def test_cancelling_during_a_long_segment_stops_it_and_the_next_mission_is_fast(
 
     from perch_common.mesh import Mesh
     from perch_common.ros.conversions import mesh_to_msg
+    from perch_common.ros.testing import poll_until
     from perch_common.scene_generator import generate_scene
     from perch_interfaces.action import PlanPerches
     from perch_interfaces.srv import Segment
@@ -190,6 +191,8 @@ def test_cancelling_during_a_long_segment_stops_it_and_the_next_mission_is_fast(
         sub = graph.node.create_subscription(Segment.Event, "/perch/segment/_service_event", events.append,
                                              qos_profile_services_default)
         with graph.spinner(graph.node):
+            # Both event writers matched (volatile): the service's, and the action's, which the goal's use.
+            poll_until(lambda: sub.get_publisher_count() >= 2, 60, "segment's two event writers")
             assert client.wait_for_server(timeout_sec=30)
             sent = client.send_goal_async(big)
             deadline = time.monotonic() + 180

@@ -462,11 +462,12 @@ def test_killed_stage_ends_the_mission_with_its_name_and_the_next_one_succeeds(g
                                                 received.append, qos_profile_services_default)
         mission = LiveMission(graph.node, make_goal(scene))
         with graph.spinner(graph.node):
-            wait_for(lambda: events.get_publisher_count() > 0, 30, "the optimise event publisher")
+            # Both writers of the node's events: its service's and its action's (the goal's events).
+            wait_for(lambda: events.get_publisher_count() >= 2, 30, "the optimise event writers")
             mission.start()
             # Inside the call: its request event, or progress the stage reported (the mission's feedback).
-            # The event alone can go unheard: the goal's events come from the action's own writer, which
-            # this subscription may match only after the request (reliable, volatile), as one CI rehearsal saw.
+            # In one CI rehearsal the event went unheard for 300 s: this subscription had matched the
+            # service's writer (it waited for one writer), and the action's matched after the request.
             wait_for(lambda: any(e.info.event_type == 1 for e in received)
                      or any(f.stage == "optimise" and f.stage_fraction > 0 for f in list(mission.feedback)),
                      300, "the optimise call under way")
@@ -544,6 +545,8 @@ def test_killing_the_node_holding_a_cached_mesh_mid_mission_is_recovered_by_rese
             return False
 
         wait_for(heard, 60, "an event of the restarted filter node")
+        # The probe's events come from the service's writer; the mission's goal's from the action's own.
+        wait_for(lambda: events.get_publisher_count() >= 2, 60, "the restarted filter's action event writer")
         probes = {gid for gid, _ in calls}   # only the probe has called the new node so far
 
         def mission_replies() -> list:

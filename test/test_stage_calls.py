@@ -76,12 +76,16 @@ def _slow_segment_request():
 def test_cancelling_one_callers_call_leaves_the_other_callers_call_to_finish(segmentation):
     from rclpy.qos import qos_profile_services_default
 
+    from perch_common.ros.testing import poll_until
     from perch_interfaces.srv import Segment
     from perch_operator.coordinator.stages import MissionCancelled
 
     _, (node_a, node_b) = segmentation
     events: list = []
-    node_a.create_subscription(Segment.Event, SERVICE + "/_service_event", events.append, qos_profile_services_default)
+    subscription = node_a.create_subscription(Segment.Event, SERVICE + "/_service_event", events.append,
+                                              qos_profile_services_default)
+    # Both event writers matched (volatile): the service's, and the action's, which the callers' goals use.
+    poll_until(lambda: subscription.get_publisher_count() >= 2, 60, "segment's two event writers")
     caller_a, caller_b = _caller(node_a), _caller(node_b)
     outcome: dict[str, object] = {}
     cancel_a = threading.Event()
