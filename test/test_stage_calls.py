@@ -225,12 +225,15 @@ def test_a_resend_of_a_call_that_arrived_is_answered_as_a_duplicate(segmentation
     from rclpy.qos import qos_profile_services_default
 
     from perch_common.ros.service import is_duplicate_reply
+    from perch_common.ros.testing import poll_until
     from perch_interfaces.srv import Segment
     from perch_operator.coordinator import stages
 
     _, (_, node) = segmentation
     events: list = []
-    node.create_subscription(Segment.Event, SERVICE + "/_service_event", events.append, qos_profile_services_default)
+    subscription = node.create_subscription(Segment.Event, SERVICE + "/_service_event", events.append,
+                                            qos_profile_services_default)
+    poll_until(lambda: subscription.get_publisher_count() >= 2, 60, "segment's two event writers")   # volatile
     monkeypatch.setattr(stages, "RESEND_AFTER", 0.0)   # resend at once, RESENDS times
     caller = _service_caller(node)
     caller._heard_of = lambda call_id: False

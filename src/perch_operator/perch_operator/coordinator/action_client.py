@@ -32,7 +32,8 @@ class RegisteringActionClient(ActionClient):
     registration hold one lock, and the handling of taken responses waits for that lock.
 
     It also keeps, for the goals a caller `watch`es, the latest status their server published: rclpy
-    updates only goal handles the caller still holds, and only once it has the goal's response."""
+    updates only goal handles the caller still holds, and only once it has the goal's response.
+    And `destroy` is safe while an executor spins its node in another thread."""
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
@@ -40,6 +41,24 @@ class RegisteringActionClient(ActionClient):
         self._registering = threading.RLock()
         self._watched: dict[bytes, int] = {}   # goal id -> latest status listed (STATUS_UNKNOWN: not yet)
         self._forgotten: list[bytes] = []      # goals whose feedback callbacks go (in execute: no race with it)
+
+    def destroy(self) -> None:
+        """rclpy's destroy frees the handle, then takes the client off its node. An executor that listed
+        the node's clients in between adds the freed handle to its next wait set, and its spin thread
+        dies ("action client pointer is invalid"; a renewed stage client, or a test's, can do that to
+        the coordinator). Here the client leaves the node first, and the handle is freed from a one-shot
+        timer: between two wait sets, when no executor lists it any more."""
+        node = self._node
+        node.remove_waitable(self)
+        if node.executor is None:   # nothing spins the node: nothing can hold the handle
+            self._client_handle.destroy_when_not_in_use()
+            return
+        def free() -> None:
+            node.destroy_timer(timer)
+            self._client_handle.destroy_when_not_in_use()
+
+        timer = node.create_timer(0.0, free, autostart=False)   # started once `free` can name it
+        timer.reset()
 
     def send_goal_async(self, *args, **kwargs):
         """rclpy's send_goal_async, registered before its answer is handled."""

@@ -1,0 +1,80 @@
+"""RegisteringActionClient.destroy while an executor spins the node in another thread.
+
+rclpy Jazzy's ActionClient.destroy frees its handle before taking the client off the node: an
+executor that listed the node's clients in between adds the freed handle to its wait set and its spin
+thread dies (RCLError "action client pointer is invalid"). The coordinator destroys a stage's client
+when it renews it; a CI rehearsal's test_stage_calls lost its executor this way and its next two calls
+waited out their 300 s.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+
+pytestmark = pytest.mark.ros
+
+CHURN_SECONDS = 10.0   # rclpy's own destroy killed the spin thread here within 0.4-2 s (or aborted the process)
+
+
+@pytest.fixture
+def spun_node():
+    """A node spun by a MultiThreadedExecutor in a thread; yields (node, errors of the spin thread)."""
+    import rclpy
+    from rclpy.executors import MultiThreadedExecutor
+
+    from perch_common.ros.testing import use_isolated_ros_env
+
+    use_isolated_ros_env()
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node("action_client_destroy_test", context=context)
+    executor = MultiThreadedExecutor(num_threads=2, context=context)
+    executor.add_node(node)
+    errors: list = []
+
+    def spin() -> None:
+        try:
+            executor.spin()
+        except Exception as exc:  # the failure under test
+            errors.append(exc)
+
+    thread = threading.Thread(target=spin, daemon=True)
+    thread.start()
+    try:
+        yield node, errors, thread
+    finally:
+        executor.shutdown()
+        thread.join(5)
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+
+
+def test_destroying_clients_while_the_node_spins_leaves_the_executor_running(spun_node):
+    from perch_interfaces.action import Segment
+    from perch_operator.coordinator.action_client import RegisteringActionClient
+
+    node, errors, thread = spun_node
+    made, last = 0, None
+    deadline = time.monotonic() + CHURN_SECONDS
+    while time.monotonic() < deadline and thread.is_alive():
+        last = RegisteringActionClient(node, Segment, "perch/segment")
+        time.sleep(0)   # let the spin thread run between the two
+        last.destroy()
+        made += 1
+    assert thread.is_alive() and not errors, f"the spin thread died after {made} clients: {errors[:1]}"
+    # Every client left the node, and the last one's handle is freed once the executor has passed.
+    assert not any(isinstance(w, RegisteringActionClient) for w in node.waitables)
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline:
+        try:
+            last._client_handle.__enter__()
+        except Exception:   # InvalidHandle: destroyed
+            break
+        last._client_handle.__exit__(None, None, None)
+        time.sleep(0.05)
+    else:
+        raise AssertionError("the last client's handle was never freed")
+    assert not list(node.timers)   # the one-shot timers that freed the handles are gone
