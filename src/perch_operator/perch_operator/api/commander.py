@@ -25,7 +25,6 @@ import time
 import uuid
 
 import rclpy
-from rclpy.action import ActionClient
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -35,6 +34,7 @@ from perch_common.conventions import CONFIRM_SERVICE, MISSION_ACTION
 from perch_interfaces import msg as pm
 from perch_interfaces import srv
 from perch_interfaces.action import PlanPerches
+from perch_operator.coordinator.action_client import RegisteringActionClient
 
 _SPIN_STEP = 0.05   # s: how long each call spins an own node
 
@@ -57,7 +57,7 @@ class PerchCommander:
         self.spin = self._owns_node if spin is None else spin
         self._group = ReentrantCallbackGroup()
         self._lock = threading.Lock()
-        self._action = ActionClient(self.node, PlanPerches, MISSION_ACTION, callback_group=self._group)
+        self._action = RegisteringActionClient(self.node, PlanPerches, MISSION_ACTION, callback_group=self._group)
         self._confirm = self.node.create_client(srv.Confirm, CONFIRM_SERVICE, callback_group=self._group)
         from perch_common.network_auth import networked
         from perch_operator.api.client import MissionCanceller
