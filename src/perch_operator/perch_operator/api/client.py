@@ -14,12 +14,12 @@ import uuid
 from typing import Callable
 
 import rclpy
+from rclpy.action import ActionClient
 from unique_identifier_msgs.msg import UUID
 
 from perch_common.conventions import MISSION_ACTION, MISSION_STATUS_TOPIC
 from perch_common.errors import PerchError
 from perch_interfaces.action import PlanPerches
-from perch_operator.coordinator.action_client import RegisteringActionClient
 
 ACTION = MISSION_ACTION   # the name `perch operator` and the soak import
 LOST_ANSWER_GRACE = 1.0   # s a listed goal waits for its answer before the answer counts as lost
@@ -144,7 +144,7 @@ def run_mission(node, goal: PlanPerches.Goal, timeout: float = 600.0, server_wai
     """Run one mission on the live graph and return its result (success or not)."""
     from perch_common.network_auth import networked
 
-    client = RegisteringActionClient(node, PlanPerches, ACTION)   # its destroy is safe on a spun node
+    client = ActionClient(node, PlanPerches, ACTION)
     statuses = GoalStatusWatch(node)
     signed = MissionCanceller(node) if networked() else None   # a networked graph takes signed cancels only
     try:

@@ -299,13 +299,14 @@ class Soak:
 
     def _wait_free(self, within: float = 30.0) -> float:
         """Seconds until the coordinator accepts goals again (it aborts a vanished client's mission)."""
+        from rclpy.action import ActionClient
+
         from perch_interfaces.action import PlanPerches
         from perch_operator.api.client import ACTION
         from perch_operator.cli.runner import spin_for
-        from perch_operator.coordinator.action_client import RegisteringActionClient
 
         started = time.monotonic()
-        client = RegisteringActionClient(self.node, PlanPerches, ACTION)
+        client = ActionClient(self.node, PlanPerches, ACTION)
         try:
             client.wait_for_server(timeout_sec=10)
             while time.monotonic() - started < within:
