@@ -23,7 +23,8 @@ class StageCall:
     service: str
     request: Any = None
     response: Any = None
-    stamp_ns: int = 0
+    stamp_ns: int = 0        # when the request was made (its event's stamp, from the caller's or server's clock)
+    log_ns: int = 0          # when the recorder first heard of the call
     key: tuple = field(default=(), repr=False)
 
 
@@ -68,17 +69,26 @@ def stage_calls(path: str | Path) -> list[StageCall]:
     """Every stage service call found in the recording (client- or server-side events)."""
     topics = ["/" + service + EVENT_SUFFIX for service in SERVICE_TO_STAGE]
     calls: dict[tuple, StageCall] = {}
+    request_stamps: dict[tuple, dict[int, int]] = {}
     for topic, event, stamp in iter_messages(path, topics):
         service = topic[1: -len(EVENT_SUFFIX)]
         info = event.info
         key = (service, bytes(bytearray(info.client_gid)), int(info.sequence_number))
-        call = calls.setdefault(key, StageCall(SERVICE_TO_STAGE[service], service, stamp_ns=stamp, key=key))
-        if info.event_type in (REQUEST_SENT, REQUEST_RECEIVED) and len(event.request) and call.request is None:
-            call.request = event.request[0]
-            call.stamp_ns = stamp
+        made_ns = info.stamp.sec * 1_000_000_000 + info.stamp.nanosec
+        call = calls.setdefault(key, StageCall(SERVICE_TO_STAGE[service], service, stamp_ns=made_ns, log_ns=stamp,
+                                               key=key))
+        if info.event_type in (REQUEST_SENT, REQUEST_RECEIVED):
+            if call.request is None and len(event.request):
+                call.request = event.request[0]
+            request_stamps.setdefault(key, {})[info.event_type] = made_ns
         if info.event_type in (RESPONSE_SENT, RESPONSE_RECEIVED) and len(event.response) and call.response is None:
             call.response = event.response[0]
-    ordered = sorted(calls.values(), key=lambda c: c.stamp_ns)
+    # The request's own stamp orders the calls, the caller's before the server's: the recorder hears
+    # events of different topics in no set order (a large crop request can reach it after the small
+    # segment request made after the crop's reply), so its log time does not.
+    for key, stamps in request_stamps.items():
+        calls[key].stamp_ns = stamps.get(REQUEST_SENT, stamps.get(REQUEST_RECEIVED))
+    ordered = sorted(calls.values(), key=lambda c: (c.stamp_ns, c.log_ns))
     resolve_mesh_ids(ordered)
     return ordered
 
