@@ -20,6 +20,7 @@ pytestmark = pytest.mark.ros
 
 CAMERAS = 3
 WAITING = re.compile(r"waiting for decisions on proposal\(s\) \[([\d, ]+)\]")   # the coordinator's feedback
+REVIEWING = re.compile(r"waiting for surface review (\d+) ")   # the coordinator's feedback
 SCENE_SEED = 3
 
 
@@ -255,6 +256,11 @@ class LiveMission:
         return [] if first is None else [p for i, p in sorted(self.proposals.items())
                                          if i >= first and (status is None or p.status == status)]
 
+    def review_id(self) -> int | None:
+        """The surface review this mission waits for, once its feedback names it."""
+        named = [REVIEWING.search(f.message) for f in list(self.feedback)]
+        return next((int(m.group(1)) for m in named if m), None)
+
     def decide(self, proposal_id: int, decision: int, reason: str = ""):
         from perch_interfaces.srv import Confirm
 
@@ -269,6 +275,14 @@ class LiveMission:
         self.node.destroy_subscription(self.sub)
         self.node.destroy_client(self.confirm)
         self.client.destroy()
+
+
+def _own_review(mission: LiveMission, reviews: list, timeout: float = 120):
+    """The mission's surface review, heard on /perch/surface_review, by the id its feedback names (an
+    earlier test's latched review may arrive at any time, before or after this one)."""
+    review_id = wait_for(mission.review_id, timeout, "the mission's feedback naming its surface review")
+    return wait_for(lambda: next((r for r in list(reviews) if r.review_id == review_id), None), 60,
+                    f"surface review {review_id} on /perch/surface_review")
 
 
 def _position(placement_msg) -> np.ndarray:
@@ -340,7 +354,7 @@ def test_surface_review_rejection_keeps_perches_off_the_rejected_surface(graph, 
     mission = LiveMission(graph.node, goal)
     with graph.spinner(graph.node):
         mission.start()
-        review = wait_for(lambda: reviews[-1] if reviews and reviews[-1].surfaces else None, 120, "a surface review")
+        review = _own_review(mission, reviews)
         surfaces = [surface_from_msg(s) for s in review.surfaces]
         assert len(surfaces) == 4 and surfaces[0].area >= surfaces[-1].area
         ceiling = max((s for s in surfaces if abs(s.frame.normal[2]) > 0.9), key=lambda s: s.frame.origin[2])
@@ -392,40 +406,26 @@ def test_surface_review_crop_keeps_perch_regions_inside_the_kept_part(graph, sce
     mission = LiveMission(graph.node, goal)
     client = graph.node.create_client(ReviewSurfaces, "/perch/review_surfaces")
 
-    def newest_after(decided: int):
-        """The newest review, if newer than `decided` (an earlier test's latched review may be the
-        first to arrive: deciding it is refused as already decided, then we wait for this mission's)."""
-        if not reviews:
-            return None
-        newest = max(reviews, key=lambda r: r.review_id)
-        return newest if newest.review_id > decided and newest.surfaces else None
-
     with graph.spinner(graph.node):
         mission.start()
-        decided = 0
-        while True:
-            review = wait_for(lambda: newest_after(decided), 300, "this mission's surface review")
-            surfaces = [surface_from_msg(s) for s in review.surfaces]   # the input frame
-            wall = max((s for s in surfaces if abs(s.frame.normal[2]) < 0.2), key=lambda s: s.area)
-            outline = to_shapely(wall.boundary)
-            u0, v0, u1, v1 = outline.bounds
-            # the box: 60 % of the wall along u from its low end, all its height, 0.6 m across the wall
-            pose = np.eye(4)
-            pose[:3, :3] = np.column_stack([wall.frame.axis_u, wall.frame.axis_v, wall.frame.normal])
-            pose[:3, 3] = wall.frame.to_world(np.array([[u0 + 0.3 * (u1 - u0), (v0 + v1) / 2]]))[0]
-            size = np.array([0.6 * (u1 - u0), (v1 - v0) + 0.2, 0.6])
-            missing = client.call_async(ReviewSurfaces.Request(review_id=review.review_id,
-                                                               cropped_surface_ids=[wall.id]))
-            refused = wait_for(lambda: missing.result() if missing.done() else None, 30, "a refused crop")
-            assert not refused.success and "1 cropped surface id(s) but 0 crop box(es)" in refused.message
-            ok = client.call_async(ReviewSurfaces.Request(
-                review_id=review.review_id, cropped_surface_ids=[wall.id],
-                crop_boxes=[OrientedBox(pose=pose_msg(pose), size=vector_msg(size))], reason="poster on the right"))
-            reply = wait_for(lambda: ok.result() if ok.done() else None, 30, "the review reply")
-            if reply.success:
-                break
-            assert "already decided" in reply.message, reply.message
-            decided = review.review_id
+        review = _own_review(mission, reviews, 300)
+        surfaces = [surface_from_msg(s) for s in review.surfaces]   # the input frame
+        wall = max((s for s in surfaces if abs(s.frame.normal[2]) < 0.2), key=lambda s: s.area)
+        outline = to_shapely(wall.boundary)
+        u0, v0, u1, v1 = outline.bounds
+        # the box: 60 % of the wall along u from its low end, all its height, 0.6 m across the wall
+        pose = np.eye(4)
+        pose[:3, :3] = np.column_stack([wall.frame.axis_u, wall.frame.axis_v, wall.frame.normal])
+        pose[:3, 3] = wall.frame.to_world(np.array([[u0 + 0.3 * (u1 - u0), (v0 + v1) / 2]]))[0]
+        size = np.array([0.6 * (u1 - u0), (v1 - v0) + 0.2, 0.6])
+        missing = client.call_async(ReviewSurfaces.Request(review_id=review.review_id,
+                                                           cropped_surface_ids=[wall.id]))
+        refused = wait_for(lambda: missing.result() if missing.done() else None, 30, "a refused crop")
+        assert not refused.success and "1 cropped surface id(s) but 0 crop box(es)" in refused.message
+        ok = client.call_async(ReviewSurfaces.Request(
+            review_id=review.review_id, cropped_surface_ids=[wall.id],
+            crop_boxes=[OrientedBox(pose=pose_msg(pose), size=vector_msg(size))], reason="poster on the right"))
+        reply = wait_for(lambda: ok.result() if ok.done() else None, 30, "the review reply")
         assert f"cropped [{wall.id}]" in reply.message, reply.message
         result = mission.result()
         filtered = wait_for(lambda: next((r for r in reversed(replies) if r.success), None), 30, "the filter reply")
@@ -515,11 +515,8 @@ def test_killing_the_node_holding_a_cached_mesh_mid_mission_is_recovered_by_rese
     mission = LiveMission(graph.node, goal)
     client = graph.node.create_client(ReviewSurfaces, "/perch/review_surfaces")
     with graph.spinner(graph.node):
-        time.sleep(1.0)   # an earlier test's latched review arrives first
-        earlier = {r.review_id for r in reviews}
         mission.start()
-        review = wait_for(lambda: reviews[-1] if reviews and reviews[-1].review_id not in earlier else None, 120,
-                          "the surface review (the mission is paused after segment)")
+        review = _own_review(mission, reviews)
         killed = set(server_endpoints(graph.node, "/perch/filter"))
         assert killed, "the filter's server is not in the graph before the kill"
         graph.processes.processes["perch_filtering"].kill()        # SIGKILL: its mesh cache is gone

@@ -285,7 +285,7 @@ def test_surfaces_under_review_are_shown_in_the_input_frame(meshes):
 
     shown = []
     mission = Mission(FloorSurface(goal.mesh), options(), 1, lambda *f: None, lambda: False, lambda *ps: None,
-                      lambda o: None, review=lambda surfaces: shown.extend(surfaces) or set())
+                      lambda o: None, review=lambda surfaces, opened: shown.extend(surfaces) or opened(1) or set())
     assert mission.run(goal).success
     assert [s.id for s in shown] == [7]
     np.testing.assert_allclose(xyz(shown[0].frame.normal), up, atol=1e-9)  # the floor faces the true up

@@ -94,7 +94,9 @@ class Mission:
         self.cancelled = cancelled
         self.on_proposal = on_proposal  # publishes proposal events, in order, given together when made together
         self.on_operator = on_operator
-        self.review = review  # publishes surfaces for review, returns the decision (rejected, crops)
+        # review(surfaces, opened): publishes the surfaces for review, tells opened(review_id) once
+        # they are out, returns the decision (rejected, crops)
+        self.review = review
         self.on_alignment = on_alignment  # told the input frame -> gravity-aligned frame once known
         self.alignment = Alignment(options.frame_id, np.eye(3), "none", 0.0)
         self.notes: list[str] = []  # warnings for the result message (e.g. an up axis from the file's convention)
@@ -246,9 +248,12 @@ class Mission:
             raise ValueError("this coordinator cannot run surface reviews")
         started = time.monotonic()
         largest = sorted(surfaces, key=lambda s: -s.area)[:count]
-        self.feedback("review", self._fraction(), f"waiting for review of surfaces {[s.id for s in largest]} "
-                      "(perch operator review ID [--reject ...])")
-        decision = self.review([surface_to_input(s, self.alignment) for s in largest])  # the input's frame
+
+        def opened(review_id: int) -> None:   # the feedback names the review the operator is to decide
+            self.feedback("review", self._fraction(), f"waiting for surface review {review_id} of surfaces "
+                          f"{[s.id for s in largest]} (perch operator review {review_id} [--reject ...])")
+
+        decision = self.review([surface_to_input(s, self.alignment) for s in largest], opened)  # the input's frame
         if not isinstance(decision, ReviewDecision):   # a plain set: the rejected ids
             decision = ReviewDecision(set(decision))
         if decision.crops:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import sys
 import threading
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -277,9 +278,10 @@ class OperatorNode(Node):
         def cancelled() -> bool:
             return goal_handle.is_cancel_requested or watch.gone()
 
-        def review(surfaces: list) -> ReviewDecision:
+        def review(surfaces: list, opened: Callable[[int], None]) -> ReviewDecision:
             review_id = self.review_desk.open([s.id for s in surfaces], review_outlines(surfaces))
             self.review_pub.publish(pm.SurfaceReview(review_id=review_id, surfaces=surfaces))
+            opened(review_id)
             rejected = self.review_desk.wait(review_id, config.confirm_timeout, cancelled)
             return ReviewDecision(rejected, self.review_desk.crops(review_id))
 
