@@ -74,7 +74,8 @@ def _slow_segment_request():
 
 
 def test_cancelling_one_callers_call_leaves_the_other_callers_call_to_finish(segmentation):
-    from rclpy.qos import qos_profile_services_default
+    from action_msgs.msg import GoalStatus, GoalStatusArray
+    from rclpy.qos import qos_profile_action_status_default, qos_profile_services_default
 
     from perch_common.ros.testing import poll_until
     from perch_interfaces.srv import Segment
@@ -107,9 +108,17 @@ def test_cancelling_one_callers_call_leaves_the_other_callers_call_to_finish(seg
     while not received(caller_b):
         assert time.monotonic() < deadline and b.is_alive(), f"B's call never reached the node: {outcome}"
         time.sleep(0.05)
+    # A's cancel comes once A's goal is at the node beside B's (two active goals in the action's status):
+    # a cancel before A's goal was sent would never reach the node.
+    statuses: list = []
+    status_sub = node_a.create_subscription(GoalStatusArray, SERVICE + "/_action/status", statuses.append,
+                                            qos_profile_action_status_default)
     a = threading.Thread(target=run, args=("a", caller_a, cancel_a.is_set))
     a.start()
-    time.sleep(0.5)
+    poll_until(lambda: any(sum(g.status in (GoalStatus.STATUS_ACCEPTED, GoalStatus.STATUS_EXECUTING)
+                               for g in m.status_list) >= 2 for m in list(statuses)), 120,
+               "A's goal at the node beside B's")
+    node_a.destroy_subscription(status_sub)
     cancel_a.set()
     a.join(30)
     assert isinstance(outcome.get("a"), MissionCancelled), outcome.get("a")
