@@ -205,7 +205,8 @@ def test_stage_calls_survive_responses_that_overtake_their_registration():
             return response
 
         for stage, (action_type, srv_type) in types.items():
-            create_stage_action(server, action_type, srv_type, f"perch/{stage}", work, introspection=False)
+            create_stage_action(server, action_type, srv_type, f"perch/{stage}", work, introspection=False,
+                                result_timeout=60)
         coordinator = rclpy.create_node("stress_coordinator", namespace="stage_stress", context=context)
         caller = StageCaller(coordinator, ReentrantCallbackGroup(), service_wait=30.0, timeout=30.0, gone_grace=5.0)
         for client in caller.actions.values():
@@ -317,7 +318,8 @@ def test_a_stage_call_survives_a_lost_message(losses):
             response.success, response.message = True, f"done {request.request_id}"
             return response
 
-        create_stage_action(server, action.Filter, srv.Filter, "perch/filter", work, introspection=False)
+        create_stage_action(server, action.Filter, srv.Filter, "perch/filter", work, introspection=False,
+                            result_timeout=60)
         coordinator = rclpy.create_node("loss_coordinator", namespace="stage_loss", context=context)
         caller = StageCaller(coordinator, ReentrantCallbackGroup(), service_wait=30.0, timeout=60.0, gone_grace=5.0)
         lossy = Lossy(caller.actions["filter"]._client_handle, losses)

@@ -302,8 +302,8 @@ class ActionIntrospection:
         self.publisher.publish(event)
 
 
-def create_stage_action(node, action_type, srv_type, name: str, callback: Callable,
-                        introspection: bool | None = None, result_timeout: float = 60.0):
+def create_stage_action(node, action_type, srv_type, name: str, callback: Callable, *,
+                        result_timeout: float, introspection: bool | None = None):
     """The long-running form of a stage service: action `name` (the service's own name) of `action_type`,
     whose goal and result have the service's request and response fields. The goal runs the very callback
     the service runs (validation, work budget, one call at a time with the service's calls); feedback
