@@ -4,6 +4,7 @@ build, a `ros2 run` executable per node, config found in the install space's sha
 from __future__ import annotations
 
 import configparser
+import os
 import re
 import subprocess
 import sys
@@ -31,8 +32,9 @@ def test_a_workspace_build_never_sees_the_stand_in_tf2_msgs():
     colcon = Path(sys.executable).with_name("colcon")
     if not colcon.is_file():
         pytest.skip("colcon is not installed in this environment")
-    listed = subprocess.run([str(colcon), "list", "--names-only", "--base-paths", str(ROOT / "src")],
-                            capture_output=True, text=True, timeout=120, check=True).stdout.split()
+    # --log-base: colcon would write its log into ./log of the working directory (the project root).
+    listed = subprocess.run([str(colcon), "--log-base", os.devnull, "list", "--names-only", "--base-paths",
+                             str(ROOT / "src")], capture_output=True, text=True, timeout=120, check=True).stdout.split()
     assert "tf2_msgs" not in listed and "perch_interfaces" in listed and "perch_operator" in listed
 
 
