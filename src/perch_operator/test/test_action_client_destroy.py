@@ -52,6 +52,33 @@ def spun_node():
         rclpy.try_shutdown(context=context)
 
 
+def _handle_freed(client) -> bool:
+    try:
+        client._client_handle.__enter__()
+    except Exception:   # InvalidHandle: destroyed
+        return True
+    client._client_handle.__exit__(None, None, None)
+    return False
+
+
+def test_a_client_destroyed_after_its_executor_shut_down_leaves_the_graph_at_once(spun_node):
+    """The console shuts its executor down, then destroys its mission client: the client was left with
+    a timer no executor would run, its feedback reader stayed in the graph (a coordinator took it for a
+    killed mission's client and never freed the graph), and the send_goal client too."""
+    from perch_interfaces.action import Segment
+    from perch_operator.coordinator.action_client import RegisteringActionClient
+
+    node, errors, thread = spun_node
+    client = RegisteringActionClient(node, Segment, "perch/segment")
+    feedback = node.resolve_topic_name("perch/segment/_action/feedback")
+    assert len(node.get_subscriptions_info_by_topic(feedback)) == 1
+    node.executor.shutdown()
+    thread.join(5)
+    client.destroy()
+    assert _handle_freed(client) and not list(node.timers)
+    assert node.get_subscriptions_info_by_topic(feedback) == []
+
+
 def test_destroying_clients_while_the_node_spins_leaves_the_executor_running(spun_node):
     from perch_interfaces.action import Segment
     from perch_operator.coordinator.action_client import RegisteringActionClient
@@ -68,13 +95,7 @@ def test_destroying_clients_while_the_node_spins_leaves_the_executor_running(spu
     # Every client left the node, and the last one's handle is freed once the executor has passed.
     assert not any(isinstance(w, RegisteringActionClient) for w in node.waitables)
     deadline = time.monotonic() + 10
-    while time.monotonic() < deadline:
-        try:
-            last._client_handle.__enter__()
-        except Exception:   # InvalidHandle: destroyed
-            break
-        last._client_handle.__exit__(None, None, None)
+    while not _handle_freed(last):
+        assert time.monotonic() < deadline, "the last client's handle was never freed"
         time.sleep(0.05)
-    else:
-        raise AssertionError("the last client's handle was never freed")
     assert not list(node.timers)   # the one-shot timers that freed the handles are gone

@@ -50,7 +50,10 @@ class RegisteringActionClient(ActionClient):
         timer: between two wait sets, when no executor lists it any more."""
         node = self._node
         node.remove_waitable(self)
-        if node.executor is None:   # nothing spins the node: nothing can hold the handle
+        executor = node.executor
+        # Nothing spins the node (no executor, or one shut down: rclpy's shutdown drops its nodes but
+        # leaves node.executor set), so nothing can hold the handle, and a timer would never run.
+        if executor is None or node not in executor.get_nodes():
             self._client_handle.destroy_when_not_in_use()
             return
         def free() -> None:
