@@ -90,10 +90,13 @@ def test_cancelling_one_callers_call_leaves_the_other_callers_call_to_finish(seg
     caller_a, caller_b = _caller(node_a), _caller(node_b)
     outcome: dict[str, object] = {}
     cancel_a = threading.Event()
+    # Built before the calls (one each: a caller names its call in the request): A's goal then follows
+    # B's at once.
+    requests = {name: _slow_segment_request() for name in ("a", "b")}
 
     def run(name: str, caller, cancelled) -> None:
         try:
-            outcome[name] = caller.call("segment", _slow_segment_request(), cancelled)
+            outcome[name] = caller.call("segment", requests[name], cancelled)
         except Exception as exc:  # the outcome under test
             outcome[name] = exc
 
