@@ -122,21 +122,35 @@ def test_a_failed_mission_leaves_a_reason_and_no_stale_outputs(graph, tmp_path):
 
 
 def test_a_killed_client_frees_the_graph_and_a_refused_one_writes_nothing(graph, tmp_path, small_goal):
+    import rclpy
+    from rclpy.action import ActionClient
+
+    from perch_common.conventions import MISSION_ACTION
+    from perch_interfaces.action import PlanPerches
+
+    # A bystander reading every mission's feedback from before the goal (a console or a robot's commander
+    # left open): the coordinator must still see the killed client go, not wait out confirm_timeout (600 s).
+    bystander = rclpy.create_node("bystander_console")
+    reader = ActionClient(bystander, PlanPerches, MISSION_ACTION)
     log = tmp_path / "waiting.log"
-    waiting = perch(*PLAN[:-1], "-o", tmp_path / "waiting", log=log)   # with progress, no auto-accept
     try:
-        wait_for_output(waiting, log, "confirm:", 240)
-        refused = perch(*PLAN, "--auto-accept", "-o", tmp_path / "refused")
-        assert refused.returncode == 1 and "rejected the goal" in refused.stderr
-        assert not (tmp_path / "refused").exists()
-        assert not [p for p in tmp_path.iterdir() if p.name.startswith(".refused")]
-        waiting.send_signal(signal.SIGKILL)
+        waiting = perch(*PLAN[:-1], "-o", tmp_path / "waiting", log=log)   # with progress, no auto-accept
+        try:
+            wait_for_output(waiting, log, "confirm:", 240)
+            refused = perch(*PLAN, "--auto-accept", "-o", tmp_path / "refused")
+            assert refused.returncode == 1 and "rejected the goal" in refused.stderr
+            assert not (tmp_path / "refused").exists()
+            assert not [p for p in tmp_path.iterdir() if p.name.startswith(".refused")]
+            waiting.send_signal(signal.SIGKILL)
+        finally:
+            waiting.kill()
+            waiting.wait()
+        result, freed_after = run_when_free(graph.node, small_goal, within=30)
+        assert result.success, result.message
+        print(f"coordinator free {freed_after:.1f} s after the client was killed")
     finally:
-        waiting.kill()
-        waiting.wait()
-    result, freed_after = run_when_free(graph.node, small_goal, within=30)
-    assert result.success, result.message
-    print(f"coordinator free {freed_after:.1f} s after the client was killed")
+        reader.destroy()
+        bystander.destroy_node()
 
 
 def test_perch_operator_cancel_ends_a_stuck_mission(graph, tmp_path, small_goal):

@@ -12,8 +12,10 @@ Missions across the link: a one-host baseline first (every node on host A), then
 coordinator refuses the action's unsigned one), one whose stage host dies mid-mission (it must fail
 clearly within the 3 s lease + the coordinator's gone_grace), and one after the stage host came back
 with an empty mesh cache (the coordinator's id-only request is answered `mesh not cached` and the
-arrays are sent again). Timings go to the
-test's output (`-s`) and to `two_hosts_timings.json` in the test's temporary folder.
+arrays are sent again). Last, a `perch plan` on host B is SIGKILLed while it waits for its operator,
+with the driver on host A reading the mission's feedback as a bystander: the coordinator must free
+the graph within the lease + client_grace. Timings go to the test's output (`-s`) and to
+`two_hosts_timings.json` in the test's temporary folder.
 
 Skips with the reason when network namespaces cannot be created (not root, no `ip`, no
 CAP_NET_ADMIN, as in most containers and CI runners).
@@ -459,6 +461,26 @@ def test_missions_across_two_hosts(tmp_path, graph_parts):
         timings["cold_cache_clean_s"] = cold["stages"]["clean"]
         stage_log = "".join(p.read_text(errors="replace") for p in (tmp_path / "stages_again_nodes").glob("*.log"))
         assert "mesh not cached" in stage_log, "the restarted stage host was never asked for a mesh it lacked"
+
+        # A `perch plan` on host B waits for its operator and is SIGKILLed there. The driver on host A,
+        # a bystander reading every mission's feedback, must not keep that mission alive: the coordinator
+        # follows the client's presence writer, and its goal is refused only until lease + client_grace.
+        client = hosts.start("b", [sys.executable, "-m", "perch_common.cli", "plan", "--scene", str(SCENE_SEED),
+                                   "--kind", SCENE_KIND, "--cameras", str(CAMERAS), "--no-launch",
+                                   "-o", str(tmp_path / "killed_client_outputs")], "killed_client")
+        _wait_for_line(tmp_path / "killed_client.err", 0, ("confirm:",), STEP_LIMIT)   # its progress lines
+        hosts.kill(client)
+        killed = time.monotonic()
+        while True:
+            after = driver.mission()
+            if after["success"] or time.monotonic() - killed > LEASE + CLIENT_GRACE + STEP_LIMIT:
+                break
+            assert "did not accept" in after["message"], after["message"]
+            time.sleep(0.5)
+        assert after["success"], after["message"]
+        timings["client_loss_to_free_s"] = after["t_end"] - after["seconds"] - killed
+        coordinator_log = "".join(p.read_text(errors="replace") for p in (tmp_path / "coordinator_nodes").glob("*.log"))
+        assert "presence writer gone" in coordinator_log, "the killed client's mission was not aborted for its loss"
 
         driver.send(cmd="quit")
         driver.proc.wait(20)

@@ -57,6 +57,15 @@ CONFIRM_SERVICE = "perch/confirm"  # the operator's accept/reject service (not a
 MISSION_ACTION = "perch/plan_perches"
 MISSION_FEEDBACK_TOPIC = MISSION_ACTION + "/_action/feedback"
 MISSION_STATUS_TOPIC = MISSION_ACTION + "/_action/status"
+# A mission client's presence: while it waits for goal G it keeps a writer on MISSION_CLIENT_PREFIX + G's
+# hex (a hidden topic, never published on). The coordinator watches that writer, not every feedback
+# reader, so a console or a recorder left open does not keep a killed client's mission alive.
+MISSION_CLIENT_PREFIX = MISSION_ACTION + "/_client/g"
+
+
+def mission_client_topic(goal_id) -> str:
+    """The presence topic (relative) of the client of goal `goal_id` (16 bytes, or a UUID message's list)."""
+    return MISSION_CLIENT_PREFIX + bytes(goal_id).hex()
 # Which node offers which services; the first one tells that the node is up.
 NODE_SERVICES: dict[str, list[str]] = {
     "perch_operator": [STAGE_SERVICES["crop"], CONFIRM_SERVICE],

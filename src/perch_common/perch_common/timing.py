@@ -1,4 +1,4 @@
-"""Lap timing for stage reports (seconds per step)."""
+"""Lap timing for stage reports (seconds per step), and ROS time stamps in nanoseconds."""
 
 from __future__ import annotations
 
@@ -29,3 +29,8 @@ class Laps:
     def total(self) -> float:
         """Seconds since the timer started."""
         return time.perf_counter() - self._start
+
+
+def time_ns(stamp) -> int:
+    """A builtin_interfaces/Time (rclpy's, or one decoded from a bag or recording) in nanoseconds."""
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)

@@ -9,6 +9,7 @@ and review decisions. Everything it hears goes into a `MissionPicture`; `on_chan
 from __future__ import annotations
 
 import threading
+import uuid
 from pathlib import Path
 from typing import Callable
 
@@ -19,6 +20,7 @@ from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_action_status_default
 from sensor_msgs.msg import CameraInfo, Image
+from unique_identifier_msgs.msg import UUID
 from visualization_msgs.msg import Marker, MarkerArray
 
 from perch_common.conventions import CONFIRM_SERVICE, MISSION_ACTION, MISSION_FEEDBACK_TOPIC, MISSION_STATUS_TOPIC
@@ -27,6 +29,7 @@ from perch_console.state import MissionPicture, shortfall_of
 from perch_interfaces import msg as pm
 from perch_interfaces import srv
 from perch_interfaces.action import PlanPerches
+from perch_operator.api.presence import ClientPresence
 from perch_operator.coordinator.action_client import RegisteringActionClient
 from perch_operator.coordinator.node import LATCHED, LATCHED_LAST
 from tf2_msgs.msg import TFMessage
@@ -41,6 +44,7 @@ class ConsoleGraph:
     def __init__(self, on_change: Callable[[str], None], name: str = "perch_console"):
         self.picture = MissionPicture()
         self._own_goal = False               # the running mission is this console's (its result comes to us)
+        self._presence: ClientPresence | None = None   # while it runs: the coordinator's sign of its client
         self.lock = threading.RLock()        # guards picture
         self.on_change = on_change           # called with what changed: "scan", "markers", "proposals", ...
         self.scan: Marker | None = None
@@ -200,11 +204,15 @@ class ConsoleGraph:
             self.picture.mission_started()
             self._own_goal = True
         self._changed("progress")
-        sent = self.mission.send_goal_async(goal)
+        goal_id = UUID(uuid=list(uuid.uuid4().bytes))
+        self._withdraw_presence()
+        self._presence = ClientPresence(self.node, goal_id.uuid)
+        sent = self.mission.send_goal_async(goal, goal_uuid=goal_id)
         if not _wait(sent, 30.0):
             return "the coordinator did not answer the goal within 30 s"
         handle = sent.result()
         if not handle.accepted:
+            self._withdraw_presence()
             with self.lock:
                 self.picture.running, self.picture.stage, self._own_goal = False, "idle", False
             self._changed("progress")
@@ -212,7 +220,14 @@ class ConsoleGraph:
         handle.get_result_async().add_done_callback(self._on_result)
         return ""
 
+    def _withdraw_presence(self) -> None:
+        with self.lock:
+            presence, self._presence = self._presence, None
+        if presence is not None:
+            presence.withdraw()
+
     def _on_result(self, future) -> None:
+        self._withdraw_presence()   # before the mission shows as ended: a next start makes its own
         result = future.result().result
         with self.lock:
             self.picture.running, self._own_goal = False, False

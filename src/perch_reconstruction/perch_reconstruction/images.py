@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from perch_common.errors import PerchError
+from perch_common.timing import time_ns
 from perch_common.transforms import pose_to_matrix, quaternion_from_matrix
 from perch_reconstruction.frames import Intrinsics
 
@@ -103,7 +104,7 @@ def pose_from_msg(msg) -> np.ndarray:
 
 def stamp_ns(msg) -> int:
     """A message header's stamp in nanoseconds."""
-    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+    return time_ns(msg.header.stamp)
 
 
 # --- builders (dicts for the MCAP encoder) -----------------------------------------------------

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
+from perch_common.timing import time_ns
 from perch_common.transforms import matrix_from_quaternion
 
 # camera_link (x forward, y left, z up; REP 103) -> camera_optical_frame (z forward, x right, y down; REP 105)
@@ -67,8 +68,8 @@ class TransformBuffer:
     def add_message(self, msg, static: bool = False) -> int:
         """Every transform of a tf2_msgs/TFMessage (rclpy or decoded from a bag); returns how many."""
         for t in msg.transforms:
-            stamp = int(t.header.stamp.sec) * 1_000_000_000 + int(t.header.stamp.nanosec)
-            self.add(t.header.frame_id, t.child_frame_id, stamp, transform_matrix(t.transform), static)
+            self.add(t.header.frame_id, t.child_frame_id, time_ns(t.header.stamp), transform_matrix(t.transform),
+                     static)
         return len(msg.transforms)
 
     def frames(self) -> set[str]:

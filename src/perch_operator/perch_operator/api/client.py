@@ -20,6 +20,7 @@ from unique_identifier_msgs.msg import UUID
 from perch_common.conventions import MISSION_ACTION, MISSION_STATUS_TOPIC
 from perch_common.errors import PerchError
 from perch_interfaces.action import PlanPerches
+from perch_operator.api.presence import ClientPresence
 
 ACTION = MISSION_ACTION   # the name `perch operator` and the soak import
 LOST_ANSWER_GRACE = 1.0   # s a listed goal waits for its answer before the answer counts as lost
@@ -147,12 +148,14 @@ def run_mission(node, goal: PlanPerches.Goal, timeout: float = 600.0, server_wai
     client = ActionClient(node, PlanPerches, ACTION)
     statuses = GoalStatusWatch(node)
     signed = MissionCanceller(node) if networked() else None   # a networked graph takes signed cancels only
+    goal_id = UUID(uuid=list(uuid.uuid4().bytes))
+    presence = ClientPresence(node, goal_id.uuid)   # this goal's client, for the coordinator (GoalWatch)
     try:
         if not client.wait_for_server(timeout_sec=server_wait):
             raise PerchError(f"no mission coordinator: action {ACTION} did not appear within {server_wait:.0f} s; "
                              "start the graph with `perch launch` (or use `perch plan`, which launches it)")
         deadline = time.monotonic() + timeout
-        goal_id = UUID(uuid=list(uuid.uuid4().bytes))
+
         def send():
             return client.send_goal_async(
                 goal, feedback_callback=(lambda m: on_feedback(m.feedback)) if on_feedback else None, goal_uuid=goal_id)
@@ -175,6 +178,7 @@ def run_mission(node, goal: PlanPerches.Goal, timeout: float = 600.0, server_wai
             raise
         return result.result().result
     finally:
+        presence.withdraw()
         if signed is not None:
             signed.destroy()
         statuses.destroy()

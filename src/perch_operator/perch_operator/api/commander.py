@@ -34,6 +34,7 @@ from perch_common.conventions import CONFIRM_SERVICE, MISSION_ACTION
 from perch_interfaces import msg as pm
 from perch_interfaces import srv
 from perch_interfaces.action import PlanPerches
+from perch_operator.api.presence import ClientPresence
 from perch_operator.coordinator.action_client import RegisteringActionClient
 
 _SPIN_STEP = 0.05   # s: how long each call spins an own node
@@ -76,6 +77,7 @@ class PerchCommander:
         self._result: PlanPerches.Result | None = None
         self._status = MissionResult.UNKNOWN
         self._rejected = False
+        self._presence = None   # the running goal's ClientPresence (the coordinator watches it)
 
     # --- missions -----------------------------------------------------------------------------------
     def waitUntilReady(self, timeout: float = 30.0) -> bool:
@@ -105,8 +107,11 @@ class PerchCommander:
             self._proposals.clear()
             self._feedback, self._result, self._status, self._rejected = None, None, MissionResult.UNKNOWN, False
             self._goal_handle = self._result_future = None
+        goal_id = UUID(uuid=list(uuid.uuid4().bytes))
+        self._withdraw_presence()
+        self._presence = ClientPresence(self.node, goal_id.uuid)
         self._goal_future = self._action.send_goal_async(goal, feedback_callback=self._on_feedback,
-                                                         goal_uuid=UUID(uuid=list(uuid.uuid4().bytes)))
+                                                         goal_uuid=goal_id)
         self._goal_future.add_done_callback(self._on_goal_response)
         return True
 
@@ -165,6 +170,7 @@ class PerchCommander:
 
     def destroy(self) -> None:
         """Release the commander's clients (and its node when it made one)."""
+        self._withdraw_presence()
         self._action.destroy()
         if self._signed is not None:
             self._signed.destroy()
@@ -193,12 +199,14 @@ class PerchCommander:
 
     def _on_goal_response(self, future) -> None:
         handle = future.result()
-        with self._lock:
-            if not handle.accepted:
+        if not handle.accepted:
+            self._withdraw_presence()   # before the mission shows as ended: a next startMission makes its own
+            with self._lock:
                 self._rejected = True
                 self._result = PlanPerches.Result(success=False, message="the coordinator rejected the goal: "
                                                                          "another mission is running")
-                return
+            return
+        with self._lock:
             self._goal_handle = handle
         self._result_future = handle.get_result_async()
         self._result_future.add_done_callback(self._on_result)
@@ -209,8 +217,15 @@ class PerchCommander:
         wrapped = future.result()
         status = {GoalStatus.STATUS_SUCCEEDED: MissionResult.SUCCEEDED,
                   GoalStatus.STATUS_CANCELED: MissionResult.CANCELED}.get(wrapped.status, MissionResult.FAILED)
+        self._withdraw_presence()   # before the mission shows as ended: a next startMission makes its own
         with self._lock:
             self._result, self._status = wrapped.result, status
+
+    def _withdraw_presence(self) -> None:
+        with self._lock:
+            presence, self._presence = self._presence, None
+        if presence is not None:
+            presence.withdraw()
 
     def _on_feedback(self, message) -> None:
         with self._lock:

@@ -1,28 +1,34 @@
 """Noticing that a mission's client is gone (killed, crashed, disconnected) so the mission can end.
 
-An action client subscribes to the action's feedback topic; the coordinator remembers which
-feedback readers existed while the goal started and treats the client as gone once all of them
-have left the graph for `grace` seconds (Fast DDS drops a killed process after its lease, 3 s with
-config/fastdds.xml).
+Perch's own clients (`perch plan`, PerchCommander, the console) keep a writer on the goal's presence
+topic while they wait (`perch_operator.api.presence`): once it has been seen, the client is gone when
+no writer is left on that topic for `grace` seconds (Fast DDS drops a killed process after its lease,
+3 s with config/fastdds.xml). A plain ROS action client has no such writer; for its goal the
+coordinator remembers which feedback readers existed while the goal started and treats the client as
+gone once all of them have left. Any other reader present then (a console, a recorder) is taken for
+the client too, so such a goal may outlive its killed client until `confirm_timeout` or a cancel.
 """
 
 from __future__ import annotations
 
 import time
 
-from perch_common.conventions import MISSION_FEEDBACK_TOPIC
+from perch_common.conventions import MISSION_FEEDBACK_TOPIC, mission_client_topic
 
 ADOPT_SECONDS = 5.0   # readers discovered this soon after the goal started count as its client
 CHECK_PERIOD = 0.5    # s between graph queries
 
 
 class GoalWatch:
-    """`gone()` turns True when the feedback readers present at the goal's start have all vanished."""
+    """`gone()` turns True when the goal's presence writer (or, for a client without one, the feedback
+    readers present at the goal's start) has left the graph for longer than `grace`."""
 
-    def __init__(self, node, grace: float, topic: str = MISSION_FEEDBACK_TOPIC):
+    def __init__(self, node, grace: float, goal_id=None, topic: str = MISSION_FEEDBACK_TOPIC):
         self.node = node
         self.grace = grace
         self.topic = node.resolve_topic_name(topic)
+        self.presence_topic = node.resolve_topic_name(mission_client_topic(goal_id)) if goal_id is not None else ""
+        self.present = False   # the goal's presence writer has been seen: it alone tells
         self.started = time.monotonic()
         self.readers: set[bytes] = set()
         self._absent_since: float | None = None
@@ -33,12 +39,21 @@ class GoalWatch:
     def _current(self) -> set[bytes]:
         return {bytes(info.endpoint_gid) for info in self.node.get_subscriptions_info_by_topic(self.topic)}
 
-    def _look(self) -> None:
-        now = time.monotonic()
+    def _client_here(self, now: float) -> bool:
+        """Whether the goal's client is in the graph now (True while nothing tells who it is)."""
+        if self.presence_topic and self.node.get_publishers_info_by_topic(self.presence_topic):
+            self.present = True
+            return True
+        if self.present:
+            return False
         current = self._current()
         if now - self.started < ADOPT_SECONDS:
             self.readers |= current
-        if not self.readers or self.readers & current:
+        return not self.readers or bool(self.readers & current)
+
+    def _look(self) -> None:
+        now = time.monotonic()
+        if self._client_here(now):
             self._absent_since = None
         elif self._absent_since is None:
             self._absent_since = now
@@ -57,5 +72,6 @@ class GoalWatch:
 
     def describe(self) -> str:
         """Why the mission ends, for its result message and the log."""
-        return (f"the mission's client left the graph (no feedback reader for {self.grace:g} s; killed or "
+        what = "its presence writer" if self.present else "no feedback reader"
+        return (f"the mission's client left the graph ({what} gone for {self.grace:g} s; killed or "
                 "disconnected); mission aborted so the graph is free for the next one")

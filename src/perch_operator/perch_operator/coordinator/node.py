@@ -273,7 +273,7 @@ class OperatorNode(Node):
 
         self.stages.service_wait, self.stages.timeout = config.service_wait, config.stage_timeout
         self.stages.gone_grace = config.gone_grace
-        watch = GoalWatch(self, config.client_grace)
+        watch = GoalWatch(self, config.client_grace, bytes(goal_handle.goal_id.uuid))
 
         def cancelled() -> bool:
             return goal_handle.is_cancel_requested or watch.gone()

@@ -23,7 +23,7 @@ from pathlib import Path
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from perch_common.conventions import CONFIRM_SERVICE, MISSION_FEEDBACK_TOPIC
+from perch_common.conventions import CONFIRM_SERVICE, MISSION_CLIENT_PREFIX, MISSION_FEEDBACK_TOPIC
 from perch_common.ros import bag_format
 from perch_common.ros.msgdefs import full_definition, message_class, type_hash
 from perch_common.ros.static_transforms import TF_STATIC_TOPIC
@@ -102,9 +102,10 @@ class MissionRecorder:
         topics = {self.node.resolve_topic_name(name): type_name
                   for name, type_name in dict(event_topics(), **MISSION_TOPICS).items()}
         tf_static = self.node.resolve_topic_name(TF_STATIC_TOPIC)
+        presence = self.node.resolve_topic_name(MISSION_CLIENT_PREFIX)   # clients' markers: nothing is sent
         for name, types in self.node.get_topic_names_and_types():
             # tf_static: the mission's input frame -> gravity-aligned frame transform (this graph's namespace).
-            if (name.startswith(self.prefix + "/") or name == tf_static) and types:
+            if (name.startswith(self.prefix + "/") or name == tf_static) and types and not name.startswith(presence):
                 topics.setdefault(name, types[0])
         new = 0
         for name, type_name in topics.items():

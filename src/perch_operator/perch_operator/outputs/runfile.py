@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any, Iterator
 
 from perch_common.ros.msgdefs import message_reader
+from perch_common.timing import time_ns
 from perch_operator.coordinator.stages import STAGES
 from perch_operator.outputs.recorder import EVENT_SUFFIX, GRAPH_METADATA
 
@@ -74,7 +75,7 @@ def stage_calls(path: str | Path) -> list[StageCall]:
         service = topic[1: -len(EVENT_SUFFIX)]
         info = event.info
         key = (service, bytes(bytearray(info.client_gid)), int(info.sequence_number))
-        made_ns = info.stamp.sec * 1_000_000_000 + info.stamp.nanosec
+        made_ns = time_ns(info.stamp)
         call = calls.setdefault(key, StageCall(SERVICE_TO_STAGE[service], service, stamp_ns=made_ns, log_ns=stamp,
                                                key=key))
         if info.event_type in (REQUEST_SENT, REQUEST_RECEIVED):

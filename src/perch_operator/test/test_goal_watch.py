@@ -1,0 +1,104 @@
+"""GoalWatch: which endpoints tell that a mission's client is gone (no graph: a stand-in node's listings)."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import pytest
+
+from perch_common.conventions import MISSION_FEEDBACK_TOPIC, mission_client_topic
+from perch_operator.coordinator import goal_watch
+from perch_operator.coordinator.goal_watch import GoalWatch
+
+GOAL = bytes(range(16))
+GRACE = 5.0
+
+
+class ListingNode:
+    """What GoalWatch asks of a node: its topic names and the endpoints the graph lists on them."""
+
+    def __init__(self):
+        self.readers: dict[str, list[bytes]] = {}
+        self.writers: dict[str, list[bytes]] = {}
+
+    def resolve_topic_name(self, name: str) -> str:
+        return "/" + name
+
+    def get_subscriptions_info_by_topic(self, topic: str):
+        return [SimpleNamespace(endpoint_gid=gid) for gid in self.readers.get(topic, [])]
+
+    def get_publishers_info_by_topic(self, topic: str):
+        return [SimpleNamespace(endpoint_gid=gid) for gid in self.writers.get(topic, [])]
+
+
+@pytest.fixture
+def clock(monkeypatch):
+    now = SimpleNamespace(t=1000.0)
+    monkeypatch.setattr(goal_watch.time, "monotonic", lambda: now.t)
+    return now
+
+
+def _gone_after(watch: GoalWatch, clock, seconds: float) -> bool:
+    """Whether the watch says gone after `seconds` more, looked at every CHECK_PERIOD as the mission does."""
+    end = clock.t + seconds
+    while clock.t < end:
+        clock.t += goal_watch.CHECK_PERIOD
+        if watch.gone():
+            return True
+    return False
+
+
+FEEDBACK = "/" + MISSION_FEEDBACK_TOPIC
+PRESENCE = "/" + mission_client_topic(GOAL)
+
+
+def test_a_bystander_reader_does_not_keep_a_killed_clients_mission(clock):
+    node = ListingNode()
+    node.readers[FEEDBACK] = [b"console", b"client"]   # a console left open, and the goal's own client
+    node.writers[PRESENCE] = [b"client presence"]
+    watch = GoalWatch(node, GRACE, GOAL)
+    assert not _gone_after(watch, clock, 10.0)
+    node.readers[FEEDBACK] = [b"console"]   # the client killed: its endpoints leave, the console's stay
+    node.writers[PRESENCE] = []
+    assert not _gone_after(watch, clock, GRACE - 1.0)
+    assert _gone_after(watch, clock, 2.0)
+    assert "presence writer" in watch.describe()
+
+
+def test_the_presence_writer_tells_even_when_discovered_after_the_readers(clock):
+    node = ListingNode()
+    node.readers[FEEDBACK] = [b"console"]
+    watch = GoalWatch(node, GRACE, GOAL)
+    clock.t += 1.0
+    node.writers[PRESENCE] = [b"client presence"]
+    assert not _gone_after(watch, clock, 30.0)   # the console's reader stays; the writer is there
+    node.writers[PRESENCE] = []
+    assert _gone_after(watch, clock, GRACE + 1.0)
+
+
+def test_another_goals_presence_is_not_this_goals_client(clock):
+    node = ListingNode()
+    node.writers["/" + mission_client_topic(bytes(16))] = [b"someone else"]
+    node.readers[FEEDBACK] = [b"client"]
+    watch = GoalWatch(node, GRACE, GOAL)
+    node.readers[FEEDBACK] = []
+    assert _gone_after(watch, clock, GRACE + 1.0)   # judged by its feedback reader, as a plain ROS client
+
+
+def test_a_plain_ros_client_is_judged_by_the_feedback_readers_of_the_goals_first_seconds(clock):
+    node = ListingNode()
+    node.readers[FEEDBACK] = [b"client"]
+    watch = GoalWatch(node, GRACE, GOAL)
+    assert not _gone_after(watch, clock, goal_watch.ADOPT_SECONDS + 1.0)
+    node.readers[FEEDBACK] = [b"late reader"]   # a reader that came after the goal's first seconds
+    assert not _gone_after(watch, clock, GRACE - 1.0)
+    assert _gone_after(watch, clock, 2.0)
+    assert "no feedback reader" in watch.describe()
+
+
+def test_no_grace_never_ends_a_mission(clock):
+    node = ListingNode()
+    node.writers[PRESENCE] = [b"client presence"]
+    watch = GoalWatch(node, 0.0, GOAL)
+    node.writers[PRESENCE] = []
+    assert not _gone_after(watch, clock, 60.0)
