@@ -44,12 +44,12 @@ class ConsoleGraph:
     def __init__(self, on_change: Callable[[str], None], name: str = "perch_console"):
         self.picture = MissionPicture()
         self._own_goal = False               # the running mission is this console's (its result comes to us)
-        self._presence: ClientPresence | None = None   # while it runs: the coordinator's sign of its client
         self.lock = threading.RLock()        # guards picture
         self.on_change = on_change           # called with what changed: "scan", "markers", "proposals", ...
         self.scan: Marker | None = None
         self.markers: MarkerArray | None = None
         self.node = Node(name)
+        self._presence = ClientPresence(self.node)   # while its own mission runs: the coordinator's sign of it
         group = ReentrantCallbackGroup()
         sub = self.node.create_subscription
         sub(pm.Proposal, "perch/proposals", self._on_proposal, LATCHED, callback_group=group)
@@ -205,14 +205,14 @@ class ConsoleGraph:
             self._own_goal = True
         self._changed("progress")
         goal_id = UUID(uuid=list(uuid.uuid4().bytes))
-        self._withdraw_presence()
-        self._presence = ClientPresence(self.node, goal_id.uuid)
+        self._presence.announce(goal_id.uuid)
         sent = self.mission.send_goal_async(goal, goal_uuid=goal_id)
         if not _wait(sent, 30.0):
+            self._presence.withdraw()   # told "not answered": should the goal still start, it is nobody's
             return "the coordinator did not answer the goal within 30 s"
         handle = sent.result()
         if not handle.accepted:
-            self._withdraw_presence()
+            self._presence.withdraw()
             with self.lock:
                 self.picture.running, self.picture.stage, self._own_goal = False, "idle", False
             self._changed("progress")
@@ -220,14 +220,8 @@ class ConsoleGraph:
         handle.get_result_async().add_done_callback(self._on_result)
         return ""
 
-    def _withdraw_presence(self) -> None:
-        with self.lock:
-            presence, self._presence = self._presence, None
-        if presence is not None:
-            presence.withdraw()
-
     def _on_result(self, future) -> None:
-        self._withdraw_presence()   # before the mission shows as ended: a next start makes its own
+        self._presence.withdraw()   # before the mission shows as ended: a next start announces its own
         result = future.result().result
         with self.lock:
             self.picture.running, self._own_goal = False, False

@@ -149,13 +149,13 @@ def run_mission(node, goal: PlanPerches.Goal, timeout: float = 600.0, server_wai
     statuses = GoalStatusWatch(node)
     signed = MissionCanceller(node) if networked() else None   # a networked graph takes signed cancels only
     goal_id = UUID(uuid=list(uuid.uuid4().bytes))
-    presence = ClientPresence(node, goal_id.uuid)   # this goal's client, for the coordinator (GoalWatch)
+    presence = ClientPresence(node)   # this goal's client, for the coordinator (GoalWatch)
+    presence.announce(goal_id.uuid)
     try:
         if not client.wait_for_server(timeout_sec=server_wait):
             raise PerchError(f"no mission coordinator: action {ACTION} did not appear within {server_wait:.0f} s; "
                              "start the graph with `perch launch` (or use `perch plan`, which launches it)")
         deadline = time.monotonic() + timeout
-
         def send():
             return client.send_goal_async(
                 goal, feedback_callback=(lambda m: on_feedback(m.feedback)) if on_feedback else None, goal_uuid=goal_id)

@@ -77,7 +77,7 @@ class PerchCommander:
         self._result: PlanPerches.Result | None = None
         self._status = MissionResult.UNKNOWN
         self._rejected = False
-        self._presence = None   # the running goal's ClientPresence (the coordinator watches it)
+        self._presence = ClientPresence(self.node)   # the running goal's client, for the coordinator
 
     # --- missions -----------------------------------------------------------------------------------
     def waitUntilReady(self, timeout: float = 30.0) -> bool:
@@ -108,8 +108,7 @@ class PerchCommander:
             self._feedback, self._result, self._status, self._rejected = None, None, MissionResult.UNKNOWN, False
             self._goal_handle = self._result_future = None
         goal_id = UUID(uuid=list(uuid.uuid4().bytes))
-        self._withdraw_presence()
-        self._presence = ClientPresence(self.node, goal_id.uuid)
+        self._presence.announce(goal_id.uuid)
         self._goal_future = self._action.send_goal_async(goal, feedback_callback=self._on_feedback,
                                                          goal_uuid=goal_id)
         self._goal_future.add_done_callback(self._on_goal_response)
@@ -170,7 +169,7 @@ class PerchCommander:
 
     def destroy(self) -> None:
         """Release the commander's clients (and its node when it made one)."""
-        self._withdraw_presence()
+        self._presence.withdraw()
         self._action.destroy()
         if self._signed is not None:
             self._signed.destroy()
@@ -200,7 +199,7 @@ class PerchCommander:
     def _on_goal_response(self, future) -> None:
         handle = future.result()
         if not handle.accepted:
-            self._withdraw_presence()   # before the mission shows as ended: a next startMission makes its own
+            self._presence.withdraw()   # before the mission shows as ended: a next startMission announces its own
             with self._lock:
                 self._rejected = True
                 self._result = PlanPerches.Result(success=False, message="the coordinator rejected the goal: "
@@ -217,15 +216,9 @@ class PerchCommander:
         wrapped = future.result()
         status = {GoalStatus.STATUS_SUCCEEDED: MissionResult.SUCCEEDED,
                   GoalStatus.STATUS_CANCELED: MissionResult.CANCELED}.get(wrapped.status, MissionResult.FAILED)
-        self._withdraw_presence()   # before the mission shows as ended: a next startMission makes its own
+        self._presence.withdraw()   # before the mission shows as ended: a next startMission announces its own
         with self._lock:
             self._result, self._status = wrapped.result, status
-
-    def _withdraw_presence(self) -> None:
-        with self._lock:
-            presence, self._presence = self._presence, None
-        if presence is not None:
-            presence.withdraw()
 
     def _on_feedback(self, message) -> None:
         with self._lock:
