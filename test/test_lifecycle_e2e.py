@@ -77,13 +77,10 @@ def run_when_free(node, goal, within: float):
 
 @pytest.fixture(scope="module")
 def small_goal():
-    from perch_common.ros.conversions import mesh_to_msg, target_to_msg
     from perch_common.scene_generator import generate_scene
-    from perch_interfaces.action import PlanPerches
+    from perch_operator.api.client import scene_goal
 
-    scene = generate_scene(3, "room")
-    return PlanPerches.Goal(mesh=mesh_to_msg(scene.mesh), target=target_to_msg(scene.target),
-                            num_cameras=CAMERAS, auto_accept=True, seed=-1)
+    return scene_goal(generate_scene(3, "room"), CAMERAS)
 
 
 def test_several_no_launch_clients_get_complete_outputs(graph, tmp_path):

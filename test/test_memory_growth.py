@@ -29,14 +29,10 @@ MAX_RSS_STEP_MB = 1.0
 def test_twenty_missions_without_crashes_or_memory_growth(graph):
     import psutil
 
-    from perch_common.ros.conversions import mesh_to_msg, target_to_msg
     from perch_common.scene_generator import generate_scene
-    from perch_interfaces.action import PlanPerches
-    from perch_operator.api.client import run_mission
+    from perch_operator.api.client import run_mission, scene_goal
 
-    scene = generate_scene(3, "room")
-    goal = PlanPerches.Goal(mesh=mesh_to_msg(scene.mesh), target=target_to_msg(scene.target), num_cameras=2,
-                            auto_accept=True, seed=-1)
+    goal = scene_goal(generate_scene(3, "room"), cameras=2)
     procs = {n: psutil.Process(p.pid) for n, p in graph.processes.processes.items()}
     rss: dict[str, list[float]] = {n: [] for n in procs}
     for i in range(20):

@@ -32,11 +32,9 @@ def scene():
 
 
 def make_goal(scene, auto_accept: bool = True, cameras: int = CAMERAS):
-    from perch_common.ros.conversions import mesh_to_msg, target_to_msg
-    from perch_interfaces.action import PlanPerches
+    from perch_operator.api.client import scene_goal
 
-    return PlanPerches.Goal(mesh=mesh_to_msg(scene.mesh), target=target_to_msg(scene.target),
-                            num_cameras=cameras, auto_accept=auto_accept, seed=-1)
+    return scene_goal(scene, cameras, auto_accept)
 
 
 

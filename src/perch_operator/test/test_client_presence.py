@@ -7,34 +7,17 @@ import pytest
 pytestmark = pytest.mark.ros
 
 
-@pytest.fixture
-def node():
-    import rclpy
-
-    from perch_common.ros.testing import use_isolated_ros_env
-
-    use_isolated_ros_env()
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    made = rclpy.create_node("client_presence_test", context=context)
-    try:
-        yield made
-    finally:
-        made.destroy_node()
-        rclpy.shutdown(context=context)
-
-
-def test_one_writer_for_the_running_goal_and_none_after(node):
+def test_one_writer_for_the_running_goal_and_none_after(ros_node):
     from perch_common.conventions import mission_client_topic
     from perch_operator.api.presence import ClientPresence
 
     first, second = bytes(range(16)), bytes(range(1, 17))
-    topics = [node.resolve_topic_name(mission_client_topic(goal)) for goal in (first, second)]
+    topics = [ros_node.resolve_topic_name(mission_client_topic(goal)) for goal in (first, second)]
 
     def writers() -> list[int]:   # the node's own endpoints: listed at once, no discovery to wait for
-        return [node.count_publishers(topic) for topic in topics]
+        return [ros_node.count_publishers(topic) for topic in topics]
 
-    presence = ClientPresence(node)
+    presence = ClientPresence(ros_node)
     presence.withdraw()   # nothing announced: nothing to do
     assert writers() == [0, 0]
     presence.announce(list(first))   # a UUID message's list, as the clients pass it

@@ -140,6 +140,15 @@ def _cancel_or_say_why_not(node, handle, signed: MissionCanceller | None = None,
                                   "the mission ends when it notices its client has left (parameter client_grace)")
 
 
+def scene_goal(scene, cameras: int, auto_accept: bool = True, seed: int = -1, **fields) -> PlanPerches.Goal:
+    """A mission goal on a generated scene (perch_common.scene_generator): its mesh and target volume,
+    `cameras` perches; `fields` set other goal fields (up_axis=, review_surfaces=, ...)."""
+    from perch_common.ros.conversions import mesh_to_msg, target_to_msg
+
+    return PlanPerches.Goal(mesh=mesh_to_msg(scene.mesh), target=target_to_msg(scene.target),
+                            num_cameras=max(0, cameras), auto_accept=auto_accept, seed=seed, **fields)
+
+
 def run_mission(node, goal: PlanPerches.Goal, timeout: float = 600.0, server_wait: float = 30.0,
                 on_feedback: Callable[[PlanPerches.Feedback], None] | None = None) -> PlanPerches.Result:
     """Run one mission on the live graph and return its result (success or not)."""

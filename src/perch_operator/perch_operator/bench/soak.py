@@ -648,13 +648,10 @@ class FaultReport:
 def fault_goal(scene: int = 7):
     """An auto-accepted mission on a generated apartment: each stage takes long enough (~0.5-2 s) for
     the node frozen when the stage before it starts to be certainly frozen before its own call."""
-    from perch_common.ros.conversions import mesh_to_msg, target_to_msg
     from perch_common.scene_generator import generate_scene
-    from perch_interfaces.action import PlanPerches
+    from perch_operator.api.client import scene_goal
 
-    generated = generate_scene(scene, "apartment")
-    return PlanPerches.Goal(mesh=mesh_to_msg(generated.mesh), target=target_to_msg(generated.target),
-                            num_cameras=CAMERAS, auto_accept=True, seed=1, up_axis="+z")
+    return scene_goal(generate_scene(scene, "apartment"), CAMERAS, seed=1, up_axis="+z")
 
 
 class FaultSoak:

@@ -327,14 +327,12 @@ def deferred_interrupt():
 
 def _demo(args) -> int:
     """`make demo`: launch the graph, plan on the seeded apartment with auto-accept, print the summary."""
-    from perch_common.ros.conversions import mesh_to_msg, target_to_msg
     from perch_common.scene_generator import generate_scene
-    from perch_interfaces.action import PlanPerches
+    from perch_operator.api.client import scene_goal
 
     started = time.monotonic()
     scene = generate_scene(args.seed, "apartment")
-    goal = PlanPerches.Goal(mesh=mesh_to_msg(scene.mesh), target=target_to_msg(scene.target),
-                            num_cameras=max(0, args.cameras), auto_accept=True, seed=-1)
+    goal = scene_goal(scene, args.cameras)
     print(f"perch demo: generated apartment (seed {args.seed}): {scene.mesh.num_faces:,} faces, "
           f"target {scene.target.volume():.1f} m^3", file=sys.stderr)
     code = run_plan(goal, args, {"source": f"generated apartment scene, seed {args.seed}", "demo": True})
