@@ -174,7 +174,6 @@ def test_perch_operator_cancel_ends_a_stuck_mission(graph, tmp_path, small_goal)
 def test_cancelling_during_a_long_segment_stops_it_and_the_next_mission_is_fast(graph, restart_with, small_goal,
                                                                                  request):
     import trimesh
-    from rclpy.action import ActionClient
     from rclpy.qos import qos_profile_services_default
 
     from perch_common.mesh import Mesh
@@ -184,6 +183,7 @@ def test_cancelling_during_a_long_segment_stops_it_and_the_next_mission_is_fast(
     from perch_interfaces.action import PlanPerches
     from perch_interfaces.srv import Segment
     from perch_operator.api.client import run_mission
+    from perch_operator.coordinator.action_client import RegisteringActionClient
 
     started = time.monotonic()
     assert run_mission(graph.node, small_goal, timeout=300).success
@@ -194,7 +194,8 @@ def test_cancelling_during_a_long_segment_stops_it_and_the_next_mission_is_fast(
     # The client exists before the coordinator restarts, so the new coordinator discovers its response
     # reader while it starts: a server answering a goal before it has matched the client's reader drops
     # the response (rmw: "failed to send response (timeout)"), and the goal is never seen as accepted.
-    client = ActionClient(graph.node, PlanPerches, "perch/plan_perches")
+    # Sent while a spinner thread spins the node: rclpy's own ActionClient can drop the answer (rclpy#1123).
+    client = RegisteringActionClient(graph.node, PlanPerches, "perch/plan_perches")
     request.addfinalizer(client.destroy)   # a failure must leave no client of perch/plan_perches behind
     # Without cleaning, segmentation gets all 750k faces (seconds of work even on an idle machine).
     with restart_with("perch_operator", {"clean_given_mesh": False}):

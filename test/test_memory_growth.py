@@ -53,10 +53,17 @@ def test_twenty_missions_without_crashes_or_memory_growth(graph):
         # ways: the median step and the Theil-Sen slope (median of all pairs' slopes, which a plateau
         # change moves but swings do not). Simulated on such swings: 0.03 % false alarms; a leak of 2 MB a
         # mission caught 87 % of the time, of 3 MB 99 %.
+        # Swings can be larger and go up from a floor: RSS read before a node trimmed its heap after its
+        # reply (0.2 s later, delayed on a loaded machine). perch_filtering swung 344-366 MB in one CI
+        # rehearsal, flat over the twenty, and both statistics flagged it (2.33 and 1.30 MB). A leak lifts
+        # the floor too, so growth must also show there: the least RSS of missions 16-20 above that of 10-14.
+        # Simulated with such swings (up by an exponential of mean 7 MB in 60 % of the readings): false
+        # alarms 0.6 % -> 0.01 %; a leak of 2 MB a mission still caught 88 % of the time, of 3 MB 96 %.
         window = np.asarray(values[9:])
         steps = np.diff(window)
         first, second = np.triu_indices(len(window), 1)
         slope = float(np.median((window[second] - window[first]) / (second - first)))
-        assert float(np.median(steps)) < MAX_RSS_STEP_MB or slope < MAX_RSS_STEP_MB, (
-            f"{name}: RSS grows by a median {np.median(steps):.2f} MB a mission (slope {slope:.2f} MB) over "
-            f"missions 10-20 ({values})")
+        floor = float(window[-5:].min() - window[:5].min()) / (len(window) - 5)
+        assert float(np.median(steps)) < MAX_RSS_STEP_MB or slope < MAX_RSS_STEP_MB or floor < MAX_RSS_STEP_MB, (
+            f"{name}: RSS grows by a median {np.median(steps):.2f} MB a mission (slope {slope:.2f} MB, floor "
+            f"{floor:.2f} MB) over missions 10-20 ({values})")

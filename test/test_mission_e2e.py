@@ -222,17 +222,19 @@ class LiveMission:
     """A mission driven from the test: goal sent, proposals watched, decisions sent, all async."""
 
     def __init__(self, node, goal):
-        from rclpy.action import ActionClient
-
         from perch_interfaces.action import PlanPerches
         from perch_interfaces.msg import Proposal
         from perch_interfaces.srv import Confirm
+        from perch_operator.coordinator.action_client import RegisteringActionClient
         from perch_operator.coordinator.node import LATCHED
 
         self.node = node
         self.proposals: dict[int, Proposal] = {}
         self.sub = node.create_subscription(Proposal, "/perch/proposals", self._on_proposal, LATCHED)
-        self.client = ActionClient(node, PlanPerches, "/perch/plan_perches")
+        # The goal is sent while a spinner thread spins the node: rclpy's own ActionClient can drop the
+        # answer to it (rclpy#1123; a CI rehearsal: "Ignoring unexpected goal response", the goal accepted
+        # and its mission waiting for decisions the test never sent, and the next four tests refused).
+        self.client = RegisteringActionClient(node, PlanPerches, "/perch/plan_perches")
         self.confirm = node.create_client(Confirm, "/perch/confirm")
         self.goal = goal
         self.feedback: list = []
