@@ -72,6 +72,6 @@ class GoalWatch:
 
     def describe(self) -> str:
         """Why the mission ends, for its result message and the log."""
-        what = "its presence writer" if self.present else "no feedback reader"
-        return (f"the mission's client left the graph ({what} gone for {self.grace:g} s; killed or "
+        what = "its presence writer gone" if self.present else "no feedback reader"
+        return (f"the mission's client left the graph ({what} for {self.grace:g} s; killed or "
                 "disconnected); mission aborted so the graph is free for the next one")
