@@ -134,6 +134,30 @@ def test_a_lost_answer_to_the_goal_is_recovered_from_the_coordinators_status_lis
     assert time.monotonic() - started < 20   # followed by its status, not waited out
 
 
+def test_a_lost_result_is_asked_for_again(graph, scene, monkeypatch):
+    """The mission ends but its result response never reaches the client (as when the server answers before
+    matching the client's response reader): the status list says it ended, so the client asks again."""
+    from rclpy.action import ActionClient
+    from rclpy.task import Future
+
+    from perch_operator.api.client import run_mission
+
+    original = ActionClient._get_result_async
+    asked: list[int] = []
+
+    def first_answer_lost(self, goal_handle):
+        asked.append(1)
+        future = original(self, goal_handle)
+        return Future() if len(asked) == 1 else future   # the first response never arrives
+
+    monkeypatch.setattr(ActionClient, "_get_result_async", first_answer_lost)
+    started = time.monotonic()
+    result = run_mission(graph.node, make_goal(scene), timeout=300)
+    assert result.success, result.message
+    assert len(result.waypoints) == CAMERAS and len(asked) == 2
+    assert time.monotonic() - started < 30   # asked again once the status said ended, not waited out
+
+
 def test_a_goal_that_never_arrives_times_out_naming_the_cause(graph, scene, monkeypatch):
     from rclpy.action import ActionClient
     from rclpy.task import Future
