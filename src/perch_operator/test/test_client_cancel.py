@@ -13,9 +13,13 @@ from perch_operator.api import client
 class _Logger:
     def __init__(self):
         self.warnings: list[str] = []
+        self.infos: list[str] = []
 
     def warning(self, text: str) -> None:
         self.warnings.append(text)
+
+    def info(self, text: str) -> None:
+        self.infos.append(text)
 
 
 class _Node:
@@ -51,6 +55,13 @@ def test_a_refused_cancel_says_the_mission_ends_when_its_client_leaves():
     client._cancel_or_say_why_not(node, _Handle(_answered(0)))
     assert len(node.logger.warnings) == 1
     assert "refused the cancel" in node.logger.warnings[0] and "client_grace" in node.logger.warnings[0]
+
+
+def test_a_cancel_refused_because_the_mission_had_ended_says_so_without_a_warning():
+    node = _Node()
+    client._cancel_or_say_why_not(node, _Handle(_answered(0)), ended=lambda: True)
+    assert node.logger.warnings == []
+    assert len(node.logger.infos) == 1 and "already ended" in node.logger.infos[0]
 
 
 def test_an_unanswered_cancel_is_said_not_raised(monkeypatch):

@@ -21,12 +21,12 @@ from perch_common.conventions import MISSION_ACTION, MISSION_STATUS_TOPIC
 from perch_common.errors import PerchError
 from perch_interfaces.action import PlanPerches
 from perch_operator.api.presence import ClientPresence
+from perch_operator.coordinator.action_client import RESULT_WAIT, TERMINAL
 
 ACTION = MISSION_ACTION   # the name `perch operator` and the soak import
 LOST_ANSWER_GRACE = 1.0   # s a listed goal waits for its answer before the answer counts as lost
 GOAL_RESEND_AFTER = 3.0   # s without an answer or a status listing before a goal is sent again
 SERVER_GONE_GRACE = 1.0   # s the accepting coordinator may be absent from the graph before the mission ends
-RESULT_ASK_AGAIN = 3.0    # s the status may list the goal as ended without its result before it is asked for again
 
 
 class GoalRejected(PerchError):
@@ -41,14 +41,20 @@ CANCEL_WAIT = 5.0   # s for the coordinator to answer a cancel
 CANCEL_RESEND = 1.0   # s between signed cancels until the coordinator lists the goal as cancelling (a fresh token each)
 
 
-def _spin_until(node, future, deadline: float, what: str, gone: Callable[[], str] | None = None) -> None:
+def _spin_until(node, future, deadline: float, what: str, gone: Callable[[], str] | None = None,
+                give_up: Callable[[], bool] | None = None) -> bool:
+    """Spin until `future` is done (True), or `give_up()` says so first (False). TimeoutError past the
+    deadline; CoordinatorGone as soon as `gone()` names a reason."""
     while not future.done():
         if time.monotonic() > deadline:
             raise TimeoutError(f"{what} did not finish in time")
         reason = gone() if gone is not None else ""
         if reason:
             raise CoordinatorGone(reason)
+        if give_up is not None and give_up():
+            return False
         _spin_briefly(node, future)
+    return True
 
 
 def _spin_briefly(node, future=None) -> None:
@@ -119,9 +125,11 @@ class MissionCanceller:
         self.node.destroy_publisher(self.publisher)
 
 
-def _cancel_or_say_why_not(node, handle, signed: MissionCanceller | None = None, reason: str = "") -> None:
+def _cancel_or_say_why_not(node, handle, signed: MissionCanceller | None = None, reason: str = "",
+                           ended: Callable[[], bool] = lambda: False) -> None:
     """Ask the coordinator to cancel the goal (signed when `signed` is given: a networked graph); when
-    it refuses or does not answer, say so, and let the caller's own error (Ctrl-C, time limit) stand."""
+    it refuses or does not answer, say so, and let the caller's own error (Ctrl-C, time limit) stand.
+    `ended()`: the coordinator lists the goal as ended (a refusal then means there was nothing to cancel)."""
     if signed is not None:
         if not signed.cancel(handle.goal_id, reason, lambda: handle.status):
             node.get_logger().warning(
@@ -136,7 +144,11 @@ def _cancel_or_say_why_not(node, handle, signed: MissionCanceller | None = None,
         node.get_logger().warning(f"the coordinator did not answer the cancel within {CANCEL_WAIT:.0f} s; "
                                   "the mission ends when it notices its client has left (parameter client_grace)")
         return
-    if not cancel.result().goals_canceling:
+    if cancel.result().goals_canceling:
+        return
+    if ended():
+        node.get_logger().info("the mission had already ended when the cancel arrived: nothing to cancel")
+    else:
         node.get_logger().warning("the coordinator refused the cancel (a networked graph takes no unsigned cancel); "
                                   "the mission ends when it notices its client has left (parameter client_grace)")
 
@@ -183,7 +195,8 @@ def run_mission(node, goal: PlanPerches.Goal, timeout: float = 600.0, server_wai
             return PlanPerches.Result(success=False, message=str(exc))
         except (TimeoutError, KeyboardInterrupt) as exc:
             why = "interrupted (Ctrl-C)" if isinstance(exc, KeyboardInterrupt) else f"client time limit ({timeout:.0f} s)"
-            _cancel_or_say_why_not(node, handle, signed, f"perch plan: {why}")
+            _cancel_or_say_why_not(node, handle, signed, f"perch plan: {why}",
+                                   lambda: statuses.status.get(bytes(handle.goal_id.uuid)) in TERMINAL)
             raise
         return result.result
     finally:
@@ -265,26 +278,21 @@ def _result_of(node, handle, statuses: GoalStatusWatch, deadline: float, what: s
     """The accepted goal's result (its GetResult response). A result response can be lost as the goal's
     answer can (a server answering before it matched this client's response reader; a CI rehearsal's
     client waited out its 300 s for a mission that had ended in 1.4 s). The status list still says the
-    goal ended: RESULT_ASK_AGAIN s after that without the result, it is asked for again (the coordinator
+    goal ended: RESULT_WAIT s after that without the result, it is asked for again (the coordinator
     keeps a result for its action server's result timeout)."""
-    from action_msgs.msg import GoalStatus
-
-    ended = (GoalStatus.STATUS_SUCCEEDED, GoalStatus.STATUS_CANCELED, GoalStatus.STATUS_ABORTED)
     key = bytes(handle.goal_id.uuid)
-    future, ended_at = handle.get_result_async(), None
-    while not future.done():
-        now = time.monotonic()
-        if now > deadline:
-            raise TimeoutError(f"{what} did not finish in time")
-        reason = statuses.server_gone()
-        if reason:
-            raise CoordinatorGone(reason)
-        if statuses.status.get(key) in ended:
-            ended_at = ended_at or now
-            if now - ended_at > RESULT_ASK_AGAIN:
-                node.get_logger().warning("the mission ended but its result was lost on the way; asking for it again")
-                future, ended_at = handle.get_result_async(), now
-        _spin_briefly(node, future)
+    ended_at: list[float] = []   # when the status list first said the goal ended, since the last ask
+
+    def lost() -> bool:
+        if statuses.status.get(key) not in TERMINAL:
+            return False
+        ended_at[:] = ended_at or [time.monotonic()]
+        return time.monotonic() - ended_at[0] > RESULT_WAIT
+
+    future = handle.get_result_async()
+    while not _spin_until(node, future, deadline, what, statuses.server_gone, lost):
+        node.get_logger().warning("the mission ended but its result was lost on the way; asking for it again")
+        future, ended_at[:] = handle.get_result_async(), []
     return future.result()
 
 
