@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from perch_common.mesh import inspect_mesh, load_mesh
+from perch_common.mesh import add_units_arguments, inspect_mesh, load_mesh
 from perch_common.mesh_health import inspect_health
 from perch_common.up_axis import choose_up, file_convention
 
@@ -16,15 +16,14 @@ def register(sub) -> None:
     info = verbs.add_parser("info", help="faces, bounds, up axis and problems found")
     info.add_argument("file")
     info.add_argument("--json", action="store_true", help="print JSON")
-    info.add_argument("--scale", type=float, default=1.0,
-                      help="multiply the coordinates by this first (0.001 for a mesh in millimetres)")
+    add_units_arguments(info)
     info.set_defaults(func=_info)
     p.set_defaults(func=lambda args: p.print_help() or 2)
 
 
-def mesh_summary(path: str, scale: float = 1.0) -> dict:
+def mesh_summary(path: str, scale: float = 1.0, shift: tuple[float, float, float] | None = None) -> dict:
     """Size, bounds, up estimate (with evidence and confidence) and problems (incl. implausible units) of a mesh file."""
-    mesh = load_mesh(path, validate=False, scale=scale)
+    mesh = load_mesh(path, validate=False, scale=scale, shift=shift)
     problems = inspect_mesh(mesh)
     health = [] if problems.fatal else inspect_health(mesh, path=path).lines()   # soup, duplicates, windings, slivers
     summary = {"file": str(path), "vertices": mesh.num_vertices, "faces": mesh.num_faces,
@@ -45,10 +44,10 @@ def mesh_summary(path: str, scale: float = 1.0) -> dict:
 
 
 def _info(args) -> int:
-    s = mesh_summary(args.file, args.scale)
+    s = mesh_summary(args.file, args.scale, args.shift)
     if args.json:
         print(json.dumps(s, indent=2))
-        return 1 if any(p for p in s["problems"] if "empty" in p or "NaN" in p or "outside" in p) else 0
+        return 0 if "size" in s else 1   # a fatal problem (no bounds, no up estimate): exit 1 as below
     print(f"{s['file']}: {s['faces']} faces, {s['vertices']} vertices"
           f"{', vertex colours' if s['vertex_colors'] else ''}")
     if "size" in s:

@@ -247,10 +247,14 @@ def inspect_mesh(mesh: Mesh, area_epsilon: float = 1e-12, warnings: bool = True)
     if degenerate == mesh.num_faces:
         fatal.append("every face is degenerate (zero area)")
     if not census:
-        return MeshProblems(fatal, warnings, degenerate)
+        far = far_problem(*mesh.bounds())
+        return MeshProblems(fatal + ([far] if far else []), warnings, degenerate)
     if degenerate:
         warnings.append(f"{degenerate} degenerate (zero-area) faces")
     lo, hi = mesh.bounds()
+    far = far_problem(lo, hi)
+    if far:
+        fatal.append(far)
     units = scale_problem(float(np.max(hi - lo)))
     if units:
         warnings.append(units)
@@ -265,6 +269,25 @@ def inspect_mesh(mesh: Mesh, area_epsilon: float = 1e-12, warnings: bool = True)
 # An indoor space larger than this along any axis was almost surely modelled in cm or mm.
 MAX_PLAUSIBLE_EXTENT = 200.0   # m
 MILLIMETRE_EXTENT = 2000.0     # beyond this, millimetres are likelier than centimetres
+
+
+MAX_COORDINATE = 10_000.0      # m: nothing Perch plans for lies 10 km from the origin
+
+
+def far_problem(lo: np.ndarray, hi: np.ndarray, what: str = "mesh") -> str | None:
+    """A message when a space of plausible size lies beyond MAX_COORDINATE of its origin (georeferenced
+    coordinates: UTM, a site grid), naming the --shift that brings it near; else None. Perch's messages
+    and ray casts carry float32 coordinates, whose steps are half a metre 5000 km out."""
+    far = float(np.max(np.abs(np.concatenate([lo, hi]))))
+    extent = float(np.max(hi - lo))
+    if not np.isfinite(far) or far <= MAX_COORDINATE or extent > MAX_PLAUSIBLE_EXTENT:
+        return None   # near, or a unit problem (scale_problem names it)
+    shift = -np.round((np.asarray(lo) + np.asarray(hi)) / 2, -1) + 0.0   # whole tens of metres (no -0)
+    step = float(np.spacing(np.float32(far)))
+    return (f"{what} lies {far / 1000:,.1f} km from its origin but is only {extent:,.0f} m across: georeferenced "
+            f"coordinates (UTM, a site grid)? Perch plans within {MAX_COORDINATE / 1000:g} km of the origin (its "
+            f"messages carry float32 coordinates: {step:g} m steps out there); shift it near the origin "
+            f"(--shift={','.join(f'{v:.0f}' for v in shift)}; the outputs are then in the shifted frame)")
 
 
 def scale_problem(extent: float, what: str = "mesh") -> str | None:
@@ -287,9 +310,40 @@ def validate_mesh(mesh: Mesh, what: str = "mesh") -> Mesh:
 SUPPORTED_SUFFIXES = (".ply", ".obj", ".glb", ".gltf", ".stl", ".off")
 
 
-def load_mesh(path: str | Path, validate: bool = True, scale: float = 1.0) -> Mesh:
-    """Load a triangle mesh (a scene file is flattened into one mesh); `scale` multiplies coordinates
-    (0.001 for a file in millimetres)."""
+def add_units_arguments(parser, what: str = "the mesh") -> None:
+    """--scale and --shift, the load_mesh arguments of every command that reads a mesh file."""
+    import argparse
+
+    def positive(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        if not (np.isfinite(value) and value > 0):
+            raise argparse.ArgumentTypeError(f"{text} must be a finite number > 0")
+        return value
+
+    def triple(text: str) -> tuple[float, float, float]:
+        try:
+            values = tuple(float(v) for v in text.split(","))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r}: give X,Y,Z (three numbers, comma-separated)") from None
+        if len(values) != 3 or not np.isfinite(values).all():
+            raise argparse.ArgumentTypeError(f"{text!r}: give X,Y,Z (three finite numbers, comma-separated)")
+        return values   # type: ignore[return-value]
+
+    parser.add_argument("--scale", type=positive, default=1.0,
+                        help=f"multiply the coordinates of {what} by this (0.001 for a file in millimetres)")
+    parser.add_argument("--shift", type=triple, default=None, metavar="X,Y,Z",
+                        help=f"add this (metres) to the coordinates of {what}, after --scale: georeferenced "
+                             "coordinates (e.g. UTM) moved near the origin; outputs are in the shifted frame")
+
+
+def load_mesh(path: str | Path, validate: bool = True, scale: float = 1.0,
+              shift: tuple[float, float, float] | None = None) -> Mesh:
+    """Load a triangle mesh (a scene file is flattened into one mesh); its coordinates become
+    file * `scale` + `shift` (`scale` 0.001 for a file in millimetres; `shift`, in metres, moves
+    georeferenced coordinates near the origin, as CloudCompare's global shift)."""
     import trimesh
 
     path = Path(path)
@@ -301,6 +355,9 @@ def load_mesh(path: str | Path, validate: bool = True, scale: float = 1.0) -> Me
         raise MeshError(f"{path}: unsupported format '{path.suffix}' (use one of {', '.join(SUPPORTED_SUFFIXES)})")
     if not (np.isfinite(scale) and scale > 0):
         raise MeshError(f"{path}: scale must be a finite number > 0, got {scale}")
+    offset = np.zeros(3) if shift is None else np.asarray(shift, np.float64)
+    if offset.shape != (3,) or not np.isfinite(offset).all():
+        raise MeshError(f"{path}: shift must be three finite numbers, got {shift}")
     try:
         loaded = _load_single_mesh(path) or trimesh.load(path, process=False, force="mesh")
     except Exception as exc:  # trimesh raises many types for corrupt files
@@ -314,17 +371,22 @@ def load_mesh(path: str | Path, validate: bool = True, scale: float = 1.0) -> Me
         if points:
             raise MeshError(f"{path}: holds {points} points but no faces (a point cloud, not a mesh); mesh it "
                             "first, e.g. reconstruct it from the RGB-D frames with `perch reconstruct`")
+        size = path.stat().st_size
+        if size > 200:   # more than an empty file's header: something is there, and it is not geometry
+            raise MeshError(f"{path}: no vertex or face could be read from its {size:,} bytes: not a mesh in the "
+                            f"{path.suffix.lower()} format (another format under this name?)")
     colors = None
     visual = getattr(loaded, "visual", None)
     if visual is not None and getattr(visual, "kind", None) == "vertex":
         colors = np.asarray(visual.vertex_colors)[:, :3]
     elif visual is not None and getattr(visual, "kind", None) == "texture":
         colors = np.asarray(visual.to_color().vertex_colors)[:, :3]
-    from perch_common.viewpoints import read_viewpoints_beside, scaled_viewpoints
+    from perch_common.viewpoints import moved_viewpoints, read_viewpoints_beside
 
     views = read_viewpoints_beside(path, np.asarray(loaded.vertices), np.asarray(loaded.faces))
-    mesh = Mesh(np.asarray(loaded.vertices) * scale, np.asarray(loaded.faces), colors,
-                viewpoints=None if views is None else scaled_viewpoints(views, scale))
+    vertices = np.asarray(loaded.vertices, np.float64)
+    mesh = Mesh(vertices * scale + offset if offset.any() else vertices * scale, np.asarray(loaded.faces), colors,
+                viewpoints=None if views is None else moved_viewpoints(views, scale, offset))
     return validate_mesh(mesh, str(path)) if validate else mesh
 
 

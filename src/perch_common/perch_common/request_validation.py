@@ -16,9 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from perch_common.mesh import column_bounds, scale_problem
+from perch_common.mesh import MAX_COORDINATE, column_bounds, far_problem, scale_problem
 
-MAX_COORDINATE = 10_000.0        # m: nothing Perch plans for lies 10 km from the origin
 MAX_TARGET_TO_MESH = 10.0        # a target this many times larger than the mesh is a unit or typing error
 QUATERNION_TOLERANCE = 1e-3      # |norm - 1| accepted (float rounding of a unit quaternion)
 MIN_TARGET_FACES = 100           # decimating a room below this leaves no planes to perch on
@@ -86,6 +85,10 @@ def _check_mesh(path: str, mesh) -> np.ndarray:
         first = vertices.reshape(-1, 3)[bad[0]]
         raise RequestError(f"{path}.vertices: {len(bad)} vertices are NaN or infinite (first: vertex {int(bad[0])} = "
                            f"{first.tolist()})")
+    if len(vertices):
+        far = far_problem(*column_bounds(vertices.reshape(-1, 3)), path)
+        if far:
+            raise RequestError(far)
     _check_numbers(f"{path}.vertices", vertices, MAX_COORDINATE)
     if n_t:
         triangles = np.frombuffer(mesh.triangles, dtype=np.uint32) if not isinstance(mesh.triangles, np.ndarray) \

@@ -75,11 +75,14 @@ def transform_viewpoints(rows: np.ndarray, matrix: np.ndarray) -> np.ndarray:
     return out
 
 
-def scaled_viewpoints(rows: np.ndarray, scale: float) -> np.ndarray:
-    """Views of a mesh whose coordinates were multiplied by `scale` (centres and ranges scale)."""
+def moved_viewpoints(rows: np.ndarray, scale: float, shift: np.ndarray | None = None) -> np.ndarray:
+    """Views of a mesh whose coordinates became coordinates * `scale` + `shift` (centres scale and
+    move, ranges scale)."""
     out = np.array(rows, np.float64).reshape(-1, VIEWPOINT_COLUMNS)
     out[:, CENTRE] *= scale
     out[:, RANGE] *= scale
+    if shift is not None:
+        out[:, CENTRE] += shift
     return out
 
 

@@ -72,6 +72,10 @@ def test_load_errors_are_precise(tmp_path):
     (tmp_path / "bad.ply").write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 99\n")
     with pytest.raises(MeshError, match="bad.ply"):
         load_mesh(tmp_path / "bad.ply")
+    # Bytes that are no OBJ: said so, not "mesh is empty".
+    (tmp_path / "noise.obj").write_bytes(np.random.default_rng(0).integers(0, 256, 5000, np.uint8).tobytes())
+    with pytest.raises(MeshError, match=r"no vertex or face could be read from its 5,000 bytes: not a mesh in the \.obj"):
+        load_mesh(tmp_path / "noise.obj")
 
 
 @pytest.mark.parametrize("suffix", [".ply", ".stl", ".off"])
@@ -93,3 +97,57 @@ def test_a_single_mesh_file_read_directly_equals_trimesh_load(tmp_path, suffix, 
     else:
         assert np.array_equal(direct.vertex_colors, through_scene.vertex_colors)
     assert direct.num_faces == scene.mesh.num_faces
+
+
+def test_a_shift_moves_a_georeferenced_file_near_its_origin_after_the_scale(tmp_path):
+    from perch_common.viewpoints import VIEWPOINT_COLUMNS, moved_viewpoints
+
+    offset = np.array([450123.25, 5201234.5, 312.0])
+    room = Mesh(np.array([[0, 0, 0], [4, 0, 0], [4, 3, 0], [0, 3, 2.5]], float) * 1000 + offset * 1000,
+                [[0, 1, 2], [0, 2, 3]])
+    path = tmp_path / "site.obj"   # an OBJ keeps every digit of the millimetre UTM coordinates
+    path.write_text("".join(f"v {x:.3f} {y:.3f} {z:.3f}\n" for x, y, z in room.vertices) + "f 1 2 3\nf 1 3 4\n")
+    as_metres = inspect_mesh(load_mesh(path, validate=False))   # 4,000 m across: the units are named first
+    assert any("in millimetres" in w for w in as_metres.warnings) and not as_metres.fatal
+    with pytest.raises(MeshError, match=r"georeferenced .*--shift=-450130,-5201240,-310;") as refused:
+        load_mesh(path, scale=0.001)   # the room's centre (450125.25, 5201236, 313.25) in whole tens of metres
+    named = tuple(float(v) for v in str(refused.value).split("--shift=")[1].split(";")[0].split(","))
+    loaded = load_mesh(path, scale=0.001, shift=named)   # the shift it names, in metres after the scale
+    assert np.allclose(loaded.vertices, np.array([[0, 0, 0], [4, 0, 0], [4, 3, 0], [0, 3, 2.5]]) + offset + named,
+                       atol=1e-6)
+    views = np.zeros((1, VIEWPOINT_COLUMNS))
+    views[0, :3], views[0, 6] = offset * 1000 + [1000, 2000, 1500], 3000.0   # a camera 1,2,1.5 m into the room
+    moved = moved_viewpoints(views, 0.001, -offset)
+    assert np.allclose(moved[0, :3], [1, 2, 1.5]) and moved[0, 6] == pytest.approx(3.0)
+    with pytest.raises(MeshError, match="shift must be three finite numbers"):
+        load_mesh(path, shift=(1.0, float("nan"), 0.0))
+
+
+def test_the_shift_and_scale_arguments_refuse_what_they_cannot_use():
+    import argparse
+
+    from perch_common.mesh import add_units_arguments
+
+    parser = argparse.ArgumentParser(exit_on_error=False)
+    add_units_arguments(parser)
+    args = parser.parse_args(["--shift=-450120,-5201240,-310", "--scale", "0.001"])
+    assert args.shift == (-450120.0, -5201240.0, -310.0) and args.scale == 0.001
+    for bad in (["--shift=1,2"], ["--shift=1,x,3"], ["--shift=1,inf,3"], ["--scale", "0"], ["--scale", "-1"]):
+        with pytest.raises(argparse.ArgumentError):
+            parser.parse_args(bad)
+
+
+def test_mesh_info_refuses_a_georeferenced_file_and_reads_it_with_the_shift_it_names(tmp_path, capsys):
+    import json
+
+    from perch_common.cli import main
+
+    path = tmp_path / "site.obj"
+    corners = np.array([[0, 0, 0], [4, 0, 0], [4, 3, 0], [0, 3, 2.5]]) + [450000.5, 5200000.25, 300.0]
+    path.write_text("".join(f"v {x:.3f} {y:.3f} {z:.3f}\n" for x, y, z in corners) + "f 1 2 3\nf 1 3 4\n")
+    assert main(["mesh", "info", str(path), "--json"]) == 1
+    problem = json.loads(capsys.readouterr().out)["problems"][0]
+    shift = problem.split("--shift=")[1].split(";")[0]
+    assert main(["mesh", "info", str(path), "--json", f"--shift={shift}"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert np.allclose(summary["size"], [4, 3, 2.5]) and max(map(abs, summary["bounds_max"])) < 10

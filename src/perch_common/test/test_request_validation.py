@@ -154,3 +154,19 @@ def test_index_ranges_target_faces_and_footprints(messages, scene):
     for request in (srv.CleanMesh.Request(mesh=messages["clean"].mesh, target_faces=1),
                     srv.Reconstruct.Request(bag_path="x.mcap", target_faces=1)):
         assert "target_faces = 1: give 0" in rejected(request)
+
+
+def test_a_room_in_georeferenced_coordinates_is_refused_naming_the_shift_that_brings_it_near(scene):
+    from perch_common.mesh import Mesh, inspect_mesh
+    from perch_common.ros.conversions import mesh_to_msg
+    from perch_interfaces import srv
+
+    utm = np.array([450123.25, 5201234.5, 312.0])   # a room placed in UTM coordinates
+    mesh = Mesh(scene.mesh.vertices + utm, scene.mesh.faces)
+    message = rejected(srv.Segment.Request(mesh=mesh_to_msg(mesh)))
+    assert "georeferenced" in message and "5,201.2 km from its origin" in message and "--scale" not in message
+    shift = np.array([float(v) for v in message.split("--shift=")[1].split(";")[0].split(",")])
+    # The shift it names is whole tens of metres and brings the room within a few metres of the origin.
+    assert np.all(shift % 10 == 0)
+    assert np.abs(scene.mesh.vertices + utm + shift).max() < np.ptp(scene.mesh.vertices, axis=0).max() + 10
+    assert any("georeferenced" in p for p in inspect_mesh(mesh).fatal)   # `perch mesh info` and load_mesh refuse it

@@ -95,6 +95,17 @@ def test_target_spec_parsing(tmp_path):
         parse_target("box:1,2,3")
 
 
+def test_a_footprint_target_is_read_with_the_meshs_scale_and_shift(tmp_path):
+    from perch_operator.cli.plan import parse_target
+
+    footprint = tmp_path / "site_target.obj"   # a 2 m x 1 m footprint in millimetres, in UTM coordinates
+    corners = (np.array([[0, 0, 0], [2, 0, 0], [2, 1, 0], [0, 1, 0]]) + [450000, 5200000, 300]) * 1000
+    footprint.write_text("".join(f"v {x:.0f} {y:.0f} {z:.0f}\n" for x, y, z in corners) + "f 1 2 3\nf 1 3 4\n")
+    target = parse_target(f"{footprint}:1.5", 0.001, (-450000.0, -5200000.0, -300.0))
+    assert np.allclose(np.reshape(target.footprint.vertices, (-1, 3)), [[0, 0, 0], [2, 0, 0], [2, 1, 0], [0, 1, 0]])
+    assert target.height == pytest.approx(1.5)
+
+
 def test_report_explains_removals_evidence_and_shortfall(mission, tmp_path):
     from perch_common.conventions import FILTER_COLOURS, FILTER_NAMES
     from perch_common.types import FilterRemoval, PerchEvidence, PerchRegion, PlaneFrame, Surface, SurfaceClass

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from perch_common.errors import PerchError
+from perch_common.mesh import add_units_arguments
 from perch_common.outputs import atomic_path, refuse_overwriting_inputs
 from perch_common.up_axis import add_up_argument, up_for_file
 from perch_reconstruction.bag_write import BagTopics
@@ -159,8 +160,7 @@ def register_clean(sub) -> None:
     parser.add_argument("--target-faces", type=int, help="decimation target (0: none)")
     parser.add_argument("--min-piece", type=float, help="remove pieces smaller than this diameter (m)")
     parser.add_argument("--no-align", action="store_true", help="keep the orientation")
-    parser.add_argument("--scale", type=float, default=1.0,
-                        help="multiply the mesh coordinates by this (0.001 for a mesh in millimetres)")
+    add_units_arguments(parser)
     parser.add_argument("--config", help="parameter file (default config/perch.yaml)")
     parser.set_defaults(func=_clean)
 
@@ -172,7 +172,7 @@ def _clean(args) -> int:
     refuse_overwriting_inputs([args.output], [args.mesh, args.config])
     config = _config_with(args.config, target_faces=args.target_faces, min_piece_diameter=args.min_piece,
                           gravity_align=False if args.no_align else None)
-    mesh = load_mesh(args.mesh, scale=args.scale)
+    mesh = load_mesh(args.mesh, scale=args.scale, shift=args.shift)
     up = {}
     if args.gravity:
         gravity = np.array(args.gravity)

@@ -7,7 +7,7 @@ import time
 from pathlib import Path
 
 from perch_common.config import ConfigError, default_config_path, from_parameters, node_parameters
-from perch_common.mesh import load_mesh
+from perch_common.mesh import add_units_arguments, load_mesh
 from perch_common.up_axis import add_up_argument
 
 
@@ -26,8 +26,7 @@ def register(sub) -> None:
                         help="override a parameter, e.g. -p use_color:=false (repeatable)")
     add_up_argument(parser)
     parser.add_argument("--png", type=Path, default=None, help="also render the coloured result to this PNG")
-    parser.add_argument("--scale", type=float, default=1.0,
-                        help="multiply the mesh coordinates by this (0.001 for a mesh in millimetres)")
+    add_units_arguments(parser)
     parser.set_defaults(func=run)
 
 
@@ -76,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
     if surfaces_path.parent == args.output and args.output.exists() and not args.output.is_dir():
         raise PerchError(f"-o {args.output}: is an existing file; give a .yaml/.json file or a folder")
     config = load_config(args.config, args.param)
-    mesh = load_mesh(args.mesh, scale=args.scale)
+    mesh = load_mesh(args.mesh, scale=args.scale, shift=args.shift)
     if not any(p.split(":=")[0].strip() == "up_axis" for p in args.param):
         # Segmentation takes any up direction: the surfaces stay in the mesh's own frame.
         from dataclasses import replace

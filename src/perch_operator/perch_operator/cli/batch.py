@@ -43,7 +43,7 @@ MANIFEST_NAME = "MANIFEST.tsv"          # a folder holding one is read through i
 FILE_COLUMNS = ("file", "path", "scan", "mesh", "bag")   # the first present names each scan's file
 # Manifest columns that become `perch plan` options of that scan (other columns are descriptive).
 OPTION_COLUMNS = {"up": "--up", "target": "--target", "cameras": "--cameras", "seed": "--seed",
-                  "scale": "--scale"}
+                  "scale": "--scale", "shift": "--shift"}
 TARGET_SUFFIX = "_target"               # folder mode: X_target.ply beside X.ply is X's target footprint
 FOOTPRINT_HEIGHT = 1.2                  # m, height of such a footprint's target volume (perch plan's default)
 SUMMARY_JSON, SUMMARY_MD, LOG_NAME = "summary.json", "summary.md", "batch.log"
@@ -125,7 +125,7 @@ def read_manifest(manifest: Path) -> list[Scan]:
     """Scans listed in a TSV/CSV manifest with a header row.
 
     The first column named file, path, scan, mesh or bag gives each scan's file (relative to the
-    manifest's folder); columns up, target, cameras, seed and scale are that scan's `perch plan`
+    manifest's folder); columns up, target, cameras, seed, scale and shift are that scan's `perch plan`
     options (empty: the batch's default); name names its output folder (default: the file's stem).
     A row whose file is missing or not a scan becomes a failed row, not an error of the batch."""
     text = manifest.read_text(encoding="utf-8-sig")
@@ -444,7 +444,7 @@ def register(sub) -> None:
     p = sub.add_parser("batch", help="plan every scan of folders or manifests; one summary table (JSON, Markdown)")
     p.add_argument("sources", nargs="+", type=Path, metavar="SOURCE",
                    help="a folder of scans (meshes, bags; through its MANIFEST.tsv when it has one), a manifest "
-                        "(.tsv/.csv: columns file, and optionally name, up, target, cameras, seed, scale) or a scan")
+                        "(.tsv/.csv: columns file, and optionally name, up, target, cameras, seed, scale, shift) or a scan")
     p.add_argument("-o", "--out", type=Path, required=True, help="output folder: OUT/<scan>/ per scan, OUT/summary.*")
     p.add_argument("--workers", type=int, default=1, help="scans planned at a time on this machine (default 1; "
                    "each needs the memory of its mission, ~2.4 GB for a building floor)")

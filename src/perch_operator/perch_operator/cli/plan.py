@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from perch_common.errors import PerchError
+from perch_common.mesh import add_units_arguments
 from perch_common.up_axis import add_up_argument
 
 DEMO_SEED = 7
@@ -30,8 +31,7 @@ def register_plan(sub) -> None:
                         "FOOTPRINT_MESH[:HEIGHT] (extruded, default 1.2 m); --scene defaults to the scene's own target")
     p.add_argument("--cameras", type=camera_count, default=0,
                    help="number of cameras (0: the placement node's default)")
-    p.add_argument("--scale", type=positive_float, default=1.0,
-                   help="multiply --mesh coordinates by this (0.001 for a mesh in millimetres)")
+    add_units_arguments(p, "--mesh and a footprint --target")
     p.add_argument("--seed", type=seed_int, default=-1, help="optimiser seed (negative: the node's default)")
     p.add_argument("--auto-accept", action="store_true", help="accept every proposal (else: perch operator ...)")
     add_up_argument(p, "the mesh (--mesh)")
@@ -137,8 +137,9 @@ def _box_target(part: str, spec: str):
     return TargetVolume(center=values[:3], size=values[3:6], rotation=rotation)
 
 
-def parse_target(spec: str | None):
-    """The TargetVolume message for --target (None: the scene's / crop's default)."""
+def parse_target(spec: str | None, scale: float = 1.0, shift: tuple[float, float, float] | None = None):
+    """The TargetVolume message for --target (None: the scene's / crop's default). A footprint file is
+    read as the mesh is (`scale`, `shift`: its --scale and --shift); boxes are in the mission's frame."""
     from perch_common.mesh import load_mesh
     from perch_common.ros.conversions import mesh_to_msg, target_to_msg
     from perch_common.target import TargetVolume
@@ -154,7 +155,7 @@ def parse_target(spec: str | None):
     if sep and tail.replace(".", "", 1).isdigit():
         path, height = head, float(tail)
     # Sent as the mesh itself: the mission projects it along the true up (the mesh may not be z-up).
-    footprint = load_mesh(Path(path))
+    footprint = load_mesh(Path(path), scale=scale, shift=shift)
     return pm.TargetVolume(kind=pm.TargetVolume.KIND_EXTRUDED_FOOTPRINT, footprint=mesh_to_msg(footprint),
                            height=float(height))
 
@@ -171,19 +172,22 @@ def _plan(args) -> int:
     goal = PlanPerches.Goal(num_cameras=args.cameras, seed=args.seed, auto_accept=args.auto_accept,
                             review_surfaces=args.review_surfaces, up_axis=args.up,
                             up_convention=file_convention(args.mesh))
-    goal.target = parse_target(args.target)
+    goal.target = parse_target(args.target, args.scale, args.shift) if args.mesh else parse_target(args.target)
     describe = {"cameras_asked": args.cameras, "seed": args.seed}
     if args.mesh:
         from perch_common.mesh import load_mesh
         from perch_common.mesh_health import unreferenced_line, unreferenced_vertices
 
-        mesh = load_mesh(args.mesh, scale=args.scale)
+        mesh = load_mesh(args.mesh, scale=args.scale, shift=args.shift)
         lost = unreferenced_line(*unreferenced_vertices(mesh, args.mesh))   # only the file shows it for an OBJ
         if lost:
             print(f"perch: warning: {args.mesh}: {lost}", file=sys.stderr)
         goal.mesh = mesh_to_msg(mesh)
         describe["source"] = f"mesh {args.mesh}"
         describe["up"] = args.up
+        if args.scale != 1.0 or args.shift is not None:   # the outputs' frame: file * scale + shift
+            describe["scale"] = args.scale
+            describe["shift"] = ",".join(f"{v:g}" for v in args.shift or (0.0, 0.0, 0.0))
     elif args.bag:
         if not args.bag.exists():
             raise FileNotFoundError(f"{args.bag}: no such bag")
