@@ -312,29 +312,11 @@ SUPPORTED_SUFFIXES = (".ply", ".obj", ".glb", ".gltf", ".stl", ".off")
 
 def add_units_arguments(parser, what: str = "the mesh") -> None:
     """--scale and --shift, the load_mesh arguments of every command that reads a mesh file."""
-    import argparse
+    from perch_common.cli_types import positive_float, xyz
 
-    def positive(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-        if not (np.isfinite(value) and value > 0):
-            raise argparse.ArgumentTypeError(f"{text} must be a finite number > 0")
-        return value
-
-    def triple(text: str) -> tuple[float, float, float]:
-        try:
-            values = tuple(float(v) for v in text.split(","))
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r}: give X,Y,Z (three numbers, comma-separated)") from None
-        if len(values) != 3 or not np.isfinite(values).all():
-            raise argparse.ArgumentTypeError(f"{text!r}: give X,Y,Z (three finite numbers, comma-separated)")
-        return values   # type: ignore[return-value]
-
-    parser.add_argument("--scale", type=positive, default=1.0,
+    parser.add_argument("--scale", type=positive_float, default=1.0,
                         help=f"multiply the coordinates of {what} by this (0.001 for a file in millimetres)")
-    parser.add_argument("--shift", type=triple, default=None, metavar="X,Y,Z",
+    parser.add_argument("--shift", type=xyz, default=None, metavar="X,Y,Z",
                         help=f"add this (metres) to the coordinates of {what}, after --scale: georeferenced "
                              "coordinates (e.g. UTM) moved near the origin; outputs are in the shifted frame")
 

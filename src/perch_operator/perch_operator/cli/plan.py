@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from perch_common.cli_types import positive_float
 from perch_common.errors import PerchError
 from perch_common.mesh import add_units_arguments
 from perch_common.up_axis import add_up_argument
@@ -88,19 +89,6 @@ def seed_int(text: str) -> int:
     if not -2 ** 63 <= value < 2 ** 63:
         raise argparse.ArgumentTypeError(f"{value} does not fit a 64-bit seed; give -1 (the node's default) "
                                          "or 0..9223372036854775807")
-    return value
-
-
-def positive_float(text: str) -> float:
-    """argparse type: a finite number > 0."""
-    import argparse
-
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not math.isfinite(value) or value <= 0:
-        raise argparse.ArgumentTypeError(f"{text} must be a finite number > 0")
     return value
 
 
