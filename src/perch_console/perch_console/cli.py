@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from perch_common.errors import PerchError
+from perch_common.mesh import add_units_arguments
 
 DEFAULT_PORT = 8080
 
@@ -25,6 +26,7 @@ def register(sub) -> None:
     """Add `perch console`."""
     p = sub.add_parser("console", help="the operator console in a browser (scan, boxes, review, confirmation)")
     p.add_argument("--mesh", type=Path, help="the scan to show and plan on (missions are started from the console)")
+    add_units_arguments(p, "--mesh")
     p.add_argument("--host", default="127.0.0.1",
                    help="address to serve on (default loopback only); any other needs the token printed in the URL")
     p.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"port (default {DEFAULT_PORT}; 0: a free one)")
@@ -77,7 +79,7 @@ def require_token(token: str) -> None:
 
 
 def start_console(mesh_path: Path | None, host: str = "127.0.0.1", port: int = DEFAULT_PORT, token: str = "",
-                  recording: Path | None = None):
+                  recording: Path | None = None, scale: float = 1.0, shift: tuple[float, float, float] | None = None):
     """The console serving and attached to the graph (rclpy must be initialised); returns (console, graph, url)."""
     from perch_console.graph import ConsoleGraph
     from perch_console.state import new_token
@@ -93,7 +95,7 @@ def start_console(mesh_path: Path | None, host: str = "127.0.0.1", port: int = D
     graph = ConsoleGraph(console.changed)
     console.attach(graph)
     if mesh_path is not None:
-        mesh, mesh_msg, convention = scan_source(Path(mesh_path))
+        mesh, mesh_msg, convention = scan_source(Path(mesh_path), scale, shift)
         console.goal_source = (mesh_msg, convention)
         console.place_boxes(mesh.vertices)
         console.show_scan(mesh, Path(mesh_path).name)
@@ -116,7 +118,8 @@ def _console(args) -> int:
 
     started = time.monotonic()
     with client_context():
-        console, graph, url = start_console(args.mesh, args.host, args.port, args.token, args.recording)
+        console, graph, url = start_console(args.mesh, args.host, args.port, args.token, args.recording,
+                                            args.scale, args.shift)
         if args.screenshot is not None:
             try:
                 seconds = screenshot(url, args.screenshot)

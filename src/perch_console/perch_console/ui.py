@@ -566,11 +566,12 @@ def _ok(error: str) -> tuple[bool, str]:
     return (not error, error or "accepted by the coordinator")
 
 
-def scan_source(path: Path):
-    """(Mesh, TriangleMesh message, up convention) of a scan file, as `perch plan --mesh` sends it."""
+def scan_source(path: Path, scale: float = 1.0, shift: tuple[float, float, float] | None = None):
+    """(Mesh, TriangleMesh message, up convention) of a scan file, as `perch plan --mesh` sends it
+    (with its --scale and --shift)."""
     from perch_common.mesh import load_mesh
     from perch_common.ros.conversions import mesh_to_msg
     from perch_common.up_axis import file_convention
 
-    mesh = load_mesh(path)
+    mesh = load_mesh(path, scale=scale, shift=shift)
     return mesh, mesh_to_msg(mesh), file_convention(str(path))

@@ -220,3 +220,14 @@ def test_a_served_console_answers_only_under_its_token():
             assert page.status == 200 and b"<html" in page.read()[:200].lower()
     finally:
         console.server.stop()
+
+
+def test_the_console_reads_its_scan_with_the_commands_scale_and_shift(tmp_path):
+    from perch_console.ui import scan_source
+
+    path = tmp_path / "site.obj"   # a 4 m x 3 m room in millimetres, in UTM coordinates
+    corners = (np.array([[0, 0, 0], [4, 0, 0], [4, 3, 0], [0, 3, 2.5]]) + [450000, 5200000, 300]) * 1000
+    path.write_text("".join(f"v {x:.0f} {y:.0f} {z:.0f}\n" for x, y, z in corners) + "f 1 2 3\nf 1 3 4\n")
+    mesh, message, _ = scan_source(path, 0.001, (-450000.0, -5200000.0, -300.0))
+    assert np.allclose(mesh.vertices, [[0, 0, 0], [4, 0, 0], [4, 3, 0], [0, 3, 2.5]])
+    assert np.allclose(np.reshape(message.vertices, (-1, 3)), mesh.vertices)
