@@ -29,7 +29,8 @@ def register_plan(sub) -> None:
     p.add_argument("--target", default=None, metavar="SPEC",
                    help="floor (the cropped floor area, default for --mesh/--bag) | "
                         "box:CX,CY,CZ,SX,SY,SZ[,YAW_DEG] | several boxes joined by '+' (each weighted equally) | "
-                        "FOOTPRINT_MESH[:HEIGHT] (extruded, default 1.2 m); --scene defaults to the scene's own target")
+                        "FOOTPRINT_MESH[:HEIGHT] (extruded, default 1.2 m; read with --scale and --shift, and boxes are in "
+                        "the frame they give); --scene defaults to the scene's own target")
     p.add_argument("--cameras", type=camera_count, default=0,
                    help="number of cameras (0: the placement node's default)")
     add_units_arguments(p, "--mesh and a footprint --target")
