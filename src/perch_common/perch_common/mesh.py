@@ -246,15 +246,14 @@ def inspect_mesh(mesh: Mesh, area_epsilon: float = 1e-12, warnings: bool = True)
     degenerate = int((mesh.face_areas() <= area_epsilon).sum())
     if degenerate == mesh.num_faces:
         fatal.append("every face is degenerate (zero area)")
-    if not census:
-        far = far_problem(*mesh.bounds())
-        return MeshProblems(fatal + ([far] if far else []), warnings, degenerate)
-    if degenerate:
-        warnings.append(f"{degenerate} degenerate (zero-area) faces")
     lo, hi = mesh.bounds()
     far = far_problem(lo, hi)
     if far:
         fatal.append(far)
+    if not census:
+        return MeshProblems(fatal, warnings, degenerate)
+    if degenerate:
+        warnings.append(f"{degenerate} degenerate (zero-area) faces")
     units = scale_problem(float(np.max(hi - lo)))
     if units:
         warnings.append(units)
