@@ -150,6 +150,52 @@ def test_a_killed_client_frees_the_graph_and_a_refused_one_writes_nothing(graph,
         bystander.destroy_node()
 
 
+# A plain ROS 2 action client (no Perch client code, so no presence writer): it sends a goal that waits
+# for its operator and prints each stage its feedback names.
+PLAIN_CLIENT = """
+import rclpy
+from rclpy.action import ActionClient
+from perch_common.conventions import MISSION_ACTION
+from perch_common.scene_generator import generate_scene
+from perch_interfaces.action import PlanPerches
+from perch_operator.api.client import scene_goal
+
+rclpy.init()
+node = rclpy.create_node("plain_ros_client")
+client = ActionClient(node, PlanPerches, MISSION_ACTION)
+client.wait_for_server()
+sent = client.send_goal_async(scene_goal(generate_scene(3, "room"), 2, auto_accept=False),
+                              feedback_callback=lambda m: print("stage", m.feedback.stage, flush=True))
+rclpy.spin_until_future_complete(node, sent)
+print("accepted" if sent.result().accepted else "rejected", flush=True)
+rclpy.spin(node)
+"""
+
+
+def test_a_killed_plain_ros_client_frees_the_graph_with_a_perch_commander_open(graph, tmp_path, small_goal):
+    """A plain ROS client has no presence writer: the coordinator follows the goal's first feedback
+    readers, and leaves out those of Perch's observers (here a robot node's PerchCommander, left open)."""
+    from perch_operator.api.commander import PerchCommander
+
+    commander = PerchCommander(node_name="bystander_commander")   # reads every mission's feedback
+    log = tmp_path / "plain.log"
+    try:
+        with open(log, "w") as stream:
+            plain = subprocess.Popen([sys.executable, "-c", PLAIN_CLIENT], env=dict(os.environ), stdout=stream,
+                                     stderr=subprocess.STDOUT)
+        try:
+            wait_for_output(plain, log, "stage confirm", 240)   # waits for its operator now
+            plain.send_signal(signal.SIGKILL)
+        finally:
+            plain.kill()
+            plain.wait()
+        result, freed_after = run_when_free(graph.node, small_goal, within=30)
+        assert result.success, result.message
+        print(f"coordinator free {freed_after:.1f} s after the plain client was killed")
+    finally:
+        commander.destroy()
+
+
 def test_perch_operator_cancel_ends_a_stuck_mission(graph, tmp_path, small_goal):
     out = tmp_path / "stuck"
     log = tmp_path / "stuck.log"

@@ -59,8 +59,13 @@ MISSION_FEEDBACK_TOPIC = MISSION_ACTION + "/_action/feedback"
 MISSION_STATUS_TOPIC = MISSION_ACTION + "/_action/status"
 # A mission client's presence: while it waits for goal G it keeps a writer on MISSION_CLIENT_PREFIX + G's
 # hex (a hidden topic, never published on). The coordinator watches that writer, not every feedback
-# reader, so a console or a recorder left open does not keep a killed client's mission alive.
-MISSION_CLIENT_PREFIX = MISSION_ACTION + "/_client/g"
+# reader, so a console or a recorder left open does not keep a killed client's mission alive. Perch's
+# tools that read every mission's feedback (console, commander, recorder, perch plan) keep a writer on
+# MISSION_OBSERVER_TOPIC: for a plain ROS client's goal, the coordinator does not take their readers for
+# the client's. Nothing is ever sent under MISSION_PRESENCE_PREFIX (recordings leave it out).
+MISSION_PRESENCE_PREFIX = MISSION_ACTION + "/_client/"
+MISSION_CLIENT_PREFIX = MISSION_PRESENCE_PREFIX + "g"
+MISSION_OBSERVER_TOPIC = MISSION_PRESENCE_PREFIX + "observer"
 
 
 def mission_client_topic(goal_id) -> str:

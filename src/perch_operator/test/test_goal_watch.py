@@ -6,7 +6,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from perch_common.conventions import MISSION_FEEDBACK_TOPIC, mission_client_topic
+from perch_common.conventions import MISSION_FEEDBACK_TOPIC, MISSION_OBSERVER_TOPIC, mission_client_topic
 from perch_operator.coordinator import goal_watch
 from perch_operator.coordinator.goal_watch import GoalWatch
 
@@ -15,7 +15,8 @@ GRACE = 5.0
 
 
 class ListingNode:
-    """What GoalWatch asks of a node: its topic names and the endpoints the graph lists on them."""
+    """What GoalWatch asks of a node: its topic names and the endpoints the graph lists on them (an
+    endpoint's node is its GID's first word: b"console reader" is node /console's)."""
 
     def __init__(self):
         self.readers: dict[str, list[bytes]] = {}
@@ -25,10 +26,14 @@ class ListingNode:
         return "/" + name
 
     def get_subscriptions_info_by_topic(self, topic: str):
-        return [SimpleNamespace(endpoint_gid=gid) for gid in self.readers.get(topic, [])]
+        return [_endpoint(gid) for gid in self.readers.get(topic, [])]
 
     def get_publishers_info_by_topic(self, topic: str):
-        return [SimpleNamespace(endpoint_gid=gid) for gid in self.writers.get(topic, [])]
+        return [_endpoint(gid) for gid in self.writers.get(topic, [])]
+
+
+def _endpoint(gid: bytes) -> SimpleNamespace:
+    return SimpleNamespace(endpoint_gid=gid, node_name=gid.decode().split()[0], node_namespace="/")
 
 
 @pytest.fixture
@@ -50,6 +55,7 @@ def _gone_after(watch: GoalWatch, clock, seconds: float) -> bool:
 
 FEEDBACK = "/" + MISSION_FEEDBACK_TOPIC
 PRESENCE = "/" + mission_client_topic(GOAL)
+OBSERVERS = "/" + MISSION_OBSERVER_TOPIC
 
 
 def test_a_bystander_reader_does_not_keep_a_killed_clients_mission(clock):
@@ -101,4 +107,38 @@ def test_no_grace_never_ends_a_mission(clock):
     node.writers[PRESENCE] = [b"client presence"]
     watch = GoalWatch(node, 0.0, GOAL)
     node.writers[PRESENCE] = []
+    assert not _gone_after(watch, clock, 60.0)
+
+
+def test_a_perch_observer_does_not_keep_a_killed_plain_clients_mission(clock):
+    node = ListingNode()
+    # A console left open (a Perch observer) and a plain ROS client without a presence writer.
+    node.readers[FEEDBACK] = [b"console reader", b"plain_client reader"]
+    watch = GoalWatch(node, GRACE, GOAL)
+    clock.t += 1.0
+    node.writers[OBSERVERS] = [b"console observer"]   # discovered after the readers: still left out
+    assert not _gone_after(watch, clock, 10.0)
+    node.readers[FEEDBACK] = [b"console reader"]   # the plain client killed; the console stays
+    assert not _gone_after(watch, clock, GRACE - 1.0)
+    assert _gone_after(watch, clock, 2.0)
+    assert "no feedback reader" in watch.describe()
+
+
+def test_another_tools_reader_is_still_taken_for_a_plain_clients(clock):
+    node = ListingNode()
+    node.readers[FEEDBACK] = [b"echo reader", b"plain_client reader"]   # a tool that is no Perch observer
+    node.writers[OBSERVERS] = [b"console observer"]
+    watch = GoalWatch(node, GRACE, GOAL)
+    node.readers[FEEDBACK] = [b"echo reader"]
+    assert not _gone_after(watch, clock, 60.0)   # the documented limit: it may be the client
+
+
+def test_readers_of_observers_only_tell_nothing_of_a_plain_client(clock):
+    """Every reader of the goal's first seconds on observer nodes: nothing tells who the client is, and
+    the mission is never ended for it (as with no reader at all)."""
+    node = ListingNode()
+    node.readers[FEEDBACK] = [b"console reader"]
+    node.writers[OBSERVERS] = [b"console observer"]
+    watch = GoalWatch(node, GRACE, GOAL)
+    node.readers[FEEDBACK] = []
     assert not _gone_after(watch, clock, 60.0)

@@ -200,7 +200,7 @@ def run_mission(node, goal: PlanPerches.Goal, timeout: float = 600.0, server_wai
             raise
         return result.result
     finally:
-        presence.withdraw()
+        presence.close()
         if signed is not None:
             signed.destroy()
         statuses.destroy()

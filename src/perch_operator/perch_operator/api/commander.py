@@ -169,7 +169,7 @@ class PerchCommander:
 
     def destroy(self) -> None:
         """Release the commander's clients (and its node when it made one)."""
-        self._presence.withdraw()
+        self._presence.close()
         self._action.destroy()
         if self._signed is not None:
             self._signed.destroy()

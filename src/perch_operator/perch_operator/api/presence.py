@@ -6,7 +6,15 @@ import threading
 
 from unique_identifier_msgs.msg import UUID
 
-from perch_common.conventions import mission_client_topic
+from perch_common.conventions import MISSION_OBSERVER_TOPIC, mission_client_topic
+
+
+def observer_writer(node):
+    """A writer on MISSION_OBSERVER_TOPIC: `node` is a Perch tool that reads every mission's feedback
+    without being every mission's client (a console, a commander, a recorder). For a plain ROS client's
+    goal, whose client has no presence writer, the coordinator then leaves this node's feedback readers
+    out when it watches for the client. Nothing is published on it; destroy it with the reader."""
+    return node.create_publisher(UUID, MISSION_OBSERVER_TOPIC, 1)
 
 
 class ClientPresence:
@@ -15,12 +23,14 @@ class ClientPresence:
     ended. Nothing is published on it: the coordinator takes this writer as the goal's client, so a
     console, a commander or a recorder that also reads the mission's feedback cannot keep a killed
     client's mission alive. When the client's process dies its writer leaves the graph with it (the
-    DDS lease), and the mission is aborted after `client_grace`. Safe from any thread."""
+    DDS lease), and the mission is aborted after `client_grace`. Between its own goals the node reads
+    other clients' feedback as an observer (`observer_writer`, kept until `close`). Safe from any thread."""
 
     def __init__(self, node) -> None:
         self.node = node
         self._lock = threading.Lock()
         self._writer = None
+        self._observer = observer_writer(node)
 
     def announce(self, goal_id) -> None:
         """Be goal `goal_id`'s client (16 bytes, or a UUID message's list); an earlier goal's writer goes."""
@@ -36,3 +46,11 @@ class ClientPresence:
             writer, self._writer = self._writer, None
         if writer is not None:
             self.node.destroy_publisher(writer)
+
+    def close(self) -> None:
+        """Withdraw, and stop being an observer (the node no longer reads missions' feedback)."""
+        self.withdraw()
+        with self._lock:
+            observer, self._observer = self._observer, None
+        if observer is not None:
+            self.node.destroy_publisher(observer)

@@ -5,15 +5,17 @@ topic while they wait (`perch_operator.api.presence`): once it has been seen, th
 no writer is left on that topic for `grace` seconds (Fast DDS drops a killed process after its lease,
 3 s with config/fastdds.xml). A plain ROS action client has no such writer; for its goal the
 coordinator remembers which feedback readers existed while the goal started and treats the client as
-gone once all of them have left. Any other reader present then (a console, a recorder) is taken for
-the client too, so such a goal may outlive its killed client until `confirm_timeout` or a cancel.
+gone once all of them have left. Readers of Perch's observers (console, commander, recorder: nodes with
+a writer on MISSION_OBSERVER_TOPIC) are left out; any other reader present then (another tool that
+reads the feedback) is taken for the client too, so such a goal may outlive its killed client until
+`confirm_timeout` or a cancel.
 """
 
 from __future__ import annotations
 
 import time
 
-from perch_common.conventions import MISSION_FEEDBACK_TOPIC, mission_client_topic
+from perch_common.conventions import MISSION_FEEDBACK_TOPIC, MISSION_OBSERVER_TOPIC, mission_client_topic
 
 ADOPT_SECONDS = 5.0   # readers discovered this soon after the goal started count as its client
 CHECK_PERIOD = 0.5    # s between graph queries
@@ -21,23 +23,28 @@ CHECK_PERIOD = 0.5    # s between graph queries
 
 class GoalWatch:
     """`gone()` turns True when the goal's presence writer (or, for a client without one, the feedback
-    readers present at the goal's start) has left the graph for longer than `grace`."""
+    readers present at the goal's start, observers' left out) has left the graph for longer than `grace`."""
 
     def __init__(self, node, grace: float, goal_id=None, topic: str = MISSION_FEEDBACK_TOPIC):
         self.node = node
         self.grace = grace
         self.topic = node.resolve_topic_name(topic)
         self.presence_topic = node.resolve_topic_name(mission_client_topic(goal_id)) if goal_id is not None else ""
+        self.observer_topic = node.resolve_topic_name(MISSION_OBSERVER_TOPIC)
         self.present = False   # the goal's presence writer has been seen: it alone tells
         self.started = time.monotonic()
-        self.readers: set[bytes] = set()
+        self.readers: dict[bytes, str] = {}   # feedback readers present while the goal started -> their node
         self._absent_since: float | None = None
         self._checked = 0.0
         self._gone = False
         self._look()
 
-    def _current(self) -> set[bytes]:
-        return {bytes(info.endpoint_gid) for info in self.node.get_subscriptions_info_by_topic(self.topic)}
+    def _current(self) -> dict[bytes, str]:
+        return {bytes(info.endpoint_gid): _node_of(info) for info in self.node.get_subscriptions_info_by_topic(self.topic)}
+
+    def _observers(self) -> set[str]:
+        """The nodes that read missions' feedback as observers (Perch's tools), now."""
+        return {_node_of(info) for info in self.node.get_publishers_info_by_topic(self.observer_topic)}
 
     def _client_here(self, now: float) -> bool:
         """Whether the goal's client is in the graph now (True while nothing tells who it is)."""
@@ -48,8 +55,10 @@ class GoalWatch:
             return False
         current = self._current()
         if now - self.started < ADOPT_SECONDS:
-            self.readers |= current
-        return not self.readers or bool(self.readers & current)
+            self.readers.update(current)
+        observers = self._observers()   # looked at every time: an observer's writer may be discovered late
+        client = {gid for gid, node in self.readers.items() if node not in observers}
+        return not client or not client.isdisjoint(current)
 
     def _look(self) -> None:
         now = time.monotonic()
@@ -75,3 +84,8 @@ class GoalWatch:
         what = "its presence writer gone" if self.present else "no feedback reader"
         return (f"the mission's client left the graph ({what} for {self.grace:g} s; killed or "
                 "disconnected); mission aborted so the graph is free for the next one")
+
+
+def _node_of(info) -> str:
+    """The full name of the node an endpoint (rclpy's TopicEndpointInfo) belongs to."""
+    return f"{info.node_namespace.rstrip('/')}/{info.node_name}"

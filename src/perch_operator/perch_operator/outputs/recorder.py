@@ -23,10 +23,11 @@ from pathlib import Path
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from perch_common.conventions import CONFIRM_SERVICE, MISSION_CLIENT_PREFIX, MISSION_FEEDBACK_TOPIC
+from perch_common.conventions import CONFIRM_SERVICE, MISSION_FEEDBACK_TOPIC, MISSION_PRESENCE_PREFIX
 from perch_common.ros import bag_format
 from perch_common.ros.msgdefs import full_definition, message_class, type_hash
 from perch_common.ros.static_transforms import TF_STATIC_TOPIC
+from perch_operator.api.presence import observer_writer
 from perch_operator.coordinator.stages import STAGES
 
 EVENT_SUFFIX = "/_service_event"
@@ -92,6 +93,7 @@ class MissionRecorder:
         self._last_ns = 0
         self._closed = False
         self._calls: dict[str, dict[bytes, set[str]]] = {}   # event topic -> call -> halves recorded
+        self._observer = observer_writer(node)   # it reads every mission's feedback: not a client's reader
 
     def refresh(self, late: bool = False) -> int:
         """Subscribe to every /perch topic now in the graph and every known service event topic.
@@ -102,7 +104,7 @@ class MissionRecorder:
         topics = {self.node.resolve_topic_name(name): type_name
                   for name, type_name in dict(event_topics(), **MISSION_TOPICS).items()}
         tf_static = self.node.resolve_topic_name(TF_STATIC_TOPIC)
-        presence = self.node.resolve_topic_name(MISSION_CLIENT_PREFIX)   # clients' markers: nothing is sent
+        presence = self.node.resolve_topic_name(MISSION_PRESENCE_PREFIX)   # clients' markers: nothing is sent
         for name, types in self.node.get_topic_names_and_types():
             # tf_static: the mission's input frame -> gravity-aligned frame transform (this graph's namespace).
             if (name.startswith(self.prefix + "/") or name == tf_static) and types and not name.startswith(presence):
@@ -225,6 +227,7 @@ class MissionRecorder:
                 self._first_ns or 0, self._last_ns, self.path.name)
             for sub in self._subs.values():
                 self.node.destroy_subscription(sub)
+            self.node.destroy_publisher(self._observer)
             self._writer.finish()
             self._file.close()
         return self.path
