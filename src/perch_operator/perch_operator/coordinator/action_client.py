@@ -150,6 +150,7 @@ class GoalCall:
         self._sent_at = 0.0
         self._result_asked_at = 0.0
         self._ended_since: float | None = None
+        self._held_back = False       # said that a lost goal is not sent again (its servers changed)
         self._send()
 
     @property
@@ -237,6 +238,13 @@ class GoalCall:
                     self._adopt(ClientGoalHandle(self.client, goal_id, response))
                     return
                 if not self.may_resend():
+                    if not self._held_back:
+                        self._held_back = True
+                        self.log.warning(f"{self.client._action_name}: goal {request_id} got no answer in "
+                                         f"{now - self._sent_at:.1f} s, and the action's servers changed since "
+                                         "(none listed now, or a new one joined): not sent again (the call "
+                                         "fails once its servers are gone, parameter gone_grace, or at "
+                                         "stage_timeout)")
                     return
                 self.log.warning(f"{self.client._action_name}: goal {request_id} got no answer in "
                                  f"{now - self._sent_at:.1f} s and its server does not list it (lost): sending it again")

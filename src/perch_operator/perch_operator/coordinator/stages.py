@@ -341,20 +341,20 @@ class StageCaller:
 
 class ServerWatch:
     """`gone()` turns True when every server of `service` present as the call went out has left the
-    graph for `grace` seconds, whether or not another server (a respawned node) has appeared since."""
+    graph for `grace` seconds, whether or not another server (a respawned node) has appeared since.
+    When none was listed yet as the call went out (it matched the server, the graph listing lags), the
+    first ones listed are the call's."""
 
     CHECK_PERIOD = 0.2   # s between graph queries
-    ADOPT_SECONDS = 2.0  # servers first listed this soon after the call count as its own (discovery lag)
 
     def __init__(self, node, service: str, grace: float):
         self.node = node
         self.service = service
         self.grace = grace
-        self.started = time.monotonic()
         self.servers = server_endpoints(node, service)
         self.current = dict(self.servers)
         self._absent_since: float | None = None
-        self._checked = self.started
+        self._checked = time.monotonic()
 
     def gone(self) -> bool:
         """True once the call's servers have all been absent for longer than the grace period."""
@@ -363,8 +363,10 @@ class ServerWatch:
             return self._absent_since is not None and now - self._absent_since > self.grace
         self._checked = now
         self.current = server_endpoints(self.node, self.service)
-        if not self.servers and now - self.started < self.ADOPT_SECONDS:
-            self.servers = dict(self.current)   # matched (wait_for_service) but not yet listed here
+        if not self.servers:
+            # Matched (wait_for_service) but not yet listed here. Adopted however late: a call whose servers
+            # were never listed could otherwise neither fail (gone) nor be sent again (unchanged).
+            self.servers = dict(self.current)
         if not self.servers or set(self.servers) & set(self.current):
             self._absent_since = None
             return False
@@ -372,9 +374,11 @@ class ServerWatch:
         return now - self._absent_since > self.grace
 
     def unchanged(self) -> bool:
-        """The servers listed now are exactly those the call went to (none left, none new)."""
+        """A request sent again now reaches only servers the call went to: some are listed, and none has
+        joined since. One that left does not count (the ones still listed got the call too); before, a
+        call that listed a server which then left could never send a lost request again."""
         self.gone()
-        return bool(self.servers) and set(self.current) == set(self.servers)
+        return bool(self.current) and set(self.current) <= set(self.servers)
 
     def describe(self) -> str:
         """Why the call ended: which node died or restarted, and whether a new one serves now."""
