@@ -104,7 +104,8 @@ class MissionRecorder:
         topics = {self.node.resolve_topic_name(name): type_name
                   for name, type_name in dict(event_topics(), **MISSION_TOPICS).items()}
         tf_static = self.node.resolve_topic_name(TF_STATIC_TOPIC)
-        presence = self.node.resolve_topic_name(MISSION_PRESENCE_PREFIX)   # clients' markers: nothing is sent
+        # Clients' and observers' markers: nothing is sent on them (a prefix: resolved without its last "/").
+        presence = self.node.resolve_topic_name(MISSION_PRESENCE_PREFIX.rstrip("/")) + "/"
         for name, types in self.node.get_topic_names_and_types():
             # tf_static: the mission's input frame -> gravity-aligned frame transform (this graph's namespace).
             if (name.startswith(self.prefix + "/") or name == tf_static) and types and not name.startswith(presence):
