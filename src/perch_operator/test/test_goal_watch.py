@@ -36,6 +36,19 @@ def _endpoint(gid: bytes) -> SimpleNamespace:
     return SimpleNamespace(endpoint_gid=gid, node_name=gid.decode().split()[0], node_namespace="/")
 
 
+class NamedLater(ListingNode):
+    """Lists the console's reader as _NODE_NAME_UNKNOWN_ until `named` (discovered before its node names)."""
+
+    named = False
+
+    def get_subscriptions_info_by_topic(self, topic: str):
+        out = super().get_subscriptions_info_by_topic(topic)
+        for info in out:
+            if info.node_name == "console" and not self.named:
+                info.node_name = "_NODE_NAME_UNKNOWN_"
+        return out
+
+
 @pytest.fixture
 def clock(monkeypatch):
     now = SimpleNamespace(t=1000.0)
@@ -142,3 +155,14 @@ def test_readers_of_observers_only_tell_nothing_of_a_plain_client(clock):
     watch = GoalWatch(node, GRACE, GOAL)
     node.readers[FEEDBACK] = []
     assert not _gone_after(watch, clock, 60.0)
+
+
+def test_an_observers_reader_named_only_after_the_goals_first_seconds_is_still_left_out(clock):
+    node = NamedLater()
+    node.readers[FEEDBACK] = [b"console reader", b"plain_client reader"]
+    node.writers[OBSERVERS] = [b"console observer"]
+    watch = GoalWatch(node, GRACE, GOAL)
+    assert not _gone_after(watch, clock, goal_watch.ADOPT_SECONDS + 1.0)
+    node.named = True
+    node.readers[FEEDBACK] = [b"console reader"]   # the plain client killed
+    assert _gone_after(watch, clock, GRACE + 1.0)

@@ -14,11 +14,15 @@ def server_endpoints(node, service: str) -> dict[bytes, str]:
     A service travels on the DDS topics rq<service>Request / rr<service>Reply; each server has one
     reader of the request topic, with a GID that a restarted node never reuses."""
     infos = node.get_subscriptions_info_by_topic(f"rq{service}Request", no_mangle=True)
-    return {bytes(info.endpoint_gid): _node_name(info) for info in infos}
+    return {bytes(info.endpoint_gid): endpoint_node(info) for info in infos}
 
 
-def _node_name(info) -> str:
-    # An endpoint discovered before its participant's node names reads _NODE_NAME_UNKNOWN_.
+UNNAMED_NODE = "a node not yet named"
+
+
+def endpoint_node(info) -> str:
+    """The full name of the node an endpoint (rclpy's TopicEndpointInfo) belongs to; UNNAMED_NODE for one
+    discovered before its participant's node names (it reads _NODE_NAME_UNKNOWN_)."""
     if "_UNKNOWN_" in info.node_name or "_UNKNOWN_" in info.node_namespace:
-        return "a node not yet named"
+        return UNNAMED_NODE
     return f"{info.node_namespace.rstrip('/')}/{info.node_name}"

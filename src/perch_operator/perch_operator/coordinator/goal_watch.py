@@ -16,6 +16,7 @@ from __future__ import annotations
 import time
 
 from perch_common.conventions import MISSION_FEEDBACK_TOPIC, MISSION_OBSERVER_TOPIC, mission_client_topic
+from perch_common.ros.servers import UNNAMED_NODE, endpoint_node
 
 ADOPT_SECONDS = 5.0   # readers discovered this soon after the goal started count as its client
 CHECK_PERIOD = 0.5    # s between graph queries
@@ -40,11 +41,12 @@ class GoalWatch:
         self._look()
 
     def _current(self) -> dict[bytes, str]:
-        return {bytes(info.endpoint_gid): _node_of(info) for info in self.node.get_subscriptions_info_by_topic(self.topic)}
+        return {bytes(info.endpoint_gid): endpoint_node(info)
+                for info in self.node.get_subscriptions_info_by_topic(self.topic)}
 
     def _observers(self) -> set[str]:
         """The nodes that read missions' feedback as observers (Perch's tools), now."""
-        return {_node_of(info) for info in self.node.get_publishers_info_by_topic(self.observer_topic)}
+        return {endpoint_node(info) for info in self.node.get_publishers_info_by_topic(self.observer_topic)} - {UNNAMED_NODE}
 
     def _client_here(self, now: float) -> bool:
         """Whether the goal's client is in the graph now (True while nothing tells who it is)."""
@@ -56,6 +58,8 @@ class GoalWatch:
         current = self._current()
         if now - self.started < ADOPT_SECONDS:
             self.readers.update(current)
+        else:   # an adopted reader's node may be named only later (discovered before its node names)
+            self.readers.update({gid: node for gid, node in current.items() if gid in self.readers})
         observers = self._observers()   # looked at every time: an observer's writer may be discovered late
         client = {gid for gid, node in self.readers.items() if node not in observers}
         return not client or not client.isdisjoint(current)
@@ -85,7 +89,3 @@ class GoalWatch:
         return (f"the mission's client left the graph ({what} for {self.grace:g} s; killed or "
                 "disconnected); mission aborted so the graph is free for the next one")
 
-
-def _node_of(info) -> str:
-    """The full name of the node an endpoint (rclpy's TopicEndpointInfo) belongs to."""
-    return f"{info.node_namespace.rstrip('/')}/{info.node_name}"
