@@ -36,18 +36,25 @@ def test_manifest_rows_give_per_scan_options_and_bad_rows_become_failed_scans(tm
     _touch(tmp_path / "scans" / "floorplan.ply")
     _touch(tmp_path / "scans" / "readme.txt")
     manifest = _touch(tmp_path / "scans" / "list.tsv", "\n".join([
-        "file\tup\tcameras\ttarget\tname\tnote",
-        "a.obj\t+y\t3\t\t\tfirst",
-        "b.ply\t0.03,0.99,-0.02\t\tfloorplan.ply:2\tb scan\t",
-        "a.obj\t\t\tbox:0,0,1,1,1,1\t\tagain",
-        "missing.ply\t\t\t\t\t",
-        "readme.txt\t\t\t\t\t",
-        "\t\t\t\t\tempty row is skipped"]))
+        "file\tup\tcameras\ttarget\tname\tnote\tscale\tshift",
+        "a.obj\t+y\t3\t\t\tfirst\t\t",
+        "b.ply\t0.03,0.99,-0.02\t\tfloorplan.ply:2\tb scan\t\t",
+        "a.obj\t\t\tbox:0,0,1,1,1,1\t\tagain\t0.001\t-450120,-5201240,-310",
+        "missing.ply\t\t\t\t\t\t\t",
+        "readme.txt\t\t\t\t\t\t\t",
+        "\t\t\t\t\tempty row is skipped\t\t"]))
     scans = batch.collect_scans([manifest])
     assert [s.name for s in scans] == ["a", "b_scan", "a_2", "missing", "readme"]
     assert scans[0].options == {"--up": "+y", "--cameras": "3"}
     assert scans[1].options == {"--up": "0.03,0.99,-0.02", "--target": f"{tmp_path / 'scans' / 'floorplan.ply'}:2"}
-    assert scans[2].options == {"--target": "box:0,0,1,1,1,1"}
+    assert scans[2].options == {"--target": "box:0,0,1,1,1,1", "--scale": "0.001", "--shift": "-450120,-5201240,-310"}
+    # A georeferenced scan's shift starts with a minus: passed as --shift=..., which perch plan's parser takes.
+    from perch_common.cli import build_parser
+
+    cmd = batch.plan_command(scans[2], batch.PlanSettings(out=str(tmp_path)), "perch_batch_r_0")
+    argv = cmd[cmd.index("--namespace"):]
+    args = build_parser(argv).parse_args(argv)
+    assert args.shift == (-450120.0, -5201240.0, -310.0) and args.scale == 0.001
     assert "line 5" in scans[3].problem and "does not exist" in scans[3].problem
     assert "neither a mesh" in scans[4].problem
     # A folder holding MANIFEST.tsv is read through it.
