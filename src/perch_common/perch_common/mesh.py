@@ -365,8 +365,7 @@ def load_mesh(path: str | Path, validate: bool = True, scale: float = 1.0,
     from perch_common.viewpoints import moved_viewpoints, read_viewpoints_beside
 
     views = read_viewpoints_beside(path, np.asarray(loaded.vertices), np.asarray(loaded.faces))
-    vertices = np.asarray(loaded.vertices, np.float64)
-    mesh = Mesh(vertices * scale + offset if offset.any() else vertices * scale, np.asarray(loaded.faces), colors,
+    mesh = Mesh(np.asarray(loaded.vertices, np.float64) * scale + offset, np.asarray(loaded.faces), colors,
                 viewpoints=None if views is None else moved_viewpoints(views, scale, offset))
     return validate_mesh(mesh, str(path)) if validate else mesh
 
