@@ -175,12 +175,20 @@ rclpy.spin(node)
 """
 
 
-def test_a_killed_plain_ros_client_frees_the_graph_with_a_perch_commander_open(graph, tmp_path, small_goal):
+def test_a_killed_plain_ros_client_frees_the_graph_with_bystanders_open(graph, tmp_path, small_goal):
     """A plain ROS client has no presence writer: the coordinator follows the goal's first feedback
-    readers, and leaves out those of Perch's observers (here a robot node's PerchCommander, left open)."""
+    readers of action clients of the mission, and leaves out Perch's observers (here a robot node's
+    PerchCommander, left open) and tools that only read the feedback (here a plain subscription, as
+    Foxglove's bridge or `ros2 topic echo` make)."""
+    import rclpy
+
+    from perch_common.conventions import MISSION_FEEDBACK_TOPIC
+    from perch_interfaces.action import PlanPerches
     from perch_operator.api.commander import PerchCommander
 
     commander = PerchCommander(node_name="bystander_commander")   # reads every mission's feedback
+    tool = rclpy.create_node("feedback_echo")
+    tool.create_subscription(PlanPerches.Impl.FeedbackMessage, MISSION_FEEDBACK_TOPIC, lambda _: None, 10)
     log = tmp_path / "plain.log"
     try:
         with open(log, "w") as stream:
@@ -193,6 +201,7 @@ def test_a_killed_plain_ros_client_frees_the_graph_with_a_perch_commander_open(g
             plain.wait()
         free_after_the_kill(graph, small_goal, "the plain client")
     finally:
+        tool.destroy_node()
         commander.destroy()
 
 

@@ -57,6 +57,7 @@ CONFIRM_SERVICE = "perch/confirm"  # the operator's accept/reject service (not a
 MISSION_ACTION = "perch/plan_perches"
 MISSION_FEEDBACK_TOPIC = MISSION_ACTION + "/_action/feedback"
 MISSION_STATUS_TOPIC = MISSION_ACTION + "/_action/status"
+MISSION_SEND_GOAL_SERVICE = MISSION_ACTION + "/_action/send_goal"  # every action client of the mission has one
 # A mission client's presence: while it waits for goal G it keeps a writer on MISSION_CLIENT_PREFIX + G's
 # hex (a hidden topic, never published on). The coordinator watches that writer, not every feedback
 # reader, so a console or a recorder left open does not keep a killed client's mission alive. Perch's

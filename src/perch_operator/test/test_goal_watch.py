@@ -6,7 +6,12 @@ from types import SimpleNamespace
 
 import pytest
 
-from perch_common.conventions import MISSION_FEEDBACK_TOPIC, MISSION_OBSERVER_TOPIC, mission_client_topic
+from perch_common.conventions import (
+    MISSION_FEEDBACK_TOPIC,
+    MISSION_OBSERVER_TOPIC,
+    MISSION_SEND_GOAL_SERVICE,
+    mission_client_topic,
+)
 from perch_operator.coordinator import goal_watch
 from perch_operator.coordinator.goal_watch import GoalWatch
 
@@ -15,12 +20,14 @@ GRACE = 5.0
 
 
 class ListingNode:
-    """What GoalWatch asks of a node: its topic names and the endpoints the graph lists on them (an
-    endpoint's node is its GID's first word: b"console reader" is node /console's)."""
+    """What GoalWatch asks of a node: its topic names, the endpoints the graph lists on them (an
+    endpoint's node is its GID's first word: b"console reader" is node /console's) and the service
+    clients of a listed node (`action_clients`: the nodes with a client of the mission's send_goal)."""
 
     def __init__(self):
         self.readers: dict[str, list[bytes]] = {}
         self.writers: dict[str, list[bytes]] = {}
+        self.action_clients = {"client", "plain_client", "console"}   # the console's PerchCommander has one too
 
     def resolve_topic_name(self, name: str) -> str:
         return "/" + name
@@ -30,6 +37,13 @@ class ListingNode:
 
     def get_publishers_info_by_topic(self, topic: str):
         return [_endpoint(gid) for gid in self.writers.get(topic, [])]
+
+    def get_client_names_and_types_by_node(self, name: str, namespace: str):
+        listed = {gid.decode().split()[0] for gids in (*self.readers.values(), *self.writers.values()) for gid in gids}
+        if namespace != "/" or name not in listed:
+            raise RuntimeError(f"cannot get client names and types for nonexistent node: {name}")  # as rclpy
+        return [("/" + MISSION_SEND_GOAL_SERVICE, ["perch_interfaces/action/PlanPerches_SendGoal"])] \
+            if name in self.action_clients else [("/other/service", ["std_srvs/srv/Trigger"])]
 
 
 def _endpoint(gid: bytes) -> SimpleNamespace:
@@ -137,13 +151,44 @@ def test_a_perch_observer_does_not_keep_a_killed_plain_clients_mission(clock):
     assert "no feedback reader" in watch.describe()
 
 
-def test_another_tools_reader_is_still_taken_for_a_plain_clients(clock):
+def test_a_tool_that_only_reads_the_feedback_does_not_keep_a_killed_plain_clients_mission(clock):
     node = ListingNode()
-    node.readers[FEEDBACK] = [b"echo reader", b"plain_client reader"]   # a tool that is no Perch observer
-    node.writers[OBSERVERS] = [b"console observer"]
+    # Foxglove's bridge or `ros2 topic echo`: a feedback reader on a node with no send_goal client.
+    node.readers[FEEDBACK] = [b"foxglove_bridge reader", b"plain_client reader"]
     watch = GoalWatch(node, GRACE, GOAL)
-    node.readers[FEEDBACK] = [b"echo reader"]
+    assert not _gone_after(watch, clock, 10.0)
+    node.readers[FEEDBACK] = [b"foxglove_bridge reader"]   # the plain client killed; the bridge stays
+    assert not _gone_after(watch, clock, GRACE - 1.0)
+    assert _gone_after(watch, clock, 2.0)
+
+
+def test_another_action_client_of_the_mission_is_still_taken_for_a_plain_clients(clock):
+    node = ListingNode()
+    node.action_clients.add("dispatcher_b")   # a second dispatcher (not Perch's), idle, its client open
+    node.readers[FEEDBACK] = [b"dispatcher_b reader", b"plain_client reader"]
+    watch = GoalWatch(node, GRACE, GOAL)
+    node.readers[FEEDBACK] = [b"dispatcher_b reader"]
     assert not _gone_after(watch, clock, 60.0)   # the documented limit: it may be the client
+
+
+def test_a_killed_clients_node_still_counts_once_it_has_left_the_graph(clock):
+    """The node's service clients cannot be listed once it has gone (rclpy raises): what was seen of it
+    while it was there decides."""
+    node = ListingNode()
+    node.readers[FEEDBACK] = [b"echo reader", b"plain_client reader"]
+    watch = GoalWatch(node, GRACE, GOAL)
+    assert not _gone_after(watch, clock, 1.0)
+    node.readers[FEEDBACK] = [b"echo reader"]   # /plain_client is no longer listed anywhere
+    assert _gone_after(watch, clock, GRACE + 1.0)
+
+
+def test_a_reader_of_a_node_not_yet_named_counts_as_the_client(clock):
+    node = NamedLater()
+    node.action_clients.discard("console")
+    node.readers[FEEDBACK] = [b"console reader"]   # listed as _NODE_NAME_UNKNOWN_ while the goal starts
+    watch = GoalWatch(node, GRACE, GOAL)
+    node.readers[FEEDBACK] = []
+    assert _gone_after(watch, clock, GRACE + 1.0)
 
 
 def test_readers_of_observers_only_tell_nothing_of_a_plain_client(clock):

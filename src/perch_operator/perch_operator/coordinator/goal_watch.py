@@ -5,17 +5,24 @@ topic while they wait (`perch_operator.api.presence`): once it has been seen, th
 no writer is left on that topic for `grace` seconds (Fast DDS drops a killed process after its lease,
 3 s with config/fastdds.xml). A plain ROS action client has no such writer; for its goal the
 coordinator remembers which feedback readers existed while the goal started and treats the client as
-gone once all of them have left. Readers of Perch's observers (console, commander, recorder: nodes with
-a writer on MISSION_OBSERVER_TOPIC) are left out; any other reader present then (another tool that
-reads the feedback) is taken for the client too, so such a goal may outlive its killed client until
-`confirm_timeout` or a cancel.
+gone once all of them have left. Only readers of nodes that are the mission's action clients (a client
+of its send_goal service, which every ROS 2 action client has) count; of those, Perch's observers
+(console, commander, recorder: nodes with a writer on MISSION_OBSERVER_TOPIC) are left out. So a tool
+that only reads the feedback (Foxglove's bridge, `ros2 topic echo`, a bag recorder) does not keep a
+killed client's mission; another action client of the mission open then (not Perch's) is taken for
+the client too, and such a goal may outlive its killed client until `confirm_timeout` or a cancel.
 """
 
 from __future__ import annotations
 
 import time
 
-from perch_common.conventions import MISSION_FEEDBACK_TOPIC, MISSION_OBSERVER_TOPIC, mission_client_topic
+from perch_common.conventions import (
+    MISSION_FEEDBACK_TOPIC,
+    MISSION_OBSERVER_TOPIC,
+    MISSION_SEND_GOAL_SERVICE,
+    mission_client_topic,
+)
 from perch_common.ros.servers import UNNAMED_NODE, endpoint_node
 
 ADOPT_SECONDS = 5.0   # readers discovered this soon after the goal started count as its client
@@ -32,9 +39,12 @@ class GoalWatch:
         self.topic = node.resolve_topic_name(topic)
         self.presence_topic = node.resolve_topic_name(mission_client_topic(goal_id)) if goal_id is not None else ""
         self.observer_topic = node.resolve_topic_name(MISSION_OBSERVER_TOPIC)
+        self.send_goal = node.resolve_topic_name(MISSION_SEND_GOAL_SERVICE)   # services resolve as topics
         self.present = False   # the goal's presence writer has been seen: it alone tells
         self.started = time.monotonic()
         self.readers: dict[bytes, str] = {}   # feedback readers present while the goal started -> their node
+        self.action_clients: set[str] = set()   # nodes seen with a send_goal client (kept once seen: a
+        # killed client's node leaves the graph with its reader)
         self._absent_since: float | None = None
         self._checked = 0.0
         self._gone = False
@@ -47,6 +57,21 @@ class GoalWatch:
     def _observers(self) -> set[str]:
         """The nodes that read missions' feedback as observers (Perch's tools), now."""
         return {endpoint_node(info) for info in self.node.get_publishers_info_by_topic(self.observer_topic)} - {UNNAMED_NODE}
+
+    def _is_action_client(self, node_name: str) -> bool:
+        """Whether the node `node_name` is (or was seen to be) a client of the mission's send_goal service;
+        True for a node not yet named (nothing tells yet)."""
+        if node_name == UNNAMED_NODE or node_name in self.action_clients:
+            return True
+        namespace, _, name = node_name.rpartition("/")
+        try:
+            services = self.node.get_client_names_and_types_by_node(name, namespace or "/")
+        except RuntimeError:   # rclpy's NodeNameNonExistentError: gone, or its node names not yet discovered
+            return False
+        if any(service == self.send_goal for service, _ in services):
+            self.action_clients.add(node_name)
+            return True
+        return False
 
     def _client_here(self, now: float) -> bool:
         """Whether the goal's client is in the graph now (True while nothing tells who it is)."""
@@ -61,7 +86,7 @@ class GoalWatch:
         else:   # an adopted reader's node may be named only later (discovered before its node names)
             self.readers.update({gid: node for gid, node in current.items() if gid in self.readers})
         observers = self._observers()   # looked at every time: an observer's writer may be discovered late
-        client = {gid for gid, node in self.readers.items() if node not in observers}
+        client = {gid for gid, node in self.readers.items() if node not in observers and self._is_action_client(node)}
         return not client or not client.isdisjoint(current)
 
     def _look(self) -> None:
