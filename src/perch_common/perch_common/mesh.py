@@ -289,6 +289,29 @@ def far_problem(lo: np.ndarray, hi: np.ndarray, what: str = "mesh") -> str | Non
             f"(--shift={','.join(f'{v:.0f}' for v in shift)}; the outputs are then in the shifted frame)")
 
 
+STORED_STEP_LIMIT = 0.01   # m: a file holding positions no finer than this cannot show a perch's flatness
+
+
+def stored_precision_problem(vertices: np.ndarray, scale: float = 1.0) -> str | None:
+    """A message when every coordinate a file holds (`vertices`, as read, before `scale`) is a float32
+    value and float32 steps that far from the origin are coarser than STORED_STEP_LIMIT (after `scale`):
+    the geometry was rounded when the file was written (a georeferenced mesh exported in single
+    precision: half-metre steps 5000 km out), which no shift undoes; else None."""
+    vertices = np.asarray(vertices)
+    if not vertices.size:
+        return None
+    far = float(np.max(np.abs(vertices)))
+    step = float(np.spacing(np.float32(far))) * scale if np.isfinite(far) else 0.0
+    if step <= STORED_STEP_LIMIT:   # near the origin (every mesh Perch meets): no float32 check needed
+        return None
+    if not np.array_equal(vertices.astype(np.float32), vertices):
+        return None   # finer values than float32 holds: written in double precision (or as text)
+    return (f"every coordinate in the file is a single-precision (float32) number, and {far * scale / 1000:,.1f} km "
+            f"from the origin those hold positions only to {step:g} m steps: the geometry was rounded when the "
+            "file was written, and no --shift restores it; export it again in double precision (PLY 'property "
+            "double', an OBJ with every decimal) or moved near the origin first (e.g. CloudCompare's global shift)")
+
+
 def scale_problem(extent: float, what: str = "mesh") -> str | None:
     """A message when a space `extent` metres across suggests cm or mm units, else None."""
     if not np.isfinite(extent) or extent <= MAX_PLAUSIBLE_EXTENT:
@@ -356,6 +379,9 @@ def load_mesh(path: str | Path, validate: bool = True, scale: float = 1.0,
         if size > 200:   # more than an empty file's header: something is there, and it is not geometry
             raise MeshError(f"{path}: no vertex or face could be read from its {size:,} bytes: not a mesh in the "
                             f"{path.suffix.lower()} format (another format under this name?)")
+    stored = stored_precision_problem(loaded.vertices, scale)
+    if stored:
+        raise MeshError(f"{path}: {stored}")
     colors = None
     visual = getattr(loaded, "visual", None)
     if visual is not None and getattr(visual, "kind", None) == "vertex":
