@@ -218,6 +218,21 @@ def test_mesh_path_is_loaded_by_the_coordinator_and_cleaned_along_minus_up(meshe
     assert clean.mesh.header.frame_id == "map_gravity_aligned" and result.success
 
 
+@pytest.mark.parametrize("units", ["millimetres", "utm"])
+def test_a_mesh_path_needing_a_scale_or_shift_is_refused_with_what_a_goal_can_do(meshes, tmp_path, units):
+    from perch_common.mesh import Mesh, MeshError, save_mesh
+
+    room = meshes.room()
+    vertices = room.vertices * 1000 if units == "millimetres" else room.vertices + [452113.25, 5201244.5, 312.0]
+    path = tmp_path / "room.obj"   # text: every decimal of the UTM coordinates kept
+    save_mesh(path, Mesh(vertices, room.faces))
+    stages = ScriptedStages(None)
+    hint = "--scale 0.001" if units == "millimetres" else "--shift="
+    with pytest.raises(MeshError, match=rf"{hint}.*A goal's mesh_path is read as it is .* the goal's mesh field"):
+        run(stages, PlanPerches.Goal(mesh_path=str(path), auto_accept=True))
+    assert stages.requests == []   # refused before any stage was called
+
+
 def rotated_room_goal(meshes, orientation: str = "y-down", **fields):
     from perch_common.scan_orientations import oriented
 

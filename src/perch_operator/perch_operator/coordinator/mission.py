@@ -16,7 +16,7 @@ import numpy as np
 
 from perch_common.conventions import FILTER_NAMES
 from perch_common.frames import Alignment
-from perch_common.mesh import load_mesh
+from perch_common.mesh import Mesh, MeshError, load_mesh, scale_problem
 from perch_common.request_validation import validate_request
 from perch_common.ros.conversions import (
     exclusion_to_msg,
@@ -49,6 +49,26 @@ STAGE_WEIGHTS = {"reconstruct": 0.30, "clean": 0.05, "crop": 0.02, "segment": 0.
 
 WAITING_FEEDBACK_PERIOD = 3.0  # s between repeated "waiting for decisions" feedback
 
+
+AS_IT_IS = (". A goal's mesh_path is read as it is (a goal has no scale or shift): send the mesh scaled or moved "
+            "in the goal's mesh field, or plan the file with `perch plan`, which takes --scale and --shift")
+
+
+def goal_mesh_file(path: str) -> Mesh:
+    """A goal's mesh_path, loaded as it is: a goal has no scale or shift, so a file in millimetres or in
+    georeferenced coordinates is refused here, with what an action client can do beside the command-line
+    flags the message names (a millimetre file would otherwise be refused only by the clean stage)."""
+    try:
+        mesh = load_mesh(path)
+    except MeshError as exc:
+        if "--shift=" not in str(exc):   # far_problem's fix: a command-line flag
+            raise
+        raise MeshError(f"{exc}{AS_IT_IS}") from None
+    lo, hi = mesh.bounds()
+    units = scale_problem(float(np.max(hi - lo)))
+    if units:
+        raise MeshError(f"{path}: {units}{AS_IT_IS}")
+    return mesh
 
 @dataclass
 class MissionOptions:
@@ -204,7 +224,7 @@ class Mission:
             self.alignment = alignment_from_msg(reply.alignment, reply.up_source, reply.up_confidence)
             return reply.mesh
         self._planned.remove("reconstruct")
-        mesh_msg = goal.mesh if len(goal.mesh.triangles) else mesh_to_msg(load_mesh(goal.mesh_path))
+        mesh_msg = goal.mesh if len(goal.mesh.triangles) else mesh_to_msg(goal_mesh_file(goal.mesh_path))
         if not mesh_msg.header.frame_id:
             mesh_msg.header.frame_id = self.options.frame_id
         given = mesh_from_msg(mesh_msg, "mission mesh")   # decoded once: for the up axis and to align it
