@@ -16,7 +16,7 @@ import numpy as np
 
 from perch_common.conventions import FILTER_NAMES
 from perch_common.frames import Alignment
-from perch_common.mesh import Mesh, MeshError, load_mesh, scale_problem
+from perch_common.mesh import Mesh, MeshError, far_problem, load_mesh, scale_problem, validate_mesh
 from perch_common.request_validation import validate_request
 from perch_common.ros.conversions import (
     exclusion_to_msg,
@@ -57,18 +57,14 @@ AS_IT_IS = (". A goal's mesh_path is read as it is (a goal has no scale or shift
 def goal_mesh_file(path: str) -> Mesh:
     """A goal's mesh_path, loaded as it is: a goal has no scale or shift, so a file in millimetres or in
     georeferenced coordinates is refused here, with what an action client can do beside the command-line
-    flags the message names (a millimetre file would otherwise be refused only by the clean stage)."""
-    try:
-        mesh = load_mesh(path)
-    except MeshError as exc:
-        if "--shift=" not in str(exc):   # far_problem's fix: a command-line flag
-            raise
-        raise MeshError(f"{exc}{AS_IT_IS}") from None
+    flag the unit check names (a millimetre file would otherwise be refused only by the clean stage)."""
+    mesh = load_mesh(path, validate=False)
     lo, hi = mesh.bounds()
-    units = scale_problem(float(np.max(hi - lo)))
+    units = far_problem(lo, hi) or scale_problem(float(np.max(hi - lo)))
     if units:
         raise MeshError(f"{path}: {units}{AS_IT_IS}")
-    return mesh
+    return validate_mesh(mesh, path)
+
 
 @dataclass
 class MissionOptions:
