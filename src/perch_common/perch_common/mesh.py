@@ -330,6 +330,17 @@ def validate_mesh(mesh: Mesh, what: str = "mesh") -> Mesh:
 
 
 SUPPORTED_SUFFIXES = (".ply", ".obj", ".glb", ".gltf", ".stl", ".off")
+# Formats scans arrive in that Perch does not read, with what turns them into one it does.
+_OTHER_FORMATS = {
+    **dict.fromkeys((".usdz", ".usd", ".usda", ".usdc"), (
+        "Universal Scene Description (Apple RoomPlan, Polycam, Scaniverse): export the scan as OBJ, GLB or PLY "
+        "from the capture app, or convert it (Blender: File > Import > USD, then File > Export > glTF 2.0)")),
+    **dict.fromkeys((".pcd", ".las", ".laz", ".e57", ".xyz", ".pts", ".ptx"), (
+        "a point cloud format, and Perch needs a surface mesh: mesh it first (CloudCompare or Open3D: Poisson "
+        "surface reconstruction, saved as PLY), or reconstruct the RGB-D frames with `perch reconstruct`")),
+    **dict.fromkeys((".fbx", ".dae", ".3ds", ".3mf", ".blend", ".x3d", ".wrl"), (
+        "export it as OBJ, GLB or PLY from the tool that wrote it (Blender imports this format)")),
+}
 
 
 def add_units_arguments(parser, what: str = "the mesh") -> None:
@@ -356,7 +367,9 @@ def load_mesh(path: str | Path, validate: bool = True, scale: float = 1.0,
     if not path.is_file():
         raise MeshError(f"{path}: no such file")
     if path.suffix.lower() not in SUPPORTED_SUFFIXES:
-        raise MeshError(f"{path}: unsupported format '{path.suffix}' (use one of {', '.join(SUPPORTED_SUFFIXES)})")
+        fix = _OTHER_FORMATS.get(path.suffix.lower(), "")
+        raise MeshError(f"{path}: unsupported format '{path.suffix}' (use one of {', '.join(SUPPORTED_SUFFIXES)})"
+                        + (f": {fix}" if fix else ""))
     if not (np.isfinite(scale) and scale > 0):
         raise MeshError(f"{path}: scale must be a finite number > 0, got {scale}")
     offset = np.zeros(3) if shift is None else np.asarray(shift, np.float64)

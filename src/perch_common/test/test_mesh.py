@@ -69,6 +69,13 @@ def test_load_errors_are_precise(tmp_path):
     (tmp_path / "x.txt").write_text("hello")
     with pytest.raises(MeshError, match="unsupported format '.txt'"):
         load_mesh(tmp_path / "x.txt")
+    # A format scans arrive in that Perch does not read names what turns it into one it does.
+    for name, fix in (("room.usdz", "export the scan as OBJ, GLB or PLY from the capture app"),
+                      ("room.E57", "point cloud format, and Perch needs a surface mesh: mesh it first"),
+                      ("room.fbx", "export it as OBJ, GLB or PLY from the tool that wrote it")):
+        (tmp_path / name).write_bytes(b"PK\x03\x04")
+        with pytest.raises(MeshError, match=f"unsupported format .*: .*{fix}"):
+            load_mesh(tmp_path / name)
     (tmp_path / "bad.ply").write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 99\n")
     with pytest.raises(MeshError, match="bad.ply"):
         load_mesh(tmp_path / "bad.ply")
