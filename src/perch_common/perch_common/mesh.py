@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import logging
 import threading
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -375,8 +376,14 @@ def load_mesh(path: str | Path, validate: bool = True, scale: float = 1.0,
     offset = np.zeros(3) if shift is None else np.asarray(shift, np.float64)
     if offset.shape != (3,) or not np.isfinite(offset).all():
         raise MeshError(f"{path}: shift must be three finite numbers, got {shift}")
+    gltf = _gltf_problem(path)
+    if gltf:
+        raise MeshError(f"{path}: {gltf}")
     try:
         loaded = _load_single_mesh(path) or trimesh.load(path, process=False, force="mesh")
+    except FileNotFoundError as exc:  # a .gltf's buffers (.bin) are files of their own
+        raise MeshError(f"{path}: refers to {Path(exc.filename or str(exc)).name}, which is not beside it: copy the "
+                        "glTF's .bin (and texture) files into its folder, or export one GLB file instead") from exc
     except Exception as exc:  # trimesh raises many types for corrupt files
         raise MeshError(f"{path}: cannot be read as a mesh: the file is truncated or corrupt "
                         f"({type(exc).__name__}: {exc})") from exc
@@ -395,18 +402,79 @@ def load_mesh(path: str | Path, validate: bool = True, scale: float = 1.0,
     stored = stored_precision_problem(loaded.vertices, scale)
     if stored:
         raise MeshError(f"{path}: {stored}")
-    colors = None
-    visual = getattr(loaded, "visual", None)
-    if visual is not None and getattr(visual, "kind", None) == "vertex":
-        colors = np.asarray(visual.vertex_colors)[:, :3]
-    elif visual is not None and getattr(visual, "kind", None) == "texture":
-        colors = np.asarray(visual.to_color().vertex_colors)[:, :3]
+    colors = _vertex_colors(loaded, path)
     from perch_common.viewpoints import moved_viewpoints, read_viewpoints_beside
 
     views = read_viewpoints_beside(path, np.asarray(loaded.vertices), np.asarray(loaded.faces))
     mesh = Mesh(np.asarray(loaded.vertices, np.float64) * scale + offset, np.asarray(loaded.faces), colors,
                 viewpoints=None if views is None else moved_viewpoints(views, scale, offset))
     return validate_mesh(mesh, str(path)) if validate else mesh
+
+
+def _vertex_colors(loaded, path: Path) -> np.ndarray | None:
+    """(N, 3) uint8 vertex colours of a loaded Trimesh (sampled from its texture when it has one), or
+    None. Colours are only shown (console, recordings): a texture that cannot be sampled (its image
+    missing beside the file) leaves the mesh uncoloured, with a warning, and the geometry is read."""
+    visual = getattr(loaded, "visual", None)
+    kind = getattr(visual, "kind", None)
+    try:
+        if kind == "vertex":
+            colors = np.asarray(visual.vertex_colors)
+        elif kind == "texture":
+            colors = np.asarray(visual.to_color().vertex_colors)
+        else:
+            return None
+    except Exception as exc:  # trimesh's texture sampling raises many types for a missing or odd image
+        colors, reason = None, f"{type(exc).__name__}: {exc}"
+    else:
+        reason = f"colours of shape {colors.shape} for {len(loaded.vertices)} vertices"
+    if colors is not None and colors.ndim == 2 and colors.shape[0] == len(loaded.vertices) and colors.shape[1] >= 3:
+        return np.ascontiguousarray(colors[:, :3], np.uint8)
+    logging.getLogger("perch.mesh").warning(
+        "%s: its %s colours cannot be read (%s; a texture image missing beside the file?); the mesh is read "
+        "without colours", path, "texture" if kind == "texture" else "vertex", reason)
+    return None
+
+
+# glTF extensions a file may require that change its geometry and that trimesh cannot decode: the
+# file would load with its vertices unread (meshopt) or its instances missing.
+_GLTF_UNREADABLE = {
+    "EXT_meshopt_compression": "meshopt compression",
+    "KHR_meshopt_compression": "meshopt compression",
+    "EXT_mesh_gpu_instancing": "GPU instancing (copies of a mesh placed by the viewer)",
+}
+
+
+def _gltf_problem(path: Path) -> str:
+    """Why a glTF/GLB file cannot be read whole (an extension it requires that changes its geometry
+    and is not decoded here), or "". Draco (KHR_draco_mesh_compression, through DracoPy) and
+    quantized positions (KHR_mesh_quantization) are read."""
+    import json
+    import struct
+
+    suffix = path.suffix.lower()
+    if suffix not in (".glb", ".gltf"):
+        return ""
+    try:
+        with open(path, "rb") as stream:
+            if suffix == ".glb":
+                head = stream.read(20)
+                if len(head) < 20 or head[:4] != b"glTF":
+                    return ""   # the loader words what is wrong
+                length, kind = struct.unpack("<II", head[12:20])
+                if kind != 0x4E4F534A:   # the first chunk is JSON
+                    return ""
+                header = json.loads(stream.read(length))
+            else:
+                header = json.load(stream)
+    except (OSError, ValueError):
+        return ""
+    required = header.get("extensionsRequired", []) if isinstance(header, dict) else []
+    unreadable = [f"{name} ({_GLTF_UNREADABLE[name]})" for name in required if name in _GLTF_UNREADABLE]
+    if not unreadable:
+        return ""
+    return (f"requires the glTF extension {', '.join(unreadable)}, which Perch cannot decode: export it again "
+            "without it (uncompressed or with Draco compression, which Perch reads), or as OBJ or PLY")
 
 
 def _load_single_mesh(path: Path):

@@ -85,6 +85,83 @@ def test_load_errors_are_precise(tmp_path):
         load_mesh(tmp_path / "noise.obj")
 
 
+def _glb(path, header: dict, body: bytes):
+    """Write a GLB: `header` (the glTF JSON) and one binary chunk."""
+    import json
+    import struct
+
+    text = json.dumps(header).encode()
+    text += b" " * (-len(text) % 4)
+    body += b"\0" * (-len(body) % 4)
+    with open(path, "wb") as stream:
+        stream.write(struct.pack("<III", 0x46546C67, 2, 28 + len(text) + len(body)))
+        stream.write(struct.pack("<II", len(text), 0x4E4F534A) + text + struct.pack("<II", len(body), 0x004E4942) + body)
+    return path
+
+
+def _draco_room_glb(path, extension: str = "KHR_draco_mesh_compression"):
+    """A generated room as a Draco-compressed GLB (as web and phone apps export), requiring `extension`."""
+    import DracoPy
+
+    from perch_common.scene_generator import generate_scene
+
+    room = generate_scene(2, "room").mesh
+    blob = DracoPy.encode(room.vertices.astype(np.float32), room.faces.astype(np.uint32), quantization_bits=16)
+    header = {
+        "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+        "extensionsUsed": [extension], "extensionsRequired": [extension],
+        "buffers": [{"byteLength": len(blob) + (-len(blob) % 4)}],
+        "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": len(blob)}],
+        "accessors": [{"componentType": 5126, "count": len(room.vertices), "type": "VEC3",
+                       "min": room.vertices.min(axis=0).tolist(), "max": room.vertices.max(axis=0).tolist()},
+                      {"componentType": 5125, "count": room.faces.size, "type": "SCALAR"}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1, "mode": 4, "extensions": {
+            "KHR_draco_mesh_compression": {"bufferView": 0, "attributes": {"POSITION": 0}}}}]}]}
+    return room, _glb(path, header, blob)
+
+
+def test_a_draco_compressed_glb_is_read_and_one_needing_an_unknown_decoder_is_refused(tmp_path):
+    room, path = _draco_room_glb(tmp_path / "room.glb")
+    loaded = load_mesh(path)
+    extent = float(np.ptp(room.vertices, axis=0).max())
+    assert loaded.face_areas().sum() == pytest.approx(room.face_areas().sum(), rel=1e-3)
+    assert np.allclose(loaded.bounds(), room.bounds(), atol=2 * extent / 2 ** 16)
+    # meshopt: trimesh would read its compressed bytes as vertices; refused, naming the extension and the fix.
+    _, path = _draco_room_glb(tmp_path / "meshopt.glb", "EXT_meshopt_compression")
+    with pytest.raises(MeshError, match="requires the glTF extension EXT_meshopt_compression .* export it again"):
+        load_mesh(path)
+
+
+def test_a_gltf_missing_its_buffer_is_named_and_a_missing_texture_leaves_only_the_colours(tmp_path, caplog):
+    import shutil
+
+    import trimesh
+    from PIL import Image
+
+    from perch_common.scene_generator import generate_scene
+
+    room = generate_scene(2, "room").mesh
+    textured = trimesh.Trimesh(room.vertices, room.faces, process=False)
+    textured.visual = trimesh.visual.TextureVisuals(uv=np.random.default_rng(0).random((len(room.vertices), 2)),
+                                                    image=Image.new("RGB", (8, 8), (200, 40, 40)))
+    (tmp_path / "gltf").mkdir()
+    for name, data in trimesh.exchange.gltf.export_gltf(textured).items():
+        (tmp_path / "gltf" / name).write_bytes(data)
+    (tmp_path / "alone").mkdir()
+    shutil.copy(tmp_path / "gltf" / "model.gltf", tmp_path / "alone")
+    with pytest.raises(MeshError, match=r"refers to gltf_buffer_\d\.bin, which is not beside it: copy"):
+        load_mesh(tmp_path / "alone" / "model.gltf")
+    # A textured OBJ (phone apps: OBJ + MTL + image) is coloured from its texture, and read without
+    # colours, with a warning, when its image was not copied along (before: a traceback).
+    textured.export(tmp_path / "room.obj")
+    assert np.array_equal(load_mesh(tmp_path / "room.obj").vertex_colors[0], [200, 40, 40])
+    next(tmp_path.glob("*.png")).unlink()
+    with caplog.at_level("WARNING"):
+        bare = load_mesh(tmp_path / "room.obj")
+    assert bare.vertex_colors is None and bare.num_faces == room.num_faces
+    assert "texture colours cannot be read" in caplog.text
+
+
 @pytest.mark.parametrize("suffix", [".ply", ".stl", ".off"])
 def test_a_single_mesh_file_read_directly_equals_trimesh_load(tmp_path, suffix, monkeypatch):
     """PLY, STL and OFF files are read by trimesh's format reader straight into one mesh (trimesh.load
