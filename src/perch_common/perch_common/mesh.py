@@ -231,7 +231,11 @@ def inspect_mesh(mesh: Mesh, area_epsilon: float = 1e-12, warnings: bool = True)
     if not np.isfinite(mesh.vertices).all():  # per-row detail only when something is wrong
         bad_vertices = ~np.isfinite(mesh.vertices).all(axis=1)
         first = int(np.flatnonzero(bad_vertices)[0])
-        fatal.append(f"{int(bad_vertices.sum())} vertices are NaN or infinite (first: vertex {first})")
+        valid = (mesh.faces >= 0) & (mesh.faces < mesh.num_vertices)
+        using = int((bad_vertices[np.where(valid, mesh.faces, 0)] & valid).any(axis=1).sum())
+        fatal.append(f"{int(bad_vertices.sum())} vertices are NaN or infinite (first: vertex {first})"
+                     + (f", used by {using} face{'s' if using > 1 else ''}: remove those faces, or export the "
+                        "scan again without its invalid points" if using else ", used by no face: leave them out"))
     if mesh.faces.min() < 0 or mesh.faces.max() >= mesh.num_vertices:
         out_of_range = (mesh.faces < 0) | (mesh.faces >= mesh.num_vertices)
         face = int(np.flatnonzero(out_of_range.any(axis=1))[0])
@@ -399,16 +403,36 @@ def load_mesh(path: str | Path, validate: bool = True, scale: float = 1.0,
         if size > 200:   # more than an empty file's header: something is there, and it is not geometry
             raise MeshError(f"{path}: no vertex or face could be read from its {size:,} bytes: not a mesh in the "
                             f"{path.suffix.lower()} format (another format under this name?)")
-    stored = stored_precision_problem(loaded.vertices, scale)
-    if stored:
-        raise MeshError(f"{path}: {stored}")
-    colors = _vertex_colors(loaded, path)
     from perch_common.viewpoints import moved_viewpoints, read_viewpoints_beside
 
     views = read_viewpoints_beside(path, np.asarray(loaded.vertices), np.asarray(loaded.faces))
-    mesh = Mesh(np.asarray(loaded.vertices, np.float64) * scale + offset, np.asarray(loaded.faces), colors,
+    vertices, faces, kept = _without_unused_nonfinite(np.asarray(loaded.vertices, np.float64),
+                                                      np.asarray(loaded.faces), path)
+    stored = stored_precision_problem(vertices, scale)
+    if stored:
+        raise MeshError(f"{path}: {stored}")
+    colors = _vertex_colors(loaded, path)
+    mesh = Mesh(vertices * scale + offset, faces, colors if colors is None or kept is None else colors[kept],
                 viewpoints=None if views is None else moved_viewpoints(views, scale, offset))
     return validate_mesh(mesh, str(path)) if validate else mesh
+
+
+def _without_unused_nonfinite(vertices: np.ndarray, faces: np.ndarray,
+                              path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """The mesh without vertices whose coordinates are NaN or infinite and that no face uses (depth-camera
+    exports keep one per invalid pixel), faces renumbered, and the kept vertices' mask (None: all kept).
+    Such vertices are no geometry: they are left out with a warning. Any other case is returned as
+    it is (validation names non-finite vertices that faces use, and indices out of range)."""
+    bad = ~np.isfinite(vertices).all(axis=1)
+    if not bad.any() or (len(faces) and (faces.min() < 0 or faces.max() >= len(vertices))):
+        return vertices, faces, None
+    if len(faces) and bad[faces].any():
+        return vertices, faces, None
+    kept = ~bad
+    renumbered = np.cumsum(kept) - 1
+    logging.getLogger("perch.mesh").warning(
+        "%s: %d vertices with NaN or infinite coordinates, used by no face, are left out", path, int(bad.sum()))
+    return vertices[kept], renumbered[faces], kept
 
 
 def _vertex_colors(loaded, path: Path) -> np.ndarray | None:

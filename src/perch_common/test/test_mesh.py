@@ -162,6 +162,31 @@ def test_a_gltf_missing_its_buffer_is_named_and_a_missing_texture_leaves_only_th
     assert "texture colours cannot be read" in caplog.text
 
 
+def test_nan_vertices_no_face_uses_are_left_out_and_used_ones_refused_with_the_fix(tmp_path, caplog):
+    """Depth-camera exports keep a NaN vertex per invalid pixel, used by no face: no geometry, left out
+    (faces renumbered, colours kept with their vertices). A face on one is refused, naming the fix."""
+    import trimesh
+
+    from perch_common.scene_generator import generate_scene
+
+    room = generate_scene(2, "room").mesh
+    n = room.num_vertices
+    holes = np.array([3, 50, n // 2])   # NaN vertices between real ones, so every later index shifts
+    vertices = np.insert(room.vertices, holes, np.nan, axis=0)
+    colors = np.insert(np.tile([[10, 20, 30, 255]], (n, 1)), holes, [[255, 0, 0, 255]], axis=0)
+    old_index = np.flatnonzero(~np.isnan(vertices[:, 0]))
+    trimesh.Trimesh(vertices, old_index[room.faces], vertex_colors=colors, process=False).export(tmp_path / "nan.ply")
+    with caplog.at_level("WARNING"):
+        loaded = load_mesh(tmp_path / "nan.ply")
+    assert "3 vertices with NaN or infinite coordinates, used by no face, are left out" in caplog.text
+    np.testing.assert_allclose(loaded.triangles(), room.triangles(), atol=1e-6)
+    assert np.array_equal(loaded.vertex_colors, np.tile([[10, 20, 30]], (n, 1)))
+    used = np.vstack([old_index[room.faces], [[holes[1] + 1, 0, 1]]])
+    trimesh.Trimesh(vertices, used, process=False).export(tmp_path / "used.ply")
+    with pytest.raises(MeshError, match="3 vertices are NaN or infinite .*used by 1 face: remove those faces"):
+        load_mesh(tmp_path / "used.ply")
+
+
 @pytest.mark.parametrize("suffix", [".ply", ".stl", ".off"])
 def test_a_single_mesh_file_read_directly_equals_trimesh_load(tmp_path, suffix, monkeypatch):
     """PLY, STL and OFF files are read by trimesh's format reader straight into one mesh (trimesh.load
