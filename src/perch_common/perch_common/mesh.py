@@ -272,7 +272,9 @@ def inspect_mesh(mesh: Mesh, area_epsilon: float = 1e-12, warnings: bool = True)
 
 # An indoor space larger than this along any axis was almost surely modelled in cm or mm.
 MAX_PLAUSIBLE_EXTENT = 200.0   # m
-MILLIMETRE_EXTENT = 2000.0     # beyond this, millimetres are likelier than centimetres
+MIN_PLAUSIBLE_EXTENT = 1.5     # m: a scan smaller than this is no space a drone perches in
+TYPICAL_EXTENT = 8.0           # m: a room's scan; the unit giving the nearest size is named first
+FILE_UNITS = (("millimetres", "0.001"), ("centimetres", "0.01"), ("inches", "0.0254"), ("feet", "0.3048"))
 
 
 MAX_COORDINATE = 10_000.0      # m: nothing Perch plans for lies 10 km from the origin
@@ -318,12 +320,23 @@ def stored_precision_problem(vertices: np.ndarray, scale: float = 1.0) -> str | 
 
 
 def scale_problem(extent: float, what: str = "mesh") -> str | None:
-    """A message when a space `extent` metres across suggests cm or mm units, else None."""
+    """A message when a space `extent` metres across cannot be in metres, else None. It names every
+    unit that gives a plausible indoor size (MIN_PLAUSIBLE_EXTENT to MAX_PLAUSIBLE_EXTENT m), the one
+    nearest a typical scan's size first: the size alone cannot tell a room in centimetres from a
+    larger one in inches, and the user knows what the exporter wrote."""
     if not np.isfinite(extent) or extent <= MAX_PLAUSIBLE_EXTENT:
         return None
-    unit, scale = ("millimetres", "0.001") if extent > MILLIMETRE_EXTENT else ("centimetres", "0.01")
-    return (f"{what} is {extent:,.0f} m across, which suggests it is in {unit}, not metres; "
-            f"rescale it (--scale {scale}, or multiply its coordinates by {scale})")
+    units = [(name, factor, extent * float(factor)) for name, factor in FILE_UNITS
+             if MIN_PLAUSIBLE_EXTENT <= extent * float(factor) <= MAX_PLAUSIBLE_EXTENT]
+    units.sort(key=lambda unit: abs(np.log(unit[2] / TYPICAL_EXTENT)))
+    if not units:  # beyond every unit's plausible size: the smallest unit, as before
+        units = [(FILE_UNITS[0][0], FILE_UNITS[0][1], extent * float(FILE_UNITS[0][1]))]
+    (name, factor, size), others = units[0], units[1:]
+    alternatives = "".join(f", or {other} ({other_size:.3g} m: --scale {other_factor})"
+                           for other, other_factor, other_size in others)
+    return (f"{what} is {extent:,.0f} m across, which suggests it is in {name} ({size:.3g} m across: "
+            f"--scale {factor}){alternatives}, not metres; rescale it by the unit it was exported in "
+            f"(--scale, or multiply its coordinates by that factor)")
 
 
 def validate_mesh(mesh: Mesh, what: str = "mesh") -> Mesh:

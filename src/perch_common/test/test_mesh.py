@@ -162,6 +162,21 @@ def test_a_gltf_missing_its_buffer_is_named_and_a_missing_texture_leaves_only_th
     assert "texture colours cannot be read" in caplog.text
 
 
+@pytest.mark.parametrize("extent, first, others", [
+    (342.0, "inches (8.69 m across: --scale 0.0254)", ["centimetres (3.42 m", "feet (104 m"]),  # a room in inches
+    (870.0, "centimetres (8.7 m across: --scale 0.01)", ["inches (22.1 m"]),
+    (8000.0, "millimetres (8 m across: --scale 0.001)", ["centimetres (80 m"])])
+def test_a_size_no_space_has_in_metres_names_every_plausible_unit_likeliest_first(extent, first, others):
+    """The size alone cannot tell a room in centimetres from a larger one in inches: each unit giving
+    an indoor size is named with that size (before: a room in inches was said to be in centimetres)."""
+    from perch_common.mesh import scale_problem
+
+    message = scale_problem(extent)
+    assert f"suggests it is in {first}" in message and all(f"or {other}" in message for other in others)
+    assert message.count("--scale 0.") == 1 + len(others)
+    assert scale_problem(150.0) is None   # a 150 m hall in metres
+
+
 def test_nan_vertices_no_face_uses_are_left_out_and_used_ones_refused_with_the_fix(tmp_path, caplog):
     """Depth-camera exports keep a NaN vertex per invalid pixel, used by no face: no geometry, left out
     (faces renumbered, colours kept with their vertices). A face on one is refused, naming the fix."""
