@@ -147,7 +147,7 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
     report(0.15, "orientation")
     orientations = orient(winding_votes(mesh, surfaces),
                           visibility_scores(mesh, surfaces, grid, scene, centre, config.seed,
-                                            config.los_offset))
+                                            config.los_offset), [s.area for s in surfaces])
     oriented = [oriented_copy(s, o.sign, up, config.class_angle_deg) for s, o in zip(surfaces, orientations)]
     floor_height, floor_ids = find_floor(oriented, mesh, up, config)
     clock.lap("orientation")

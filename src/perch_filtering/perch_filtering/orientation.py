@@ -21,6 +21,7 @@ from perch_filtering.voxels import FlightGrid
 
 WINDING_CONSISTENT = 0.8   # share of area whose winding must agree for winding to decide
 VISIBILITY_DECISIVE = 0.2  # score margin between the two sides for visibility to decide
+CONVENTION_UNDECIDED = 0.15  # area share of agreement within this of one half: the winding convention is unknown
 SAMPLES_PER_SURFACE = 32
 
 
@@ -79,17 +80,29 @@ def visibility_scores(mesh: Mesh, surfaces: list[Surface], grid: FlightGrid, sce
     return score
 
 
-def orient(votes: np.ndarray, visibility: np.ndarray) -> list[Orientation]:
-    """Winding where consistent (after checking the mesh's global winding convention), else visibility."""
+def orient(votes: np.ndarray, visibility: np.ndarray, areas: np.ndarray | None = None) -> list[Orientation]:
+    """Winding where consistent (after checking the mesh's global winding convention), else visibility.
+
+    The convention is read from the surfaces where both are clear, weighed by `areas` (m^2; equal
+    weights without): a mesh wound inside-out is consistent but wrong everywhere, and its walls,
+    floor and ceiling say so. Small pieces (a desk's underside, a shelf's faces) often look out on
+    cramped space from their true front, so a count of surfaces is near half either way (a Quest
+    scene model: 50 of 106, flipping every surface in one frame and not in another). Where the
+    weighed agreement lies within CONVENTION_UNDECIDED of one half, the winding is not trusted: each
+    surface is oriented by its visibility where that is decisive."""
+    votes, visibility = np.asarray(votes, np.float64), np.asarray(visibility, np.float64)
+    weights = np.ones(len(votes)) if areas is None else np.asarray(areas, np.float64)
     consistent = np.abs(votes) >= WINDING_CONSISTENT
     decisive = np.abs(visibility) >= VISIBILITY_DECISIVE
     both = consistent & decisive
-    agree = (np.sign(votes[both]) == np.sign(visibility[both])).sum()
-    # A mesh wound inside-out is consistent but wrong everywhere: visibility tells.
-    convention = -1.0 if both.any() and agree < both.sum() - agree else 1.0
+    convention, trusted = 1.0, True
+    if both.any() and weights[both].sum() > 0:
+        agree = float(weights[both & (np.sign(votes) == np.sign(visibility))].sum() / weights[both].sum())
+        convention = 1.0 if agree >= 0.5 else -1.0
+        trusted = abs(agree - 0.5) > CONVENTION_UNDECIDED
     out = []
     for vote, vis, cons, dec in zip(votes, visibility, consistent, decisive):
-        if cons:
+        if cons and (trusted or not dec):
             out.append(Orientation(convention * np.sign(vote), "winding"))
         elif dec:
             out.append(Orientation(float(np.sign(vis)), "visibility"))

@@ -36,21 +36,12 @@ def test_placed_perches_agree_with_the_checker(name, path, up):
 def _agree_on(mesh, up):
     """Clean, align, segment, filter and place 5 cameras on `mesh` (true `up` in its frame); every placed
     perch passes the checker there and its region's evidence is at or past every threshold."""
-    segmentation = pytest.importorskip("perch_segmentation.core")
-    cleaning = pytest.importorskip("perch_reconstruction.cleaning")
     placement = pytest.importorskip("perch_placement.core")
-    from perch_common.frames import Alignment
-    from perch_filtering.core import FilterConfig, filter_surfaces
+    from perch_filtering.core import FilterConfig
     from perch_filtering.perch_check import OBSERVED_SLACK, check_perches, spec_from_config
-    from perch_operator.coordinator.crop import floor_target
-    from perch_reconstruction.config import ReconstructionConfig
 
-    aligned, report = cleaning.clean_mesh_with_report(mesh, -np.asarray(up), ReconstructionConfig())
-    alignment = Alignment("map", report.rotation)
-    target = floor_target(aligned)
+    aligned, alignment, target, result = _aligned_and_filtered(mesh, up)
     config = FilterConfig()
-    surfaces = segmentation.segment_mesh(aligned, segmentation.SegmentationConfig()).surfaces
-    result = filter_surfaces(aligned, surfaces, target, np.array([0.0, 0.0, 1.0]), config)
     if not result.regions:  # a scan may hold no perch; then the answer must say why
         assert result.message.startswith("no perch region survived"), result.message
         return
@@ -78,6 +69,23 @@ def _agree_on(mesh, up):
 # boxes start surface_depth + 2 cm in front (perch_check), sees the bumps from a 3 cm band on.
 CORNER_PERCHES = (([0.740974, 0.824379, -2.925921], True), ([-0.682806, 0.820486, -2.83625], False))
 CORNER_NORMAL = [0.06823, 0.013775, 0.997575]
+
+
+def _aligned_and_filtered(mesh, up):
+    """`mesh` (true `up` in its frame) cleaned and aligned as the clean stage does, segmented and filtered
+    with the default floor target: (aligned mesh, its Alignment, target, FilterResult)."""
+    segmentation = pytest.importorskip("perch_segmentation.core")
+    cleaning = pytest.importorskip("perch_reconstruction.cleaning")
+    from perch_common.frames import Alignment
+    from perch_filtering.core import FilterConfig, filter_surfaces
+    from perch_operator.coordinator.crop import floor_target
+    from perch_reconstruction.config import ReconstructionConfig
+
+    aligned, report = cleaning.clean_mesh_with_report(mesh, -np.asarray(up), ReconstructionConfig())
+    target = floor_target(aligned)
+    surfaces = segmentation.segment_mesh(aligned, segmentation.SegmentationConfig()).surfaces
+    result = filter_surfaces(aligned, surfaces, target, np.array([0.0, 0.0, 1.0]), FilterConfig())
+    return aligned, Alignment("map", report.rotation), target, result
 
 
 def _scan(name):
@@ -112,3 +120,27 @@ def test_placed_perches_agree_with_the_checker_on_tilted_copies(name):
     turn = np.eye(4)
     turn[:3, :3] = Rotation.from_rotvec(np.radians(30.0) * np.array([0.6, 0.8, 0.0])).as_matrix()
     _agree_on(load_mesh(path).transformed(turn), turn[:3, :3] @ up)
+
+
+@pytest.mark.skipif(_scan("quest_scenemodel_office.obj") is None,
+                    reason="../shared/data not found: no quest_scenemodel_office scan")
+def test_a_scene_model_of_many_small_pieces_is_oriented_alike_in_another_frame():
+    """The Quest scene model (183 surfaces, most of them furniture faces) turned by 341.5 deg about a
+    tilted axis and moved: its surfaces are oriented as in its own frame and it keeps the same perch
+    area. Before, the winding convention was a count of surfaces (50 of 106 agreeing with visibility
+    here, 52 of 103 in its own frame), and every surface was turned inside out: no perch at all."""
+    from scipy.spatial.transform import Rotation
+
+    from perch_common.mesh import load_mesh
+
+    path, up = _scan("quest_scenemodel_office.obj")
+    turn = np.eye(4)
+    turn[:3, :3] = Rotation.from_rotvec(np.radians(341.51) * np.array([0.3635, 0.8643, 0.3476])).as_matrix()
+    turn[:3, 3] = [-1.505, -0.613, 2.622]
+    results = [_aligned_and_filtered(mesh, u)[3] for mesh, u in
+               ((load_mesh(path), up), (load_mesh(path).transformed(turn), turn[:3, :3] @ up))]
+    own, turned = (sum(r.area for r in result.regions) for result in results)
+    assert own > 50.0 and turned == pytest.approx(own, rel=0.02)
+    for result in results:   # every surface facing the room: the ceiling's normal points down into it
+        ceiling = max(result.surfaces, key=lambda s: (s.area > 20.0, s.frame.origin[2]))  # highest large one
+        assert ceiling.frame.normal[2] < -0.99 and set(result.decided_by) == {"winding"}

@@ -117,6 +117,23 @@ def test_inverted_mesh_winding_is_detected():
     assert set(result.decided_by) == {"winding"}
 
 
+def test_the_winding_convention_is_read_by_area_and_not_trusted_when_undecided():
+    """Four walls agreeing with visibility outweigh sixty small furniture faces that look out on
+    cramped space (a count of surfaces would turn the whole mesh inside out); an inside-out mesh is
+    still caught; an even split leaves each surface to its visibility where that is decisive."""
+    from perch_filtering.orientation import orient
+
+    votes = np.ones(64)
+    visibility = np.r_[np.full(4, 1.0), np.full(60, -0.5)]
+    areas = np.r_[np.full(4, 20.0), np.full(60, 0.3)]
+    assert [o.sign for o in orient(votes, visibility, areas)] == [1.0] * 64
+    assert [o.sign for o in orient(votes, visibility)] == [-1.0] * 64   # by count: inside out
+    assert [o.sign for o in orient(-votes, visibility, areas)] == [1.0] * 64   # wound inside out: turned back
+    even = orient(votes[:10], np.r_[np.full(4, 1.0), np.full(4, -1.0), np.zeros(2)], np.r_[np.full(8, 5.0), 1.0, 1.0])
+    assert [(o.sign, o.decided_by) for o in even] == \
+        [(1.0, "visibility")] * 4 + [(-1.0, "visibility")] * 4 + [(1.0, "winding")] * 2
+
+
 def test_window_flush_with_wall_is_no_obstacle_and_the_perch_window_avoids_it():
     hole = (1.5, 3.0, 1.0, 2.0)  # along wall1 (x = 6, from y = 0), z range
     with_glass = room(wall_holes={1: [hole]})
