@@ -172,6 +172,39 @@ def test_every_corpus_scan_in_every_rotation_is_right_or_says_it_cannot_know(cor
     assert confident >= 0.7 * len(corpus)  # honest, not useless: 41 of 55 at the time of writing
 
 
+def _cut_copies(mesh: Mesh, true_up: np.ndarray):
+    """(what, part of `mesh`): its halves on either side of the two vertical planes through its bounding
+    box's centre, and its four quarters (a scan that stopped part way across the room)."""
+    across = np.cross(true_up, [1.0, 0, 0] if abs(true_up[0]) < 0.9 else [0, 1.0, 0])
+    across /= np.linalg.norm(across)
+    side = (mesh.face_centroids() - mesh.vertices.min(axis=0) / 2 - mesh.vertices.max(axis=0) / 2)
+    first, second = side @ across >= 0, side @ np.cross(true_up, across) >= 0
+    for what, keep in (("half A", first), ("half B", ~first), ("half C", second), ("half D", ~second),
+                       ("quarter 0", first & second), ("quarter 1", ~first & second), ("quarter 2", first & ~second),
+                       ("quarter 3", ~first & ~second)):
+        yield what, mesh.submesh(keep)
+
+
+def test_scans_cut_part_way_across_are_rarely_confidently_on_their_side(corpus):
+    """Every corpus scan (own frame) cut in halves and quarters: a cut can leave the scan thinner
+    across than the room is tall, the estimate's main cue. Those the estimate still calls confident
+    must be right, but for the few it cannot tell (the cut's open end looks like a missing
+    ceiling). Before the open-end checks (_cut_short) and the conflicting-votes cap, 14 of these 88
+    were confident and 90 deg off, and missions on them perched drones on the floor; now 3."""
+    from perch_common.scan_corpus import estimate_case
+
+    wrong = []
+    for name, orientation, mesh, true_up, path, _ in corpus:
+        if orientation != "own":
+            continue
+        for what, part in _cut_copies(mesh, true_up):
+            row = estimate_case(part, true_up, None)
+            if row["confident"] and not row["right"]:
+                wrong.append((name, what, row["up_error_deg"]))
+    assert len(wrong) <= 3, wrong
+    assert not any(name == "holo2_vrlab.obj" for name, _, _ in wrong), wrong   # where drones were on the floor
+
+
 def test_inverted_windings_are_recognised_and_the_sign_is_right(corpus):
     """holo2_room_invnormals has every triangle wound backwards (floor facing -y, ceiling +y)."""
     scans = [c for c in corpus if c[0] == "holo2_room_invnormals.obj"]

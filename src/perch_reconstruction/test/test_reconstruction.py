@@ -140,7 +140,11 @@ def test_kitchen_with_poses_is_gravity_aligned(kitchen):
     assert stats.frames_integrated == KITCHEN_FRAMES and stats.clean.up_source == "gravity"
     assert mesh.num_faces > 30_000
     estimate = estimate_mesh_up(mesh)
-    assert estimate.up[2] > np.cos(np.radians(3)) and estimate.confident  # floor and table top are horizontal
+    assert estimate.up[2] > np.cos(np.radians(3))  # floor and table top are horizontal
+    # From its geometry alone the estimate is right but not called confident: 40 frames of a counter
+    # span 1.16 m up, part of a room's height, and nothing across its top (the mission had the recorded
+    # gravity; a mesh file like it is refused under --auto-accept until --up is given).
+    assert not estimate.confident and any("less than a room is tall" in note for note in estimate.notes)
     # the recorded gravity, rotated by the cleaning, now points down
     np.testing.assert_allclose(stats.clean.rotation @ folder.gravity, [0, 0, -1], atol=1e-6)
 
