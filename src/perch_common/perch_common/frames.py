@@ -80,6 +80,16 @@ class Alignment:
                 f"{_axis_text(self.up)} is a fallback; check it (perch mesh info FILE) or pass --up AXIS")
 
     @property
+    def up_estimated(self) -> str:
+        """'' when the up axis was given or recorded; else what a failure that a wrong up axis would
+        explain should add (a stage finding no floor, no surface, no perch)."""
+        if self.up_source in ("given", "gravity", "none"):
+            return ""
+        return (f"the up axis was estimated from the mesh as {_axis_text(self.up)} (confidence "
+                f"{self.up_confidence:.2f}): if that is not up, pass --up AXIS (perch mesh info FILE shows the "
+                "evidence)")
+
+    @property
     def aligned_frame(self) -> str:
         """Name of the gravity-aligned frame."""
         return aligned_frame_name(self.input_frame)

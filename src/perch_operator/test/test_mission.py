@@ -1,5 +1,7 @@
 """Mission flow against a scripted stage caller (no ROS graph): order, feedback, results, re-planning."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -110,6 +112,32 @@ def test_no_regions_is_a_clear_error(goal):
     stages = ScriptedStages(goal.mesh, regions=0)
     with pytest.raises(ValueError, match=r"no perch regions on 1 surface.*orientation 2\.5 m\^2, perch_window 0\.5 m\^2$"):
         run(stages, goal)
+
+
+def test_finding_nothing_on_an_estimated_up_axis_names_it_and_the_option(goal):
+    """A crop, segment, filter or optimise finding nothing may be a room turned on its side: when the
+    up axis was estimated from the mesh, the failure says which axis it was and how to give another."""
+    goal.up_axis = "auto"
+    for stages, error in ((ScriptedStages(goal.mesh, regions=0), ValueError),
+                          (ScriptedStages(goal.mesh, fail="segment"), StageError)):
+        mission = Mission(stages, options(), 1, lambda *f: None, lambda: False, lambda *ps: None, lambda o: None)
+        with pytest.raises(error) as failed:
+            mission.run(goal)
+        assert re.fullmatch(r"; the up axis was estimated from the mesh as \+z \(confidence \d\.\d\d\): if that is "
+                            r"not up, pass --up AXIS \(perch mesh info FILE shows the evidence\)",
+                            mission.up_hint(failed.value)), mission.up_hint(failed.value)
+    # Not for a failure before the alignment, nor when the axis was given.
+    mission = Mission(ScriptedStages(goal.mesh, fail="clean"), options(), 1, lambda *f: None, lambda: False,
+                      lambda *ps: None, lambda o: None)
+    with pytest.raises(StageError) as failed:
+        mission.run(goal)
+    assert mission.up_hint(failed.value) == ""
+    goal.up_axis = "+z"
+    mission = Mission(ScriptedStages(goal.mesh, regions=0), options(), 1, lambda *f: None, lambda: False,
+                      lambda *ps: None, lambda o: None)
+    with pytest.raises(ValueError) as failed:
+        mission.run(goal)
+    assert mission.up_hint(failed.value) == ""
 
 
 def test_goal_needs_exactly_one_source(goal):

@@ -95,6 +95,9 @@ class Operator:
     removals: list = field(default_factory=list)
 
 
+UP_SENSITIVE_STAGES = ("crop", "segment", "filter", "optimise")   # their "nothing found" may be a wrong up axis
+
+
 class Mission:
     """Runs one goal; `publish` hooks let the node publish proposals and waypoints as they happen."""
 
@@ -122,6 +125,15 @@ class Mission:
         self._done_weight = 0.0
         self.running_stage = ""   # the stage whose call is in flight ('' between calls)
         self._last_progress: tuple[str, str] = ("", "")
+
+    def up_hint(self, error: Exception) -> str:
+        """What to add to a failure a wrong up axis would explain (a stage after the alignment found no
+        floor, surface, region or perch) when the up axis was estimated from the mesh: it and --up."""
+        stage = getattr(error, "stage", None)
+        found_nothing = stage in UP_SENSITIVE_STAGES if stage else isinstance(error, ValueError) and \
+            "filter" in self.stage_names
+        note = self.alignment.up_estimated if found_nothing else ""
+        return f"; {note}" if note else ""
 
     def _call(self, stage: str, request):
         self.feedback(stage, self._fraction(), f"running {stage}")

@@ -314,8 +314,9 @@ class OperatorNode(Node):
             return self._failed(mission, str(exc))
         except (StageError, PerchError, MeshError, ValueError, TimeoutError, OSError) as exc:
             goal_handle.abort()
-            self.get_logger().error(f"mission failed: {exc}")
-            return self._failed(mission, str(exc))
+            message = str(exc) + mission.up_hint(exc)
+            self.get_logger().error(f"mission failed: {message}")
+            return self._failed(mission, message)
         finally:
             self._running_mission = self._running_goal = None
             if self._mission_state == "running":
