@@ -59,6 +59,16 @@ def test_floor_is_the_large_level_not_low_noise(meshes):
     assert target.base == pytest.approx(0.0, abs=1e-6)
 
 
+def test_a_room_wound_inside_out_has_the_same_floor_target(meshes):
+    """Every face reversed (floor facing down, ceiling up: the ICL rooms exported so gave "the floor
+    is too small"): the same target as the room; a lone downward grid (a ceiling) is still no floor."""
+    room = meshes.room()
+    inverted = Mesh(room.vertices, room.faces[:, ::-1])
+    target, again = floor_target(room), floor_target(inverted)
+    assert again.base == pytest.approx(target.base, abs=1e-9)
+    np.testing.assert_allclose(again.bounds(), target.bounds(), atol=1e-9)
+
+
 def test_errors_are_precise(meshes):
     mesh = meshes.room()
     with pytest.raises(MeshError, match="no faces left"):

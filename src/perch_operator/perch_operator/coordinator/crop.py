@@ -82,10 +82,21 @@ def floor_level(mesh: Mesh, config: CropConfig) -> tuple[float, np.ndarray]:
     """Height of the floor and the mask of faces forming it (z-up mesh).
 
     The floor is the height band with the most upward-facing area near the lowest upward face,
-    so stray low fragments (noise below the floor) do not win.
+    so stray low fragments (noise below the floor) do not win. A mesh wound inside out (its lowest
+    horizontal faces mostly facing down, its highest up) has its normals taken the other way round.
     """
     normals, areas = mesh.face_normals(), mesh.face_areas()
     z = mesh.face_centroids()[:, 2]
+    # A floor faces up into the room, unless every winding of the mesh is inverted (the up estimate
+    # notices that too): then the lowest horizontal faces mostly face down and the highest mostly up.
+    horizontal = np.abs(normals[:, 2]) >= np.cos(config.floor_angle)
+    if horizontal.any():
+        lowest = horizontal & (z <= z[horizontal].min() + config.floor_band)
+        highest = horizontal & (z >= z[horizontal].max() - config.floor_band)
+        up, down = normals[:, 2] > 0, normals[:, 2] < 0
+        if areas[lowest & down].sum() > areas[lowest & up].sum() and \
+                areas[highest & up].sum() > areas[highest & down].sum():
+            normals = -normals
     upward = normals[:, 2] >= np.cos(config.floor_angle)
     if not upward.any():
         raise MeshError("crop: no upward-facing faces, so no floor to derive the default target from; "
