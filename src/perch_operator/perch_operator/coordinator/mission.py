@@ -25,6 +25,7 @@ from perch_common.ros.conversions import (
     mesh_to_msg,
     placement_from_msg,
     placement_to_msg,
+    target_from_msg,
     vector_msg,
 )
 from perch_common.ros.static_transforms import alignment_from_msg, alignment_to_msg
@@ -93,6 +94,21 @@ class Operator:
     replan_seconds: list[float] = field(default_factory=list)
     surfaces: list = field(default_factory=list)   # the filter's surfaces and removals, for viewers
     removals: list = field(default_factory=list)
+
+
+def _refuse_target_outside(target, mesh: Mesh) -> None:
+    """A goal's target whose centre lies outside the given mesh's bounds, refused in the mesh's own frame
+    (the one the user gave it in); the filter would refuse it in the gravity-aligned frame, with numbers
+    the user never saw."""
+    volume = target_from_msg(target)
+    if volume is None:
+        return
+    lo, hi = mesh.bounds()
+    centre = volume.centroid()
+    if np.isfinite(centre).all() and (np.any(centre < lo - 1e-6) or np.any(centre > hi + 1e-6)):
+        raise ValueError(f"invalid goal: the target's centre {np.round(centre, 3).tolist()} lies outside the mesh's "
+                         f"bounds {np.round(lo, 3).tolist()} .. {np.round(hi, 3).tolist()} (both in the mesh's own "
+                         "frame, where the target is given): check the target's coordinates and units")
 
 
 UP_SENSITIVE_STAGES = ("crop", "segment", "filter", "optimise")   # their "nothing found" may be a wrong up axis
@@ -236,6 +252,7 @@ class Mission:
         if not mesh_msg.header.frame_id:
             mesh_msg.header.frame_id = self.options.frame_id
         given = mesh_from_msg(mesh_msg, "mission mesh")   # decoded once: for the up axis and to align it
+        _refuse_target_outside(goal.target, given)
         self.alignment = self._given_mesh_alignment(goal, mesh_msg.header.frame_id, given)
         aligned = given.transformed(self.alignment.to_aligned())
         aligned.frame_id = self.alignment.aligned_frame
