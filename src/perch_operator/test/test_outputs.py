@@ -70,6 +70,20 @@ def test_waypoints_yaml_keeps_the_latest_per_drone(mission, tmp_path):
     assert doc["waypoints"][0]["position"] == [1.0, 2.0, 3.0] and doc["frame_id"] == "map"
 
 
+def test_waypoints_of_a_scaled_or_shifted_mesh_say_how_to_return_to_the_file(mission, tmp_path):
+    """A mesh loaded with --scale/--shift: positions are file x scale + shift; waypoints.yaml says so and
+    how to go back (overlaid on the file in centimetres they were 100x off); none without them."""
+    from perch_operator.outputs.mission_data import scaled_coordinates
+
+    note = scaled_coordinates(0.01, (-452113.25, -5201244.0, 0.0))
+    assert note == ("the mesh file's coordinates x 0.01 + [-452113.25, -5201244, 0] m (--scale, --shift): "
+                    "(position - [-452113.25, -5201244, 0]) / 0.01 is in the file's")
+    doc = yaml.safe_load(write_waypoints_yaml(tmp_path / "w.yaml", mission.waypoints, note).read_text())
+    assert doc["coordinates"] == note and list(doc) == ["frame_id", "units", "coordinates", "waypoints"]
+    assert scaled_coordinates(1.0, None) == ""
+    assert "coordinates" not in yaml.safe_load(write_waypoints_yaml(tmp_path / "v.yaml", mission.waypoints).read_text())
+
+
 def test_summary_table_lists_scores_and_stage_times():
     from perch_interfaces.action import PlanPerches
     from perch_interfaces.msg import CameraPlacement as PlacementMsg

@@ -175,8 +175,11 @@ def _plan(args) -> int:
         describe["source"] = f"mesh {args.mesh}"
         describe["up"] = args.up
         if args.scale != 1.0 or args.shift is not None:   # the outputs' frame: file * scale + shift
+            from perch_operator.outputs.mission_data import scaled_coordinates
+
             describe["scale"] = args.scale
             describe["shift"] = ",".join(f"{v:g}" for v in args.shift or (0.0, 0.0, 0.0))
+            describe["coordinates"] = scaled_coordinates(args.scale, args.shift)
     elif args.bag:
         if not args.bag.exists():
             raise FileNotFoundError(f"{args.bag}: no such bag")

@@ -48,6 +48,7 @@ class PlanOutputs:
     staged: Path | None = None          # staging folder until the outputs are moved into out_dir
     goal: PlanPerches.Goal | None = None
     removals: str = ""                  # text table: area each filter removed on the largest surfaces
+    coordinates: str = ""               # how waypoints relate to a mesh file loaded with --scale/--shift
     perches: str = ""                   # text: each accepted perch with its safety evidence
     waypoints_at: float | None = None   # time.time() when waypoints.yaml was in out_dir
     result_seconds: float = 0.0         # goal sent to result received (mission_seconds adds the recording's tail)
@@ -332,7 +333,8 @@ def run_recorded_mission(node, goal: PlanPerches.Goal, out_dir: Path, progress: 
                   "will not be in the recording (its node's parameter `introspection`)\n")
     printer = ProgressPrinter(out) if progress else None
     started = time.monotonic()
-    outputs = PlanOutputs(PlanPerches.Result(), out_dir, staged / "run.mcap", staged=staged, goal=goal)
+    outputs = PlanOutputs(PlanPerches.Result(), out_dir, staged / "run.mcap", staged=staged, goal=goal,
+                          coordinates=(describe or {}).get("coordinates", ""))
     try:
         outputs.result = run_mission(node, goal, timeout=timeout, on_feedback=printer)
         outputs.result_seconds = time.monotonic() - started
@@ -399,7 +401,7 @@ def publish_waypoints(outputs: PlanOutputs) -> Path:
 
     waypoints = [waypoint_dict(w) for w in outputs.result.waypoints]
     outputs.waypoints = publish_output(outputs.out_dir, "waypoints.yaml",
-                                       lambda path: write_waypoints_yaml(path, waypoints))
+                                       lambda path: write_waypoints_yaml(path, waypoints, outputs.coordinates))
     outputs.waypoints_at = time.time()
     remove_outputs(outputs.out_dir, (FAILED_NAME, FAILED_RECORDING))
     return outputs.waypoints
@@ -488,7 +490,7 @@ def _write_success(outputs: PlanOutputs, out) -> None:
     outputs.removals = removal_text(data)
     outputs.perches = perch_text(data)
     if outputs.waypoints_at is None:   # not yet in out_dir (run_recorded_mission publishes them at once)
-        write_waypoints_yaml(staged / "waypoints.yaml", data.waypoints)
+        write_waypoints_yaml(staged / "waypoints.yaml", data.waypoints, outputs.coordinates)
     if data.mesh is None:
         out.write("perch: neither the goal nor the recording holds the mesh (a bag mission without stage "
                   "events); no report or rerun file\n")

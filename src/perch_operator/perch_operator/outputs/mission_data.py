@@ -175,13 +175,15 @@ def latest_waypoints(waypoints: list[dict]) -> list[dict]:
     return [latest[k] for k in sorted(latest)]
 
 
-def write_waypoints_yaml(path: str | Path, waypoints: list[dict]) -> Path:
-    """waypoints.yaml: the latest accepted waypoint per drone, for a dispatcher without ROS."""
+def write_waypoints_yaml(path: str | Path, waypoints: list[dict], coordinates: str = "") -> Path:
+    """waypoints.yaml: the latest accepted waypoint per drone, for a dispatcher without ROS.
+    `coordinates`: how the positions relate to the mesh file when it was scaled or shifted on loading."""
     import yaml
 
     latest = latest_waypoints(waypoints)
     doc = {"frame_id": latest[0]["frame_id"] if latest else "map",
            "units": "metres, radians; orientation is the drone body (z along the perch normal)",
+           **({"coordinates": coordinates} if coordinates else {}),
            "waypoints": latest}
     from perch_common.outputs import atomic_path
 
@@ -189,6 +191,15 @@ def write_waypoints_yaml(path: str | Path, waypoints: list[dict]) -> Path:
     with atomic_path(path) as temporary:   # `perch dispatch --output` rewrites it while others read it
         temporary.write_text(yaml.safe_dump(doc, sort_keys=False))
     return path
+
+
+def scaled_coordinates(scale: float, shift) -> str:
+    """The waypoints.yaml note for a mesh loaded with --scale/--shift ('' for neither)."""
+    if scale == 1.0 and shift is None:
+        return ""
+    offset = ", ".join(f"{float(v):.12g}" for v in (shift if shift is not None else (0.0, 0.0, 0.0)))
+    return (f"the mesh file's coordinates x {scale:.12g} + [{offset}] m (--scale, --shift): "
+            f"(position - [{offset}]) / {scale:.12g} is in the file's")
 
 
 def target_point_scores(data: MissionData) -> tuple[np.ndarray, np.ndarray] | None:
