@@ -85,9 +85,10 @@ class Alignment:
         explain should add (a stage finding no floor, no surface, no perch)."""
         if self.up_source in ("given", "gravity", "none"):
             return ""
-        return (f"the up axis was estimated from the mesh as {_axis_text(self.up)} (confidence "
-                f"{self.up_confidence:.2f}): if that is not up, pass --up AXIS (perch mesh info FILE shows the "
-                "evidence)")
+        how = ("is the file's convention" if self.up_source == UNCONFIRMED_SOURCE else
+               "was estimated from the mesh as")
+        return (f"the up axis {how} {_axis_text(self.up)} (confidence {self.up_confidence:.2f}): if that is not "
+                "up, pass --up AXIS (perch mesh info FILE shows the evidence)")
 
     @property
     def aligned_frame(self) -> str:

@@ -138,6 +138,9 @@ def test_finding_nothing_on_an_estimated_up_axis_names_it_and_the_option(goal):
     with pytest.raises(ValueError) as failed:
         mission.run(goal)
     assert mission.up_hint(failed.value) == ""
+    # An unsure estimate's fallback (a mission reviewed by a person) is named as the file's convention.
+    assert Alignment("map", np.eye(3), "file convention", 0.21).up_estimated.startswith(
+        "the up axis is the file's convention +z (confidence 0.21): if that is not up, pass --up AXIS")
 
 
 def test_a_target_outside_the_mesh_is_refused_in_the_frame_it_was_given_in(meshes, goal):
