@@ -144,21 +144,21 @@ def test_finding_nothing_on_an_estimated_up_axis_names_it_and_the_option(goal):
 
 
 def test_a_target_outside_the_mesh_is_refused_in_the_frame_it_was_given_in(meshes, goal):
-    """The room turned 90 deg about x (y up): a box centred beyond it is refused with the numbers of
+    """The room turned 90 deg about x (-y up): a box centred beyond it is refused with the numbers of
     the mesh's own frame, before any stage (the filter's refusal used the gravity-aligned frame's)."""
     turn = np.eye(4)
     turn[:3, :3] = [[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]]
     room = meshes.room().transformed(turn)
     goal.mesh = mesh_to_msg(room)
-    goal.up_axis = "+y"
+    goal.up_axis = "-y"
     goal.target = pm.TargetVolume(kind=pm.TargetVolume.KIND_BOX)
     goal.target.box.pose.position.x, goal.target.box.pose.position.y, goal.target.box.pose.position.z = 10.0, 1.0, -1.0
     goal.target.box.pose.orientation.w = 1.0
     goal.target.box.size.x = goal.target.box.size.y = goal.target.box.size.z = 1.0
     stages = ScriptedStages(goal.mesh)
     lo, hi = (np.round(b, 3).tolist() for b in room.bounds())
-    with pytest.raises(ValueError, match=re.escape(f"the target's centre [10.0, 1.0, -1.0] lies outside the mesh's "
-                                                   f"bounds {lo} .. {hi} (both in the mesh's own frame")):
+    with pytest.raises(ValueError, match=re.escape(f"the target's centre [10.0, 1.0, -1.0] lies outside the scanned "
+                                                   f"room (the mesh spans {lo} .. {hi} in its own frame")):
         run(stages, goal)
     assert stages.requests == []
 

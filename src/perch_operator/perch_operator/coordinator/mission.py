@@ -96,19 +96,20 @@ class Operator:
     removals: list = field(default_factory=list)
 
 
-def _refuse_target_outside(target, mesh: Mesh) -> None:
-    """A goal's target whose centre lies outside the given mesh's bounds, refused in the mesh's own frame
-    (the one the user gave it in); the filter would refuse it in the gravity-aligned frame, with numbers
-    the user never saw."""
+def _refuse_target_outside(target, mesh: Mesh, aligned: Mesh, alignment: Alignment) -> None:
+    """A goal's target whose centre lies outside the given mesh, refused in the mesh's own frame (the one
+    the user gave it in). Judged as the filter judges it, on the gravity-aligned mesh's bounds (the
+    same refusals), but said with the numbers the user knows, not the aligned frame's."""
     volume = target_from_msg(target)
     if volume is None:
         return
-    lo, hi = mesh.bounds()
-    centre = volume.centroid()
+    centre = target_from_msg(target_to_aligned(target, alignment)).centroid()
+    lo, hi = aligned.bounds()
     if np.isfinite(centre).all() and (np.any(centre < lo - 1e-6) or np.any(centre > hi + 1e-6)):
-        raise ValueError(f"invalid goal: the target's centre {np.round(centre, 3).tolist()} lies outside the mesh's "
-                         f"bounds {np.round(lo, 3).tolist()} .. {np.round(hi, 3).tolist()} (both in the mesh's own "
-                         "frame, where the target is given): check the target's coordinates and units")
+        lo, hi = mesh.bounds()
+        raise ValueError(f"invalid goal: the target's centre {np.round(volume.centroid(), 3).tolist()} lies outside "
+                         f"the scanned room (the mesh spans {np.round(lo, 3).tolist()} .. {np.round(hi, 3).tolist()} "
+                         "in its own frame, where the target is given): check the target's coordinates and units")
 
 
 UP_SENSITIVE_STAGES = ("crop", "segment", "filter", "optimise")   # their "nothing found" may be a wrong up axis
@@ -252,9 +253,9 @@ class Mission:
         if not mesh_msg.header.frame_id:
             mesh_msg.header.frame_id = self.options.frame_id
         given = mesh_from_msg(mesh_msg, "mission mesh")   # decoded once: for the up axis and to align it
-        _refuse_target_outside(goal.target, given)
         self.alignment = self._given_mesh_alignment(goal, mesh_msg.header.frame_id, given)
         aligned = given.transformed(self.alignment.to_aligned())
+        _refuse_target_outside(goal.target, given, aligned, self.alignment)
         aligned.frame_id = self.alignment.aligned_frame
         aligned_msg = mesh_to_msg(aligned, stamp=mesh_msg.header.stamp)
         if not self.options.clean_given_mesh:
