@@ -270,7 +270,7 @@ def inspect_mesh(mesh: Mesh, area_epsilon: float = 1e-12, warnings: bool = True)
     return MeshProblems(fatal, warnings, degenerate, duplicates)
 
 
-# An indoor space larger than this along any axis was almost surely modelled in cm or mm.
+# An indoor space larger than this along any axis was almost surely modelled in another unit (FILE_UNITS).
 MAX_PLAUSIBLE_EXTENT = 200.0   # m
 MIN_PLAUSIBLE_EXTENT = 1.5     # m: a scan smaller than this is no space a drone perches in
 TYPICAL_EXTENT = 8.0           # m: a room's scan; the unit giving the nearest size is named first
