@@ -18,6 +18,7 @@ FOOTPRINT_CELL = 0.002            # m: raster cell of a target footprint's outli
 FOOTPRINT_MAX_CELLS = 4000        # ... unless its longer side would need more cells than this
 FOOTPRINT_SUBPIXEL_BITS = 8       # triangle corners placed to 1/256 of a cell
 FOOTPRINT_EPSILON_CELLS = 0.5     # outline simplified to half a cell
+BOUNDS_SLACK = 1e-6               # m: a centre on a mesh's bounds is inside (float rounding)
 
 
 def footprint_cell(triangles: np.ndarray) -> float:
@@ -138,6 +139,12 @@ class TargetVolume:
 
         c = shapely.Polygon(self.footprint).centroid
         return np.array([c.x, c.y, self.base + self.height / 2])
+
+    def centre_outside(self, lo: np.ndarray, hi: np.ndarray) -> bool:
+        """Whether the (finite) centre lies outside the box lo..hi (a mesh's bounds): the one rule by which
+        the filter refuses a target and the coordinator refuses a goal before any stage."""
+        centre = self.centroid()
+        return bool(np.isfinite(centre).all() and (np.any(centre < lo - BOUNDS_SLACK) or np.any(centre > hi + BOUNDS_SLACK)))
 
     def volume(self) -> float:
         """Cubic metres (of a union: the sum; the volumes should not overlap)."""

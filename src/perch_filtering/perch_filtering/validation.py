@@ -18,9 +18,8 @@ def validate_inputs(mesh: Mesh, surfaces: list[Surface], target: TargetVolume | 
     if target is None:
         raise ValueError("target volume: none given (the filter needs a box or footprint target)")
     lo, hi = mesh.bounds()
-    centre = target.centroid()
-    if not np.isfinite(centre).all() or np.any(centre < lo - 1e-6) or np.any(centre > hi + 1e-6):
-        raise ValueError(f"target volume: its centre {np.round(centre, 3).tolist()} lies outside the mesh bounds "
+    if not np.isfinite(target.centroid()).all() or target.centre_outside(lo, hi):
+        raise ValueError(f"target volume: its centre {np.round(target.centroid(), 3).tolist()} lies outside the mesh bounds "
                          f"{np.round(lo, 3).tolist()} .. {np.round(hi, 3).tolist()}")
     seen: set[int] = set()
     for k, s in enumerate(surfaces):

@@ -103,9 +103,7 @@ def _refuse_target_outside(target, mesh: Mesh, aligned: Mesh, alignment: Alignme
     volume = target_from_msg(target)
     if volume is None:
         return
-    centre = target_from_msg(target_to_aligned(target, alignment)).centroid()
-    lo, hi = aligned.bounds()
-    if np.isfinite(centre).all() and (np.any(centre < lo - 1e-6) or np.any(centre > hi + 1e-6)):
+    if target_from_msg(target_to_aligned(target, alignment)).centre_outside(*aligned.bounds()):
         lo, hi = mesh.bounds()
         raise ValueError(f"invalid goal: the target's centre {np.round(volume.centroid(), 3).tolist()} lies outside "
                          f"the scanned room (the mesh spans {np.round(lo, 3).tolist()} .. {np.round(hi, 3).tolist()} "
