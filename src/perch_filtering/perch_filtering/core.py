@@ -183,28 +183,32 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
     reached = _reachability([w for w in work if w.raster is not None], grid, scene.mesh, config)
     clock.lap("reachability")
 
+    def observe_and_outline(w: _Work, kept: np.ndarray) -> tuple:
+        """The observed-space rule on one reached surface, then its regions (numbered from 0): its removal,
+        kept cells, the two observed evidence maps at them (the rays are per kept cell; the maps are read
+        nowhere else) and the regions."""
+        _observed(w, kept, scene, up, config, mesh.viewpoints)
+        return (w.removal, kept, w.evidence["approach_observed"][kept], w.evidence["fall_observed"][kept],
+                _regions(w, kept, 0, mesh.frame_id, config))
+
     def observe(indices: list[int]) -> list[tuple]:
-        """The observed-space rule on the reached surfaces `indices`: each one's removal, kept cells and
-        its two evidence maps at them (the rays are per kept cell; the maps are read nowhere else)."""
-        pairs = [reached[i] for i in indices]
-        _per_surface(lambda pair: _observed(*pair, scene, up, config, mesh.viewpoints), pairs,
-                     "observed space: surface", 0.85, 0.99)
-        return [(w.removal, kept, w.evidence["approach_observed"][kept], w.evidence["fall_observed"][kept])
-                for w, kept in pairs]
+        """observe_and_outline on the reached surfaces `indices` (each surface's answer is its own, so its
+        regions are outlined in the share that observed it)."""
+        return _per_surface(lambda pair: observe_and_outline(*pair), [reached[i] for i in indices],
+                            "observed space: surface", 0.85, 0.99)
 
     observed, observed_split = _shared_out(observe, [float(kept.sum()) for _, kept in reached],
                                            SPLIT_MIN_OBSERVED_CELLS, config)
-    for (w, _), (removal, kept, approach, fall) in zip(reached, observed):
+    regions: list[PerchRegion] = []
+    for (w, _), (removal, kept, approach, fall, outlined) in zip(reached, observed):
         w.removal = removal
         w.evidence.update(approach_observed=_spread(approach, kept), fall_observed=_spread(fall, kept))
-    reached = [(w, kept) for (w, _), (_, kept, _, _) in zip(reached, observed)]
+        for region in outlined:   # numbered in surface order, as one process numbers them
+            region.id = len(regions)
+            regions.append(region)
     removals = [w.removal for w in work]
     second_process = second_process if observed_split in ("", "done") else observed_split
     clock.lap("observed")
-    regions: list[PerchRegion] = []
-    for w, kept in reached:
-        regions.extend(_regions(w, kept, len(regions), mesh.frame_id, config))
-    clock.lap("regions")
     result = FilterResult(regions, removals, oriented, "", floor_height, floor_ids,
                           [o.decided_by for o in orientations], time.perf_counter() - start, clock.laps,
                           second_process)
