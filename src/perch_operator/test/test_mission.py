@@ -26,8 +26,8 @@ def placement_msg(x: float) -> pm.CameraPlacement:
 class ScriptedStages:
     """Answers each stage like a healthy graph would; `fail` makes one stage raise."""
 
-    def __init__(self, mesh_msg, fail: str | None = None, regions: int = 1):
-        self.mesh_msg, self.fail, self.regions = mesh_msg, fail, regions
+    def __init__(self, mesh_msg, fail: str | None = None, regions: int = 1, clean_message: str = ""):
+        self.mesh_msg, self.fail, self.regions, self.clean_message = mesh_msg, fail, regions, clean_message
         self.requests: list[tuple[str, object]] = []
 
     def call(self, stage, request, cancelled=lambda: False, progress=None):
@@ -40,7 +40,7 @@ class ScriptedStages:
 
             mesh = mesh_from_msg(request.mesh).transformed(alignment.to_aligned())
             mesh.frame_id = alignment.aligned_frame
-            return srv.CleanMesh.Response(success=True, mesh=mesh_to_msg(mesh), seconds=0.1,
+            return srv.CleanMesh.Response(success=True, mesh=mesh_to_msg(mesh), seconds=0.1, message=self.clean_message,
                                           alignment=alignment_to_msg(alignment))
         if stage == "crop":
             return srv.Crop.Response(success=True, mesh=request.mesh, seconds=0.01,
@@ -112,6 +112,26 @@ def test_no_regions_is_a_clear_error(goal):
     stages = ScriptedStages(goal.mesh, regions=0)
     with pytest.raises(ValueError, match=r"no perch regions on 1 surface.*orientation 2\.5 m\^2, perch_window 0\.5 m\^2$"):
         run(stages, goal)
+
+
+def test_a_failure_says_what_the_clean_stage_warned_of(goal):
+    """A mesh in unwelded blocks segments into little: the filter's "no perch regions" then says why."""
+    from perch_reconstruction.cleaning import CleanReport
+
+    report = CleanReport(faces_in=9, faces_out=9, up_source="gravity",
+                         warnings=["removed 3 duplicate or degenerate faces", "the mesh falls apart into fragments: 9 "
+                                   "disconnected pieces, the largest 0.06 m^2 (1% of the area)"])
+    mission = Mission(ScriptedStages(goal.mesh, regions=0, clean_message=report.summary()), options(), 1,
+                      lambda *f: None, lambda: False, lambda *ps: None, lambda o: None)
+    with pytest.raises(ValueError, match="no perch regions"):
+        mission.run(goal)
+    assert mission.clean_hint() == ("; the clean stage warned: removed 3 duplicate or degenerate faces; the mesh falls "
+                                    "apart into fragments: 9 disconnected pieces, the largest 0.06 m^2 (1% of the area)")
+    quiet = Mission(ScriptedStages(goal.mesh, regions=0, clean_message=CleanReport(9, 9).summary()), options(), 1,
+                    lambda *f: None, lambda: False, lambda *ps: None, lambda o: None)
+    with pytest.raises(ValueError):
+        quiet.run(goal)
+    assert quiet.clean_hint() == ""
 
 
 def test_finding_nothing_on_an_estimated_up_axis_names_it_and_the_option(goal):

@@ -12,7 +12,13 @@ from perch_common.mesh import Mesh, MeshError, validate_mesh
 from perch_common.mesh_health import unreferenced_line, unreferenced_vertices
 from perch_common.up_axis import UpEstimate, estimate_mesh_up
 from perch_reconstruction.config import ReconstructionConfig
-from perch_reconstruction.mesh_ops import cluster_vertices, remove_small_pieces, weld_close_vertices, weld_vertices
+from perch_reconstruction.mesh_ops import (
+    cluster_vertices,
+    piece_areas,
+    remove_small_pieces,
+    weld_close_vertices,
+    weld_vertices,
+)
 
 PRECLUSTER_FACTOR = 2
 SOUP_VERTICES_PER_FACE = 2.0   # welded meshes have ~0.5 vertices per face; a soup that did not weld ~3
@@ -21,6 +27,9 @@ SOUP_WELD_MAX = 1e-3           # m ... at most
 REWIND_SHARE = 0.01            # re-wind when more than this share of shared edges is inconsistent
 NOTABLE_SHARE = 0.001          # duplicate/degenerate faces are reported above this share
 FALLING_APART = 0.5            # warn when pieces below min_piece_diameter held more than this share of faces
+# ... or when the cleaned mesh's largest connected piece holds less than this share of its area (HoloLens
+# spatial maps, made of blocks, hold 15-30 % in their largest; a room in 0.25 m blocks with unwelded seams, 1 %)
+FRAGMENTED_SHARE = 0.05
 # fast_simplification keeps the mesh being decimated in module-global state: one decimation at a time.
 _DECIMATION_LOCK = threading.Lock()
 
@@ -38,6 +47,12 @@ class CleanReport:
     rotation: np.ndarray = field(default_factory=lambda: np.eye(3))  # applied: out = R @ in
     seconds: float = 0.0
     warnings: list[str] = field(default_factory=list)
+
+    def summary(self) -> str:
+        """The clean reply's message: '<faces> (<pieces>); up from <source>', then '; <warning>' each (the
+        coordinator reads the warnings back from the third part on, for a failure's message)."""
+        return "; ".join([f"{self.faces_in} -> {self.faces_out} faces ({self.pieces_removed_faces} in small pieces)",
+                          f"up from {self.up_source}", *self.warnings])
 
 
 def clean_mesh(mesh: Mesh, gravity: np.ndarray | None, config: ReconstructionConfig) -> Mesh:
@@ -69,6 +84,9 @@ def clean_mesh_with_report(mesh: Mesh, gravity: np.ndarray | None, config: Recon
     if cleaned.num_faces == 0:
         raise MeshError(f"mesh to clean: nothing left after removing pieces smaller than "
                         f"{config.min_piece_diameter} m; lower min_piece_diameter")
+    fragmented = fragmented_line(piece_areas(cleaned))
+    if fragmented:
+        report.warnings.append(fragmented)
     if config.gravity_align:
         rotation = _up_rotation(cleaned, gravity, config, report, down_hint)
         if rotation is not None:
@@ -79,6 +97,18 @@ def clean_mesh_with_report(mesh: Mesh, gravity: np.ndarray | None, config: Recon
     report.faces_out = cleaned.num_faces
     report.seconds = time.perf_counter() - start
     return cleaned, report
+
+
+def fragmented_line(areas: np.ndarray) -> str:
+    """What to say of a mesh whose connected pieces have `areas` (largest first) when even the largest
+    holds under FRAGMENTED_SHARE of the area ('' otherwise): segmentation finds surfaces within a piece."""
+    total = float(areas.sum())
+    if len(areas) < 2 or total <= 0 or areas[0] >= FRAGMENTED_SHARE * total:
+        return ""
+    return (f"the mesh falls apart into fragments: {len(areas):,} disconnected pieces, the largest {areas[0]:.2f} m^2 "
+            f"({areas[0] / total:.0%} of the area); surfaces are found within one piece, so a scan exported in "
+            "blocks without shared seams (or as a triangle soup) yields few or none: weld it (merge_distance, "
+            "or your exporter's weld option) or export it as one mesh")
 
 
 def _own_arrays(cleaned: Mesh, given: Mesh) -> Mesh:

@@ -162,8 +162,8 @@ def weld_close_vertices(mesh: Mesh, distance: float) -> Mesh:
     return _remap(mesh, rank[label], count, average=False)
 
 
-def remove_small_pieces(mesh: Mesh, min_diameter: float) -> tuple[Mesh, int]:
-    """Drop connected pieces whose bounding-box diagonal is below min_diameter; returns (mesh, faces removed)."""
+def piece_labels(mesh: Mesh) -> tuple[int, np.ndarray]:
+    """The mesh's connected pieces (faces sharing a vertex): their count and each vertex's piece."""
     from scipy.sparse import csr_matrix
     from scipy.sparse.csgraph import connected_components
 
@@ -178,7 +178,13 @@ def remove_small_pieces(mesh: Mesh, min_diameter: float) -> tuple[Mesh, int]:
     np.add(f, faces, out=corners.reshape(-1, 3), casting="unsafe")   # below 2^31 where int32
     graph = csr_matrix((np.ones(3 * faces), corners, indptr), shape=(faces + n, faces + n))
     count, label = connected_components(graph, directed=False)
-    label = label[faces:]
+    return count, label[faces:]
+
+
+def remove_small_pieces(mesh: Mesh, min_diameter: float) -> tuple[Mesh, int]:
+    """Drop connected pieces whose bounding-box diagonal is below min_diameter; returns (mesh, faces removed)."""
+    count, label = piece_labels(mesh)
+    f = mesh.faces
     if count == 1:
         lo, hi = column_bounds(mesh.vertices)
         big = np.array([np.linalg.norm(hi - lo) >= min_diameter])
@@ -191,6 +197,14 @@ def remove_small_pieces(mesh: Mesh, min_diameter: float) -> tuple[Mesh, int]:
     keep = big[label[f[:, 0]]]
     removed = int((~keep).sum())
     return (mesh if removed == 0 else mesh.submesh(keep)), removed
+
+
+def piece_areas(mesh: Mesh) -> np.ndarray:
+    """Area (m^2) of each connected piece, largest first."""
+    if mesh.num_faces == 0:
+        return np.zeros(0)
+    count, label = piece_labels(mesh)
+    return np.sort(np.bincount(label[mesh.faces[:, 0]], mesh.face_areas(), count))[::-1]
 
 
 def cluster_vertices(mesh: Mesh, target_faces: int) -> Mesh:

@@ -270,9 +270,7 @@ class ReconstructionNode(Node):
         response.mesh = cached_mesh_to_msg(mesh, self.get_clock().now().to_msg())
         self._answer_alignment(response, given.frame_id, report)
         response.success = True
-        response.message = (f"{report.faces_in} -> {report.faces_out} faces ({report.pieces_removed_faces} in "
-                            f"small pieces); up from {report.up_source}" +
-                            ("; " + "; ".join(report.warnings) if report.warnings else ""))
+        response.message = report.summary()
         return response
 
     def _answer_alignment(self, response, input_frame: str, report: CleanReport | None) -> None:

@@ -51,6 +51,37 @@ def test_small_pieces_removed_large_kept():
     assert cleaned.num_faces == room.num_faces + plate.num_faces
 
 
+def test_small_detached_fixtures_are_kept_by_default():
+    """A lamp shade or wall light the scan left unattached is an obstacle: the clean stage keeps it (removed,
+    the filter proposed perches whose approach it blocks)."""
+    room = grid_patch(2.0, 20)
+    shade = grid_patch(0.16, 2, z=1.0)   # diagonal 0.23 m: was removed by the former 0.3 m default
+    cleaned, report = clean_mesh_with_report(merge(room, shade), None,
+                                             ReconstructionConfig(target_faces=0, gravity_align=False))
+    assert report.pieces_removed_faces == 0 and cleaned.num_faces == room.num_faces + shade.num_faces
+    assert np.isclose(cleaned.vertices[:, 2].max(), 1.0)
+
+
+def test_a_mesh_in_unwelded_blocks_is_said_to_fall_apart():
+    """Surfaces are found within a connected piece: a room exported in blocks whose seams are not shared
+    yields few, and the clean report says why (HoloLens maps, whose largest block holds 15-30 %, are not)."""
+    config = ReconstructionConfig(target_faces=0, gravity_align=False)
+    blocks = merge(*(grid_patch(0.25, 2).transformed(_shifted(0.251 * i, 0.251 * j))
+                     for i in range(8) for j in range(8)))   # 64 tiles, 1 mm apart: no weld joins them
+    _, report = clean_mesh_with_report(blocks, None, config)
+    warning = [w for w in report.warnings if "falls apart into fragments" in w]
+    assert warning and "64 disconnected pieces" in warning[0] and "(2% of the area)" in warning[0], report.warnings
+    few = merge(grid_patch(1.0, 4), *(grid_patch(0.5, 2).transformed(_shifted(2.0 + i, 0.0)) for i in range(10)))
+    _, report = clean_mesh_with_report(few, None, config)   # the largest of 11 pieces holds 29 %
+    assert not any("falls apart" in w for w in report.warnings), report.warnings
+
+
+def _shifted(x: float, y: float) -> np.ndarray:
+    transform = np.eye(4)
+    transform[:2, 3] = (x, y)
+    return transform
+
+
 def room_box(tilt: np.ndarray | None = None) -> Mesh:
     """Floor, ceiling and four walls (floor 4x3 m, walls 2.5 m high), finely tessellated."""
     floor = grid_patch(1.0, 40)
@@ -146,7 +177,7 @@ def test_bad_meshes_and_gravity_are_reported():
         clean_mesh(room_box(), np.array([np.nan, 0, 1]), ReconstructionConfig())
     crumbs = grid_patch(0.1, 2)
     with pytest.raises(MeshError, match="nothing left after removing pieces smaller than 0.3 m"):
-        clean_mesh(crumbs, None, ReconstructionConfig())
+        clean_mesh(crumbs, None, ReconstructionConfig(min_piece_diameter=0.3))
 
 
 def test_collapse_mapping_matches_the_decimators_replay():

@@ -134,6 +134,7 @@ class Mission:
         self.on_alignment = on_alignment  # told the input frame -> gravity-aligned frame once known
         self.alignment = Alignment(options.frame_id, np.eye(3), "none", 0.0)
         self.notes: list[str] = []  # warnings for the result message (e.g. an up axis from the file's convention)
+        self.clean_warnings: list[str] = []  # what the clean stage warned of, for a failure's message
         self.stage_names: list[str] = []
         self.stage_seconds: list[float] = []
         self._planned = [s for s in STAGE_WEIGHTS]
@@ -149,6 +150,11 @@ class Mission:
             "filter" in self.stage_names
         note = self.alignment.up_estimated if found_nothing else ""
         return f"; {note}" if note else ""
+
+    def clean_hint(self) -> str:
+        """What to add to a failure: the clean stage's warnings (a mesh falling apart into fragments
+        explains a segmentation or filter that found little)."""
+        return "; the clean stage warned: " + "; ".join(self.clean_warnings) if self.clean_warnings else ""
 
     def _call(self, stage: str, request):
         self.feedback(stage, self._fraction(), f"running {stage}")
@@ -262,6 +268,9 @@ class Mission:
         # Cleaned after aligning: its vertex welding then works in the room's own frame, so the same
         # room in any orientation is cleaned alike. Its (near-identity) correction joins the alignment.
         reply = self._call("clean", srv.CleanMesh.Request(mesh=aligned_msg, gravity=vector_msg([0.0, 0.0, -1.0])))
+        # Its message is perch_reconstruction's CleanReport.summary(), "<faces> (<pieces>); up from <source>" and
+        # then its warnings (a mesh falling apart into fragments, repairs): they may explain a "nothing found".
+        self.clean_warnings = reply.message.split("; ")[2:]
         correction = alignment_from_msg(reply.alignment).rotation
         self.alignment = Alignment(self.alignment.input_frame, correction @ self.alignment.rotation,
                                    self.alignment.up_source, self.alignment.up_confidence)

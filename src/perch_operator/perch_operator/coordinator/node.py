@@ -314,7 +314,7 @@ class OperatorNode(Node):
             return self._failed(mission, str(exc))
         except (StageError, PerchError, MeshError, ValueError, TimeoutError, OSError) as exc:
             goal_handle.abort()
-            message = str(exc) + mission.up_hint(exc)
+            message = str(exc) + mission.up_hint(exc) + mission.clean_hint()
             self.get_logger().error(f"mission failed: {message}")
             return self._failed(mission, message)
         finally:
