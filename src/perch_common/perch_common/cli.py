@@ -21,6 +21,28 @@ from perch_common.threads import limit_threads
 _requested: list[str] = []
 
 
+AXIS_OPTIONS = ("--up",)   # options whose value may be a negative axis such as -y
+
+
+def glued_axis_values(argv: list[str]) -> list[str]:
+    """argv with `--up -y` written `--up=-y`: argparse takes a value that starts with '-' for an option of its
+    own ("expected one argument"), yet -y is how up axes are written, in Perch's own hints too."""
+    out: list[str] = []
+    words = iter(argv)
+    for word in words:
+        if word in AXIS_OPTIONS:
+            value = next(words, None)
+            if value is not None and len(value) == 2 and value[0] == "-" and value[1] in "xyzXYZ":
+                out.append(f"{word}={value}")
+                continue
+            out.append(word)
+            if value is not None:
+                out.append(value)
+            continue
+        out.append(word)
+    return out
+
+
 def command_words(argv: list[str]) -> list[str]:
     """The leading positional words of a `perch` command line (the global --namespace skipped);
     empty when an option comes first (e.g. `perch --help`)."""
@@ -75,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
     """Run the `perch` command line; returns the exit code."""
     limit_threads()
     tune_memory()   # commands run stages in this process too (plan, bench, batch)
-    argv = sys.argv[1:] if argv is None else list(argv)
+    argv = glued_axis_values(sys.argv[1:] if argv is None else list(argv))
     parser = build_parser(argv)
     args = parser.parse_args(argv)
     if args.namespace is not None:

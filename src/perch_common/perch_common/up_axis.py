@@ -51,6 +51,8 @@ SMOOTH_TOLERANCE = 1e-12   # rad: they stop when the axis moves less than this
 SAMPLES = 20000           # faces standing for the scan (a uniform sample by index above this)
 SEARCH_SAMPLES = 4000     # of those, used for the coarse direction search (1000 directions; a uniform subset)
 EXPORTER_VOTE = "the file's exporter is y-up"
+HEADER_DISPUTE_WEIGHT = 0.2     # the scan's own sign votes (at least this much weight) ...
+HEADER_DISPUTE_AGREEMENT = 0.5  # ... at least this far against the header's axis leave the estimate unsure
 AXIS_VOTES = ("furniture tops face up", "cameras' image-down axes point down", EXPORTER_VOTE)
 INWARD_MIN = 0.3          # below this share of the room's end planes facing inward, the windings are inverted
 AXIS_SUPPORT_MIN = 0.3    # an axis with less planar area than this share of the best one's is their cross product
@@ -225,6 +227,17 @@ def estimate_up(normals: np.ndarray, areas: np.ndarray, centroids: np.ndarray,
         notes.append("conflicting: " + ", ".join(f"{v.name} {v.vote:+.2f}" for v in strong))
     if conflict:
         notes.append(conflict)
+    # A header picks an axis and its sign where the geometry cannot, but it is not evidence enough against
+    # the scan's own: a file turned after export keeps its header (a corner view turned z-up under a y-up
+    # exporter's name was "confident" on a horizontal axis, and refused the true --up).
+    scan_votes = [v for v in votes if v.name != EXPORTER_VOTE and v.weight > 0]
+    scan_weight = sum(v.weight for v in scan_votes)
+    header_against = not disputed and any(v.name == EXPORTER_VOTE and v.vote > 0 for v in votes) \
+        and scan_weight >= HEADER_DISPUTE_WEIGHT \
+        and sum(v.vote * v.weight for v in scan_votes) / scan_weight <= -HEADER_DISPUTE_AGREEMENT
+    if header_against:
+        notes.append("conflicting: the file's exporter is y-up, but the scan's own evidence points the other way ("
+                     + ", ".join(f"{v.name} {v.vote:+.2f}" for v in scan_votes) + ")")
     # The sign is sure when about 1.5 votes' worth of evidence agrees by 60 % or more; the axis
     # when enough of the area is planar along the room axes and no other axis comes close: a
     # close competitor caps it below CONFIDENT (on the corpus such axes were wrong as often as right).
@@ -238,7 +251,7 @@ def estimate_up(normals: np.ndarray, areas: np.ndarray, centroids: np.ndarray,
                                                                               areas, centroids)
     if cut:
         notes.append(cut)
-    if conflict or disputed or cut or axis_margin < 1.0:
+    if conflict or disputed or header_against or cut or axis_margin < 1.0:
         confidence = min(confidence, 0.98 * CONFIDENT * max(axis_margin, 0.0))
     if axis_margin < 1.0:
         notes.append(f"weak: another room axis is almost as likely to be up (score {score:.2f} vs {runner_up:.2f})")
@@ -531,11 +544,12 @@ def choose_up(text: str, mesh, convention: str = "+z", option: str = "--up",
     given = parse_up_axis(text)
     problem = contradiction(given, estimate)
     if problem:
+        other = _uncontradicted(estimate, avoid=given)
         suggestion = (f"The mesh suggests up {estimate.axis_name()} (confidence {estimate.confidence:.2f}): pass "
                       f"{option} {_option_value(estimate.up)} (or {option} auto)") if estimate.confident else (
             f"The estimate is not confident ({estimate.confidence:.2f}; it considered "
-            f"{', '.join(estimate.considered) or 'no axis'}): pass the true up, e.g. {option} "
-            f"{_option_value(estimate.up)} if that is it")
+            f"{', '.join(estimate.considered) or 'no axis'}): pass the true up"
+            + (f", e.g. {option} {_option_value(other)} if that is it" if other is not None else ""))
         raise UpAxisError(f"{option} {text.strip()} contradicts the mesh: {problem}. {suggestion}")
     return UpChoice(given, "given", estimate)
 
@@ -544,11 +558,25 @@ def unsure_message(estimate: UpEstimate, option: str = "--up") -> str:
     """Why an auto-accepted mission stops on an unsure up estimate: the axes considered and what to pass."""
     considered = ", ".join(estimate.considered) or axis_name(estimate.up)
     reasons = [n for n in estimate.notes if n.startswith(("weak:", "conflicting"))]
+    hint = _uncontradicted(estimate)
     return (f"up axis not confident ({estimate.confidence:.2f}): considered {considered}"
             + (f" ({'; '.join(reasons)})" if reasons else "")
             + f". An auto-accepted mission does not place drones on a guessed up axis: pass {option} AXIS "
-            f"(e.g. {option} {_option_value(estimate.up)} if that is up; `perch mesh info FILE` shows the evidence), "
-            "or run without --auto-accept to review every proposal")
+            f"(e.g. {option} {_option_value(estimate.up if hint is None else hint)} if that is up; `perch mesh info FILE` "
+            "shows the evidence), or run without --auto-accept to review every proposal")
+
+
+def _uncontradicted(estimate: UpEstimate, avoid: np.ndarray | None = None) -> np.ndarray | None:
+    """The first of the estimate's up, its opposite and the other room axes (both ways) that the mesh does
+    not contradict and that is not `avoid` (an axis just refused): what a hint may suggest, so that
+    following it is never refused in turn. None when every one is."""
+    axes = [a for a in np.asarray(estimate.axes, np.float64).reshape(-1, 3) if abs(a @ estimate.up) < COS_10]
+    for direction in [estimate.up, -estimate.up, *(s * a for a in axes for s in (1.0, -1.0))]:
+        if avoid is not None and direction @ avoid > COS_10:
+            continue
+        if not contradiction(direction, estimate):
+            return np.asarray(direction, np.float64)
+    return None
 
 
 def contradiction(up: np.ndarray, estimate: UpEstimate) -> str:

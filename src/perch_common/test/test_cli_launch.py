@@ -121,3 +121,16 @@ def test_launch_starts_and_stops_cleanly_on_ctrl_c(tmp_path):
     assert proc.returncode == 0, err
     assert "starting perch_mesh_tools" in out and "stopped" in out
     assert "serving /perch/inspect_mesh" in (Path(tmp_path / "logs" / "perch_mesh_tools.log").read_text())
+
+
+def test_a_negative_up_axis_is_taken_as_written():
+    """`--up -y` (as Perch's own hints write it) is the axis, not an unknown option."""
+    from perch_common.cli import build_parser, glued_axis_values
+
+    argv = glued_axis_values(["plan", "--mesh", "room.ply", "--up", "-y", "--cameras", "2", "-o", "out"])
+    assert argv == ["plan", "--mesh", "room.ply", "--up=-y", "--cameras", "2", "-o", "out"]
+    assert build_parser(argv).parse_args(argv).up == "-y"
+    # Anything else after --up is left to argparse as before.
+    assert glued_axis_values(["plan", "--up", "+z", "--up", "-0.1 0 1"]) == ["plan", "--up", "+z", "--up", "-0.1 0 1"]
+    out = run("plan", "--up", "-y")   # argparse's complaint is about the missing mesh now, not about --up
+    assert out.returncode == 2 and "--up" not in out.stderr.splitlines()[-1], out.stderr

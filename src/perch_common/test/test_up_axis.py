@@ -319,3 +319,37 @@ def test_stacked_storeys_up_is_right_and_confident(floors):
         assert angle_deg(estimate.up, true_up) <= 3.0, (floors, orientation, estimate.notes)
         assert estimate.confident, (floors, orientation, estimate.confidence, estimate.notes)
         assert "stacked storeys" in estimate.votes[0].detail, estimate.votes[0].detail
+
+
+def test_a_header_does_not_outvote_the_scan_it_was_turned_away_from(corpus):
+    """A file turned after export keeps its exporter's name: the RealSense corner view turned z-up under a
+    y-up exporter's header was 'confident' (1.00) on its horizontal y axis and refused the true --up +z.
+    Its own evidence (the floor strip at the other end) disputes the header: not confident, and +z is taken.
+    In its own frame header and scan agree, and it stays confident."""
+    scans = [c for c in corpus if c[0] == "realsense_corner.ply" and c[1] == "own"]
+    if not scans:
+        pytest.skip("realsense_corner.ply is not in the shared data")
+    _, _, mesh, true_up, _, _ = scans[0]
+    header = "+y (exporter: Polycam)"
+    assert choose_up("auto", mesh, header).estimate.confident
+    turned, up, _ = oriented(mesh, true_up, "z-up")
+    estimate = choose_up("auto", turned, header).estimate
+    assert not estimate.confident and angle_deg(estimate.up, up) > 80
+    assert any(n.startswith("conflicting: the file's exporter is y-up, but the scan's own evidence") for n in estimate.notes)
+    assert choose_up("+z", turned, header).source == "given"
+
+
+def test_a_refused_axis_is_never_the_one_the_hint_suggests(corpus):
+    """The ICL living room (true up -y) under a y-up exporter's header: unsure, and the hint names -y, the axis
+    the check lets through; before, it named +y, which `--up +y` then refused suggesting +y again."""
+    scans = [c for c in corpus if c[0] == "icl_livingroom_kt2.obj" and c[1] == "own"]
+    if not scans:
+        pytest.skip("icl_livingroom_kt2.obj is not in the shared data")
+    mesh = scans[0][2]
+    header = "+y (exporter: Scaniverse)"
+    with pytest.raises(UpAxisError, match=r"^up axis not confident .* \(e\.g\. --up -y if that is up"):
+        choose_up("auto", mesh, header, require_confident=True)
+    with pytest.raises(UpAxisError, match=r"^--up \+y contradicts the mesh: furniture tops face down along it\. "
+                                          r"The estimate is not confident .*: pass the true up, e\.g\. --up -y if"):
+        choose_up("+y", mesh, header)
+    assert choose_up("-y", mesh, header).source == "given"
