@@ -118,6 +118,13 @@ def test_a_footprint_target_is_read_with_the_meshs_scale_and_shift(tmp_path):
     target = parse_target(f"{footprint}:1.5", 0.001, (-450000.0, -5200000.0, -300.0))
     assert np.allclose(np.reshape(target.footprint.vertices, (-1, 3)), [[0, 0, 0], [2, 0, 0], [2, 1, 0], [0, 1, 0]])
     assert target.height == pytest.approx(1.5)
+    # The same footprint in metres read with the millimetre mesh's --scale: 2 mm across, refused with the fix.
+    metres = tmp_path / "target_in_metres.obj"
+    metres.write_text("".join(f"v {x} {y} {z}\n" for x, y, z in corners / 1000 - [450000, 5200000, 300])
+                      + "f 1 2 3\nf 1 3 4\n")
+    with pytest.raises(ValueError, match=r"the footprint is 0\.00224 m across, smaller than anything to watch; it is "
+                                         r"read with the mesh's --scale 0\.001: give it in the mesh file's units"):
+        parse_target(f"{metres}:1.2", 0.001)
 
 
 def test_report_explains_removals_evidence_and_shortfall(mission, tmp_path):

@@ -100,6 +100,11 @@ def _from_frames(args) -> int:
     folder = open_frame_folder(args.frames, limit=args.limit or None, step=args.step)
     stamps, source = folder_stamps(folder, args.fps, parse_start(args.start))
     print(f"perch bag from-frames: {len(folder)} frames, stamps from {source}", file=sys.stderr, flush=True)
+    if folder.frames_without_pose_file and not args.no_poses:
+        print(f"perch bag from-frames: warning: {folder.frames_without_pose_file} of {len(folder)} frames have no "
+              ".pose.txt; they are written without a pose (a reconstruction from the recorded poses skips them, as "
+              "frames whose tracking was lost; --no-poses writes none and lets odometry track every frame)",
+              file=sys.stderr, flush=True)
     shown = [time.monotonic()]
 
     def frames():
@@ -115,6 +120,7 @@ def _from_frames(args) -> int:
     result = write_bag(args.output, frames(), folder.intrinsics, gravity=folder.gravity, topics=_topics(args),
                        compressed=args.compressed, pose_type=args.pose_type)
     result["stamps_from"] = source
+    result["frames_without_pose_file"] = folder.frames_without_pose_file
     print(json.dumps(result, indent=2))
     return 0
 

@@ -81,6 +81,7 @@ class FrameFolder:
     intrinsics: Intrinsics
     gravity: np.ndarray | None
     has_poses: bool
+    frames_without_pose_file: int = 0   # of a folder with poses: frames whose .pose.txt is missing
 
     def __len__(self) -> int:
         return len(self.stems)
@@ -102,8 +103,9 @@ class FrameFolder:
             raise PerchError(f"{stem}: colour {color.shape[1]}x{color.shape[0]} and depth "
                              f"{depth.shape[1]}x{depth.shape[0]} differ in size; register them first")
         pose = None
-        if self.has_poses:
-            pose = read_matrix(stem.with_name(stem.name + ".pose.txt"), (4, 4), "4x4 camera-to-world pose")
+        pose_path = stem.with_name(stem.name + ".pose.txt")
+        if self.has_poses and pose_path.is_file():   # a missing one: a frame without a pose, as a lost one
+            pose = read_matrix(pose_path, (4, 4), "4x4 camera-to-world pose")
             if not np.isfinite(pose).all():
                 pose = None  # the 7-Scenes/TUM convention for a lost-tracking frame
         # 65535 marks invalid Kinect depth; both it and 0 become 0 (invalid).
@@ -153,8 +155,10 @@ def open_frame_folder(path: str | Path, limit: int | None = None, step: int = 1)
     g_path = root / "gravity-direction.txt"
     if g_path.is_file():
         gravity = read_matrix(g_path, (3,), "gravity direction (3 numbers)")
-    has_poses = all((root / f"{s}.pose.txt").is_file() for s in stems)
-    return FrameFolder(root, stems, intrinsics, gravity, has_poses)
+    # Poses of some frames only: those frames go without one (a reconstruction from recorded poses skips
+    # them), said by the caller; before, one missing file dropped every frame's pose without a word.
+    posed = sum((root / f"{s}.pose.txt").is_file() for s in stems)
+    return FrameFolder(root, stems, intrinsics, gravity, posed > 0, len(stems) - posed if posed else 0)
 
 
 def iter_folder_frames(folder: FrameFolder, fps: float = 30.0, start_ns: int = 0,

@@ -190,3 +190,27 @@ def test_the_live_node_takes_poses_from_tf_while_a_bag_with_poses_only_as_tf_pla
         assert reply.frames_integrated == FRAMES, reply.message + "\n" + log
         assert "0 without pose" in reply.message and reply.mesh.header.frame_id.startswith("map"), reply.message
         client.destroy_node()
+
+
+def test_frames_missing_their_pose_file_go_without_one_and_are_counted(frame_folder, tmp_path, capsys):
+    """One missing .pose.txt used to drop every frame's pose without a word (the bag then had no pose topic
+    and the mission tracked by odometry): the others keep theirs, and the count is said."""
+    import shutil
+
+    from perch_reconstruction.frames import iter_folder_frames, open_frame_folder
+
+    partial = tmp_path / "partial"
+    shutil.copytree(frame_folder, partial)
+    removed = sorted(partial.glob("*.pose.txt"))[::3]
+    for path in removed:
+        path.unlink()
+    folder = open_frame_folder(partial)
+    assert folder.has_poses and folder.frames_without_pose_file == len(removed) == 4
+    posed = [frame.pose is not None for frame in iter_folder_frames(folder)]
+    assert posed.count(False) == len(removed) and posed.count(True) == FRAMES - len(removed)
+    capsys.readouterr()
+    assert main(["bag", "from-frames", str(partial), "-o", str(tmp_path / "partial.mcap")]) == 0
+    out, err = capsys.readouterr()
+    assert "warning: 4 of 12 frames have no .pose.txt" in err and json.loads(out)["frames_without_pose_file"] == 4
+    poses = [m for topic, _, m in _messages(tmp_path / "partial.mcap", None) if "pose" in topic]
+    assert len(poses) == FRAMES - len(removed)

@@ -16,6 +16,7 @@ from perch_common.mesh import add_units_arguments
 from perch_common.up_axis import add_up_argument
 
 DEMO_SEED = 7
+MIN_FOOTPRINT_ACROSS = 0.05   # m: a target footprint smaller than this is a unit mistake, not a target
 
 
 def register_plan(sub) -> None:
@@ -145,6 +146,12 @@ def parse_target(spec: str | None, scale: float = 1.0, shift: tuple[float, float
         path, height = head, float(tail)
     # Sent as the mesh itself: the mission projects it along the true up (the mesh may not be z-up).
     footprint = load_mesh(Path(path), scale=scale, shift=shift)
+    lo, hi = footprint.bounds()
+    across = float(np.linalg.norm(hi - lo))
+    if across < MIN_FOOTPRINT_ACROSS:   # a footprint in metres read with a millimetre mesh's --scale 0.001
+        fix = (f"it is read with the mesh's --scale {scale:g}: give it in the mesh file's units, or the target as a "
+               "box in metres (box:...)" if scale != 1.0 else "is it in metres? (or give a box: box:...)")
+        raise ValueError(f"--target {path}: the footprint is {across:.3g} m across, smaller than anything to watch; {fix}")
     return pm.TargetVolume(kind=pm.TargetVolume.KIND_EXTRUDED_FOOTPRINT, footprint=mesh_to_msg(footprint),
                            height=float(height))
 
