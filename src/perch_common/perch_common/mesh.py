@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import logging
+import re
 import threading
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -397,7 +398,8 @@ def load_mesh(path: str | Path, validate: bool = True, scale: float = 1.0,
     if gltf:
         raise MeshError(f"{path}: {gltf}")
     try:
-        loaded = _load_single_mesh(path) or trimesh.load(path, process=False, force="mesh")
+        loaded = _load_single_mesh(path) or _load_obj_with_relative_indices(path) or \
+            trimesh.load(path, process=False, force="mesh")
     except FileNotFoundError as exc:  # a .gltf's buffers (.bin) are files of their own
         raise MeshError(f"{path}: refers to {Path(exc.filename or str(exc)).name}, which is not beside it: copy the "
                         "glTF's .bin (and texture) files into its folder, or export one GLB file instead") from exc
@@ -537,6 +539,41 @@ def _load_single_mesh(path: Path):
 
 
 _OBJ_RECORDS = (b"v", b"vt", b"vn", b"vp", b"f", b"l", b"p")
+_OBJ_RELATIVE_INDEX = re.compile(rb"^[ \t]*f[ \t][^\n]*?(?<=[\s/])-[0-9]", re.MULTILINE)
+
+
+def _load_obj_with_relative_indices(path: Path):
+    """An OBJ whose faces use relative indices (-1: the latest vertex read so far, as the OBJ specification
+    says), read with each made absolute; None for any other file. trimesh counts them from the end of the
+    whole file instead: an OBJ that writes each face after its own vertices ('f -3 -2 -1') became a 4 mm blob
+    of the file's last three vertices."""
+    import io
+
+    import trimesh
+
+    if path.suffix.lower() != ".obj":
+        return None
+    data = path.read_bytes()
+    if not _OBJ_RELATIVE_INDEX.search(data):
+        return None
+    counts = {b"v": 0, b"vt": 0, b"vn": 0}
+    out = []
+    for line in data.splitlines(keepends=True):
+        words = line.split()
+        if words and words[0] in counts:
+            counts[words[0]] += 1
+        elif words and words[0] == b"f":
+            corners = []
+            for word in words[1:]:
+                parts = word.split(b"/")
+                for k, (part, kind) in enumerate(zip(parts, (b"v", b"vt", b"vn"))):
+                    if part.startswith(b"-"):
+                        parts[k] = str(counts[kind] + 1 + int(part)).encode()
+                corners.append(b"/".join(parts))
+            line = b"f " + b" ".join(corners) + b"\n"
+        out.append(line)
+    return trimesh.load(io.BytesIO(b"".join(out)), file_type="obj", process=False, force="mesh",
+                        resolver=trimesh.resolvers.FilePathResolver(str(path)))
 
 
 def refuse_truncated(path: Path, vertices: int, faces: int) -> None:

@@ -296,3 +296,16 @@ def test_mesh_info_refuses_a_georeferenced_file_and_reads_it_with_the_shift_it_n
     assert main(["mesh", "info", str(path), "--json", f"--shift={shift}"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert np.allclose(summary["size"], [4, 3, 2.5]) and max(map(abs, summary["bounds_max"])) < 10
+
+
+def test_an_obj_with_relative_indices_reads_each_face_after_its_own_vertices(tmp_path):
+    """The OBJ specification's relative indices (-1: the latest vertex so far), as an exporter writes each face
+    after its own vertices: trimesh counted them from the end of the file, and every face became the last
+    one (a 4 mm blob of the ICL living room)."""
+    path = tmp_path / "relative.obj"
+    path.write_text("o first\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nf -3/-3 -2/-2 -1/-1\n"
+                    "o second\nv 5 5 2\nv 6 5 2\nv 5 6 2\nf -3 -2 -1\nf 1 2 3\n")
+    mesh = load_mesh(path)
+    corners = np.sort(mesh.vertices[mesh.faces].reshape(-1, 3, 3).sum(axis=1), axis=0)
+    assert np.allclose(corners, [[1, 1, 0], [1, 1, 0], [16, 16, 6]])
+    assert np.isclose(mesh.face_areas().sum(), 1.5)
