@@ -7,7 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from perch_common.mesh import save_mesh
+from perch_common.errors import PerchError
+from perch_common.mesh import mesh_output, save_mesh
 from perch_common.scene_generator import KINDS, generate_scene
 
 
@@ -52,6 +53,10 @@ def write_scene(scene, output: Path) -> dict:
 
 
 def _generate(args) -> int:
+    mesh_output(args.output)
+    for option, value, low in (("--noise", args.noise, 0.0), ("--holes", args.holes, 0), ("--clutter", args.clutter, 0)):
+        if not value >= low:   # NaN too; a negative count or noise was used as none, or failed inside numpy
+            raise PerchError(f"{option} {value}: give {low} or more")
     scene = generate_scene(args.seed, args.kind, noise=args.noise, holes=args.holes,
                            ceiling=not args.no_ceiling, furniture=not args.no_furniture,
                            resolution=args.resolution, clutter=args.clutter, floors=args.floors)

@@ -14,7 +14,7 @@ import math
 import os
 import re
 from pathlib import Path
-from typing import Any, Generic, TypeVar
+from typing import Any, Generic, Iterable, TypeVar
 
 import yaml
 
@@ -383,6 +383,30 @@ def flatten(mapping: dict, prefix: str = "") -> dict[str, Any]:
     return out
 
 
+TRUE_WORDS = ("1", "true", "yes", "on")
+FALSE_WORDS = ("0", "false", "no", "off")
+
+
+def apply_overrides(params: dict[str, Any], overrides: Iterable[str], known: Iterable[str], node: str) -> dict[str, Any]:
+    """`params` with a command's `-p NAME:=VALUE` overrides (ROS's form; NAME=VALUE is taken too), each value
+    read as YAML as ROS reads it; ConfigError naming the parameters there are for an unknown one."""
+    known = set(known)
+    for item in overrides:
+        name, sep, value = item.partition(":=")
+        if not sep:
+            name, sep, value = item.partition("=")
+        name = name.strip()
+        if not sep or not name:
+            raise ConfigError(f"-p {item!r}: use NAME:=VALUE")
+        if name not in known:
+            raise ConfigError(f"-p {item!r}: {node} has no parameter '{name}' (known: {', '.join(sorted(known))})")
+        try:
+            params[name] = yaml.safe_load(value.strip()) if value.strip() else ""
+        except yaml.YAMLError:
+            params[name] = value.strip()
+    return params
+
+
 def from_parameters(cls: type[T], params: dict[str, Any], prefix: str = "", strict: bool = False) -> T:
     """Build dataclass `cls` from flat parameters; nested dataclass fields use `field.` prefixes.
 
@@ -433,7 +457,10 @@ def _coerce(value: Any, default: Any, key: str) -> Any:
     try:
         if isinstance(default, bool):
             if isinstance(value, str):
-                return value.strip().lower() in ("1", "true", "yes", "on")
+                word = value.strip().lower()
+                if word not in TRUE_WORDS + FALSE_WORDS:   # 'banana' was taken as false without a word
+                    raise ValueError("give true or false")
+                return word in TRUE_WORDS
             return bool(value)
         if isinstance(default, int):
             if isinstance(value, float) and not value.is_integer():

@@ -349,6 +349,7 @@ def validate_mesh(mesh: Mesh, what: str = "mesh") -> Mesh:
 
 
 SUPPORTED_SUFFIXES = (".ply", ".obj", ".glb", ".gltf", ".stl", ".off")
+WRITABLE_SUFFIXES = (".ply", ".obj", ".glb", ".stl", ".off")   # save_mesh (a .gltf needs its .bin beside it)
 # Formats scans arrive in that Perch does not read, with what turns them into one it does.
 _OTHER_FORMATS = {
     **dict.fromkeys((".usdz", ".usd", ".usda", ".usdc"), (
@@ -621,6 +622,20 @@ def _point_count(path: Path) -> int:
     except Exception:  # already known to hold no faces; any failure just means "not a point cloud"
         return 0
     return len(loaded.vertices) if isinstance(loaded, trimesh.PointCloud) else 0
+
+
+def mesh_output(path: str | Path | None, option: str = "-o") -> Path | None:
+    """`path` when a mesh can be written there (a format save_mesh writes, not an existing folder), checked
+    before a command's work; MeshError naming the option and the formats otherwise (None passes)."""
+    if path is None:
+        return None
+    path = Path(path)
+    if path.is_dir():
+        raise MeshError(f"{option} {path}: is a folder; give a mesh file name (e.g. {path / 'mesh.ply'})")
+    if path.suffix.lower() not in WRITABLE_SUFFIXES:
+        raise MeshError(f"{option} {path}: not a mesh format Perch writes; end the name in one of "
+                        f"{', '.join(WRITABLE_SUFFIXES)}")
+    return path
 
 
 def save_mesh(path: str | Path, mesh: Mesh, face_colors: np.ndarray | None = None) -> Path:

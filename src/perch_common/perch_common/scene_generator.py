@@ -150,8 +150,10 @@ def generate_scene(seed: int, kind: str = "room", *, noise: float = 0.0, holes: 
     """
     if kind not in KINDS:
         raise ValueError(f"unknown scene kind '{kind}' (use one of {', '.join(KINDS)})")
-    if floors is not None and (kind != "multi_storey" or not FLOORS[0] <= floors <= FLOORS[1]):
-        raise ValueError(f"floors {floors}: only a multi_storey scene has floors, {FLOORS[0]}-{FLOORS[1]} of them")
+    if floors is not None and kind != "multi_storey":
+        raise ValueError(f"floors {floors}: only a multi_storey scene has floors ({FLOORS[0]}-{FLOORS[1]} of them)")
+    if floors is not None and not FLOORS[0] <= floors <= FLOORS[1]:
+        raise ValueError(f"floors {floors}: a multi_storey scene has {FLOORS[0]}-{FLOORS[1]} floors")
     resolution = DEFAULT_RESOLUTION.get(kind, 0.1) if resolution is None else resolution
     if not 0.02 <= resolution <= 0.5:
         raise ValueError(f"resolution {resolution} m out of range 0.02-0.5")

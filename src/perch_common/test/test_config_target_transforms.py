@@ -123,3 +123,40 @@ def test_optical_pose_looks_at_the_target_level_with_up():
     assert np.linalg.det(pose[:3, :3]) == pytest.approx(1.0)
     with pytest.raises(ValueError, match="straight above or below"):
         optical_pose_looking_at([0.0, 0.0, 0.0], [0.0, 0.0, 3.0])
+
+
+def test_command_overrides_take_ros_and_plain_forms_and_booleans_are_strict():
+    """`-p NAME:=VALUE` (ROS's form) and NAME=VALUE both work, values read as YAML; a boolean that is neither
+    true nor false is an error (segment took -p use_color:=banana as false)."""
+    from perch_common.config import ConfigError, apply_overrides, from_parameters
+    from perch_filtering.config import FilterConfig
+
+    params = apply_overrides({}, ["allow_floor:=true", "min_support=0.8"], FilterConfig.__dataclass_fields__,
+                             "perch_filtering")
+    assert params == {"allow_floor": True, "min_support": 0.8}
+    assert from_parameters(FilterConfig, {"allow_floor": "Yes"}).allow_floor is True
+    with pytest.raises(ConfigError, match=r"allow_floor='banana': give true or false"):
+        from_parameters(FilterConfig, apply_overrides({}, ["allow_floor:=banana"], ["allow_floor"], "perch_filtering"))
+    with pytest.raises(ConfigError, match=r"perch_filtering has no parameter 'allow_flor' \(known: allow_floor\)"):
+        apply_overrides({}, ["allow_flor:=true"], ["allow_floor"], "perch_filtering")
+
+
+def test_mesh_outputs_are_checked_before_the_work(tmp_path, capsys):
+    """An output named .png or without a suffix ended, after the work, in trimesh's raw exception tuple
+    ('%s exporter not available!', 'partial') naming Perch's temporary file."""
+    from perch_common.cli import main
+    from perch_common.mesh import MeshError, mesh_output
+
+    assert mesh_output(tmp_path / "room.PLY") == tmp_path / "room.PLY" and mesh_output(None) is None
+    for name in ("room.png", "room"):
+        with pytest.raises(MeshError, match=f"-o {tmp_path / name}: not a mesh format Perch writes; end the name"):
+            mesh_output(tmp_path / name)
+    with pytest.raises(MeshError, match="is a folder; give a mesh file name"):
+        mesh_output(tmp_path)
+    for argv, said in ((["-o", str(tmp_path / "scene.png")], "not a mesh format Perch writes"),
+                       (["--holes", "-3", "-o", str(tmp_path / "s.ply")], "--holes -3: give 0 or more"),
+                       (["--noise", "nan", "-o", str(tmp_path / "s.ply")], "--noise nan: give 0.0 or more")):
+        with pytest.raises(SystemExit) as stopped:
+            main(["scene", "generate", "--seed", "3", *argv])
+        assert stopped.value.code == 1 and said in capsys.readouterr().err, argv
+    assert not list(tmp_path.iterdir())

@@ -27,8 +27,8 @@ def register(sub) -> None:
     add_target_arguments(p)
     add_up_argument(p)
     p.add_argument("--config", default=None, help="parameter YAML (default: config/perch.yaml)")
-    p.add_argument("-p", "--param", action="append", default=[], metavar="NAME=VALUE",
-                   help="override one filter parameter, e.g. -p allow_floor=true")
+    p.add_argument("-p", "--param", action="append", default=[], metavar="NAME:=VALUE",
+                   help="override one filter parameter, e.g. -p allow_floor:=true (repeatable)")
     p.add_argument("-o", "--output", required=True, help="output folder")
     p.set_defaults(func=run)
 
@@ -48,6 +48,8 @@ def target_from_args(args) -> TargetVolume:
         v = args.target_box
         if len(v) not in (6, 7):
             raise ValueError(f"--target-box takes 6 or 7 numbers (cx cy cz sx sy sz [yaw_deg]), got {len(v)}")
+        if not (np.isfinite(v).all() and min(v[3:6]) > 0):   # a NaN yaw filtered on a box of NaNs
+            raise ValueError(f"--target-box {' '.join(f'{x:g}' for x in v)}: give finite numbers and sizes above 0 (m)")
         yaw = np.radians(v[6]) if len(v) == 7 else 0.0
         rot = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1.0]])
         return TargetVolume(center=v[:3], size=v[3:6], rotation=rot)
@@ -58,16 +60,10 @@ def target_from_args(args) -> TargetVolume:
 
 def load_config(path: str | None, overrides: list[str]) -> tuple[FilterConfig, str]:
     """The perch_filtering section of the parameter file (+ overrides) and the up_axis parameter."""
-    from perch_common.config import from_parameters, node_parameters
+    from perch_common.config import apply_overrides, from_parameters, node_parameters
 
     params = node_parameters("perch_filtering", path)
-    for item in overrides:
-        if "=" not in item:
-            raise ValueError(f"-p {item}: use NAME=VALUE")
-        key, value = item.split("=", 1)
-        if key not in FilterConfig.__dataclass_fields__:
-            raise ValueError(f"-p {key}: unknown filter parameter")
-        params[key] = value
+    apply_overrides(params, overrides, [*FilterConfig.__dataclass_fields__, "up_axis"], "perch_filtering")
     return from_parameters(FilterConfig, params).validate(), str(params.get("up_axis", "+z"))
 
 
@@ -80,13 +76,14 @@ def segment_surfaces(mesh: Mesh) -> list:
 
 def run(args) -> int:
     """Run `perch filter`; writes regions.json, surfaces.json and regions.ply."""
-    from perch_common.outputs import refuse_overwriting_inputs
+    from perch_common.outputs import check_writable_folder, refuse_overwriting_inputs
     from perch_common.surfaces_file import read_surfaces
     from perch_common.work import command_budget
     from perch_filtering.core import filter_surfaces
     from perch_filtering.files import write_result
 
     out = Path(args.output)
+    check_writable_folder(out)   # -o naming a file fails now, not after the filter ran
     refuse_overwriting_inputs([out] + [out / n for n in ("regions.json", "surfaces.json", "regions.ply")],
                               [args.mesh, args.surfaces if args.surfaces != "segment" else None, args.target_mesh,
                                args.config])

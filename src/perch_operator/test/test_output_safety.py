@@ -319,3 +319,25 @@ def test_a_one_thread_node_runs_on_the_single_threaded_executor():
                 executor.shutdown()
     finally:
         context.try_shutdown()
+
+
+def test_commands_never_replace_a_users_file_nor_read_a_non_recording(tmp_path, capsys):
+    """`perch record` onto an existing file replaced it with an empty MCAP; `perch batch -o FILE` and
+    `perch replay` of a file that is not an MCAP ended in tracebacks. Each is one line, and the file stays."""
+    from perch_common.cli import main
+    from perch_operator.outputs.runfile import stage_calls
+
+    mesh = tmp_path / "room.obj"
+    mesh.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    for argv, said in ((["record", str(mesh), "--duration", "1"], "the file exists; give a new path"),
+                       (["record", str(tmp_path / "new.mcap"), "--duration", "-1"], "--duration must be >= 0"),
+                       (["batch", str(mesh), "-o", str(mesh)], "is a file; give a folder for the outputs")):
+        with pytest.raises(SystemExit) as stopped:
+            main(argv)
+        assert stopped.value.code == 1 and said in capsys.readouterr().err, argv
+    assert mesh.read_text() == "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"
+    empty = tmp_path / "empty.mcap"
+    empty.write_bytes(b"")
+    for path, kind in ((empty, "empty"), (mesh, "another format")):
+        with pytest.raises(PerchError, match=f"not an MCAP recording \\({kind}\\); give the run.mcap"):
+            stage_calls(path)

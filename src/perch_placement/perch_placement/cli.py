@@ -11,6 +11,8 @@ import numpy as np
 from perch_placement.cli_problem import add_problem_arguments, load_config, load_problem, up_of
 from perch_placement.search import METHODS
 
+MAX_VIEW_SCALE = 4.0   # views beyond 4x the sensor's size are images of hundreds of megapixels
+
 
 def register(sub) -> None:
     """Add `perch place`: choose perches on a mesh, write placements.yaml and simulated views."""
@@ -21,15 +23,22 @@ def register(sub) -> None:
     parser.add_argument("--cameras", type=int, default=None, help="cameras to place (default: config)")
     parser.add_argument("--method", choices=METHODS, default=None, help="search method (default: config)")
     parser.add_argument("--seed", type=int, default=None, help="search seed (default: config)")
-    parser.add_argument("--view-scale", type=float, default=0.5, help="rendered view size / sensor size")
+    parser.add_argument("--view-scale", type=float, default=0.5,
+                        help=f"rendered view size / sensor size (above 0, at most {MAX_VIEW_SCALE:g})")
     parser.add_argument("-o", "--output", required=True, help="output folder")
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Run `perch place`; exit code 1 when no camera could be placed."""
+    from perch_common.outputs import check_writable_folder
     from perch_placement.core import optimise
 
+    if not 0 < args.view_scale <= MAX_VIEW_SCALE:   # NaN too
+        raise ValueError(f"--view-scale must be above 0 and at most {MAX_VIEW_SCALE:g}, got {args.view_scale}")
+    if args.cameras is not None and args.cameras < 1:
+        raise ValueError(f"--cameras must be 1 or more, got {args.cameras}")
+    check_writable_folder(args.output)   # before the search: -o naming a file fails now, not after it
     config = load_config(args.params).resolved()
     problem = load_problem(args, up_of(config))
     if not problem.regions:
@@ -81,6 +90,12 @@ def write_views(out: Path, problem, placements, config, scale: float) -> list[Pa
     from perch_placement.render import render_view
 
     written = []
+    # Views of an earlier run's further cameras would sit beside placements.yaml as if they were this run's.
+    placed = {p.drone_index for p in placements}
+    for stale in [*out.glob("view_*.png"), *out.glob("depth_*.png")]:
+        index = stale.stem.split("_", 1)[1]
+        if index.isdigit() and int(index) not in placed:
+            stale.unlink()
     scene = scene_for(problem.mesh) if placements else None  # one BVH for every view
     for p in placements:
         rgb, depth = render_view(problem.mesh, p, config.camera, problem.target, scale=scale, scene=scene)

@@ -87,6 +87,11 @@ def load_problem(args: argparse.Namespace, up=(0.0, 0.0, 1.0)) -> Problem:
 def _target(args, alignment: Alignment | None = None) -> TargetVolume | None:
     """The target from the arguments, in the gravity-aligned frame when an alignment is given."""
     to_aligned = np.eye(4) if alignment is None else alignment.to_aligned()
+    if args.target_mesh and args.target_box:   # the box was ignored without a word
+        raise ValueError("give one target: --target FOOTPRINT_MESH or --target-box, not both")
+    if args.target_box and not (np.isfinite(args.target_box).all() and np.min(args.target_box[3:]) > 0):
+        raise ValueError(f"--target-box {' '.join(f'{v:g}' for v in args.target_box)}: give a finite centre and "
+                         "sizes above 0 (m)")
     if args.target_mesh:
         footprint = load_mesh(args.target_mesh).transformed(to_aligned)
         return TargetVolume.from_footprint_mesh(footprint, args.target_height)

@@ -51,6 +51,27 @@ def test_perch_place_writes_placements_and_views(tmp_path):
     assert len(doc["placements"]) == 2 and 0 < doc["fitness"] <= 1
     assert doc["placements"][1]["fitness"] == pytest.approx(doc["fitness"], abs=1e-6)
     assert (tmp_path / "view_0.png").stat().st_size > 0 and (tmp_path / "depth_1.png").exists()
+    # Again with one camera: the second camera's views of the first run do not stay beside its placements.
+    (tmp_path / "notes.png").write_bytes(b"the user's")
+    assert main(["place", "--scene", "2", "--scene-kind", "room", "--regions", "unfiltered", "--cameras", "1",
+                 "--view-scale", "0.1", "-o", str(tmp_path)]) == 0
+    assert sorted(p.name for p in tmp_path.glob("*.png")) == ["depth_0.png", "notes.png", "view_0.png"]
+
+
+def test_perch_place_refuses_what_it_cannot_do_before_the_search(tmp_path, capsys):
+    from perch_common.cli import main
+
+    a_file = tmp_path / "placements.txt"
+    a_file.write_text("kept")
+    for args, said in ((["-o", str(a_file)], "is a file; give a folder for the outputs"),
+                       (["--view-scale", "1e6", "-o", str(tmp_path)], "--view-scale must be above 0 and at most 4"),
+                       (["--view-scale", "nan", "-o", str(tmp_path)], "--view-scale must be above 0 and at most 4"),
+                       (["--cameras", "0", "-o", str(tmp_path)], "--cameras must be 1 or more"),
+                       (["--target-box", "1", "1", "1", "0", "0", "0", "-o", str(tmp_path)], "sizes above 0")):
+        with pytest.raises(SystemExit) as exit_info:
+            main(["place", "--scene", "2", "--scene-kind", "room", "--regions", "unfiltered", *args])
+        assert exit_info.value.code == 1 and said in capsys.readouterr().err, args
+    assert a_file.read_text() == "kept"
 
 
 def test_perch_place_without_a_target_is_a_clear_error(tmp_path, capsys):

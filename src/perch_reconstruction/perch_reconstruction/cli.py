@@ -172,10 +172,14 @@ def register_clean(sub) -> None:
 
 
 def _clean(args) -> int:
-    from perch_common.mesh import load_mesh, save_mesh
+    from perch_common.mesh import load_mesh, mesh_output, save_mesh
     from perch_reconstruction.cleaning import clean_mesh_with_report
 
+    mesh_output(args.output)
     refuse_overwriting_inputs([args.output], [args.mesh, args.config])
+    if args.gravity and not (np.isfinite(args.gravity).all() and np.linalg.norm(args.gravity) > 0):
+        raise PerchError(f"--gravity {' '.join(f'{g:g}' for g in args.gravity)}: give a finite, non-zero direction "
+                         "(or leave it out: --up chooses)")
     config = _config_with(args.config, target_faces=args.target_faces, min_piece_diameter=args.min_piece,
                           gravity_align=False if args.no_align else None)
     mesh = load_mesh(args.mesh, scale=args.scale, shift=args.shift)
@@ -185,7 +189,10 @@ def _clean(args) -> int:
     else:  # the up axis as perch plan would take it (a contradicted --up stops here)
         choice = up_for_file(args.up, mesh, args.mesh)
         gravity = -choice.up
-        up = {"up": choice.up.round(6).tolist(), "up_from": choice.source,
+        # The core is given this up as gravity; the JSON says where it came from and how sure it is (the
+        # core's "gravity, 1.00" contradicted an unsure estimate's warning).
+        up = {"up": choice.up.round(6).tolist(), "up_from": choice.source, "up_source": choice.source,
+              "up_confidence": round(choice.estimate.confidence, 3),
               "up_estimate_confidence": round(choice.estimate.confidence, 3), "up_evidence": choice.estimate.evidence()}
     mesh, report = clean_mesh_with_report(mesh, gravity, config)
     with atomic_path(args.output) as partial:
@@ -194,7 +201,8 @@ def _clean(args) -> int:
                       "small_piece_faces_removed": report.pieces_removed_faces, "up_source": report.up_source,
                       "up_confidence": round(report.up_confidence, 3), **up,
                       "rotation": np.round(report.rotation, 9).tolist(),  # output = rotation @ input
-                      "seconds": round(report.seconds, 3), "warnings": report.warnings}, indent=2))
+                      "seconds": round(report.seconds, 3),
+                      "warnings": report.warnings + (choice.warnings if not args.gravity else [])}, indent=2))
     return 0
 
 
@@ -221,11 +229,13 @@ def register_reconstruct(sub) -> None:
 
 
 def _reconstruct(args) -> int:
-    from perch_common.mesh import save_mesh
+    from perch_common.mesh import mesh_output, save_mesh
     from perch_common.viewpoints import write_viewpoints_beside
     from perch_reconstruction.bag_read import bag_info, frames_damage
     from perch_reconstruction.core import reconstruct_bag, reconstruct_frames
 
+    mesh_output(args.output)
+    mesh_output(args.raw, "--raw")
     refuse_overwriting_inputs([args.output, args.raw], [args.bag, args.frames, args.config])
     config = _config_with(args.config, voxel_size=args.voxel_size, target_faces=args.target_faces)
 

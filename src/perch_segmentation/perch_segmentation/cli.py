@@ -6,7 +6,7 @@ import argparse
 import time
 from pathlib import Path
 
-from perch_common.config import ConfigError, default_config_path, from_parameters, node_parameters
+from perch_common.config import ConfigError, apply_overrides, default_config_path, from_parameters, node_parameters
 from perch_common.mesh import add_units_arguments, load_mesh
 from perch_common.up_axis import add_up_argument
 
@@ -40,25 +40,8 @@ def load_config(config_path: Path | None, overrides: list[str]):
         if config_path is not None:
             raise
         params = {}  # no workspace config: the defaults
-    known = set(SegmentationConfig.__dataclass_fields__)
-    for item in overrides:
-        name, sep, value = item.partition(":=")
-        if not sep:
-            name, sep, value = item.partition("=")
-        name = name.strip()
-        if not sep or not name:
-            raise ConfigError(f"-p {item!r}: use NAME:=VALUE")
-        if name not in known:
-            raise ConfigError(f"-p {item!r}: perch_segmentation has no parameter '{name}' "
-                              f"(known: {', '.join(sorted(known))})")
-        params[name] = _parse_value(value.strip())
+    apply_overrides(params, overrides, SegmentationConfig.__dataclass_fields__, "perch_segmentation")
     return from_parameters(SegmentationConfig, params)
-
-
-def _parse_value(text: str):
-    import yaml
-
-    return yaml.safe_load(text) if text else ""
 
 
 def run(args: argparse.Namespace) -> int:
@@ -74,6 +57,8 @@ def run(args: argparse.Namespace) -> int:
     refuse_overwriting_inputs([args.output, surfaces_path, mesh_path, args.png], [args.mesh, args.config])
     if surfaces_path.parent == args.output and args.output.exists() and not args.output.is_dir():
         raise PerchError(f"-o {args.output}: is an existing file; give a .yaml/.json file or a folder")
+    if args.png is not None and args.png.suffix.lower() != ".png":   # checked before the surfaces are written
+        raise PerchError(f"--png {args.png}: give a file name ending in .png")
     config = load_config(args.config, args.param)
     mesh = load_mesh(args.mesh, scale=args.scale, shift=args.shift)
     if not any(p.split(":=")[0].strip() == "up_axis" for p in args.param):

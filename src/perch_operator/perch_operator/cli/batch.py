@@ -463,8 +463,13 @@ def register(sub) -> None:
 
 
 def _run(args) -> int:
+    from perch_common.outputs import check_writable_folder
+
     if args.workers < 1:
         raise PerchError(f"--workers {args.workers}: give 1 or more")
+    if not args.timeout > 0:   # NaN too
+        raise PerchError(f"--timeout {args.timeout}: give a time limit in seconds above 0")
+    check_writable_folder(args.out)
     scans = collect_scans(args.sources)
     options = {flag: str(value) for flag, value in (("--cameras", args.cameras), ("--target", args.target),
                                                     ("--up", args.up), ("--seed", args.seed)) if value is not None}

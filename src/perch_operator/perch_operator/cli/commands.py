@@ -300,8 +300,16 @@ def register_record(sub) -> None:
 
 
 def _record(args) -> int:
+    from perch_common.outputs import check_writable_file
     from perch_operator.cli.runner import spin_for
     from perch_operator.outputs.recorder import MissionRecorder
+
+    if not args.duration >= 0:   # NaN too
+        raise ValueError(f"--duration must be >= 0 s (0: until Ctrl-C), got {args.duration}")
+    check_writable_file(args.output, "perch record", "run.mcap")
+    if args.output.exists():   # as ros2 bag record: a recording never replaces a file
+        raise PerchError(f"perch record {args.output}: the file exists; give a new path (a recording never "
+                         "replaces a file)")
 
     def body(node) -> int:
         recorder = MissionRecorder(node, args.output, latched=True)  # the latched state, as ros2 bag record

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterator
 
+from perch_common.errors import PerchError
 from perch_common.ros.msgdefs import message_reader
 from perch_common.timing import time_ns
 from perch_operator.coordinator.stages import STAGES
@@ -14,6 +15,7 @@ from perch_operator.outputs.recorder import EVENT_SUFFIX, GRAPH_METADATA
 
 SERVICE_TO_STAGE = {s.service: name for name, s in STAGES.items()}
 REQUEST_SENT, REQUEST_RECEIVED, RESPONSE_SENT, RESPONSE_RECEIVED = range(4)
+MCAP_MAGIC = b"\x89MCAP0\r\n"   # every MCAP file starts with it (the MCAP specification)
 
 
 @dataclass
@@ -36,6 +38,11 @@ def _open(path: str | Path):
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such recording")
     handle = open(path, "rb")
+    if handle.read(len(MCAP_MAGIC)) != MCAP_MAGIC:   # the reader's EndOfFile / InvalidMagic said nothing of the fix
+        handle.close()
+        raise PerchError(f"{path}: not an MCAP recording ({'empty' if path.stat().st_size == 0 else 'another format'}); "
+                         "give the run.mcap that perch plan, perch demo or perch record wrote")
+    handle.seek(0)
     return handle, make_reader(handle)
 
 
