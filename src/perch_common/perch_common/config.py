@@ -168,6 +168,8 @@ def load_yaml(path: str | Path) -> dict:
         data = yaml.load(path.read_text(), Loader=_SafeLoader) or {}
     except (OSError, yaml.YAMLError) as exc:
         raise ConfigError(f"{path}: cannot read parameters ({exc})") from exc
+    except UnicodeDecodeError:   # an image or binary file given as --config: the decoder named no file
+        raise ConfigError(f"{path}: not a YAML parameter file (not text); give a file like config/perch.yaml") from None
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: expected a mapping of node names to ros__parameters")
     return data
