@@ -35,7 +35,7 @@ class ReconstructionConfig:
     tf_camera_frame: str = param("", "poses from /tf: the camera's frame ('' = the images' header frame_id)")
     # Cleaning (also the /perch/clean_mesh service defaults)
     merge_distance: float = param(1e-5, "vertices closer than this are merged", "m", low=0.0)
-    min_piece_diameter: float = param(0.3, "connected pieces with a smaller bounding-box diagonal are removed (0: none)", "m",
+    min_piece_diameter: float = param(0.0, "connected pieces with a smaller bounding-box diagonal are removed (0: none)", "m",
                                       low=0.0)
     target_faces: int = param(100_000, "quadric edge-collapse decimation target (0 = no decimation)", low=0)
     gravity_align: bool = param(True, "rotate the mesh so gravity points along -z")

@@ -51,6 +51,17 @@ def test_small_pieces_removed_large_kept():
     assert cleaned.num_faces == room.num_faces + plate.num_faces
 
 
+def test_small_detached_fixtures_are_kept_by_default():
+    """A lamp shade or wall light the scan left unattached is an obstacle: the clean stage keeps it (removed,
+    the filter proposed perches whose approach it blocks)."""
+    room = grid_patch(2.0, 20)
+    shade = grid_patch(0.16, 2, z=1.0)   # diagonal 0.23 m: was removed by the former 0.3 m default
+    cleaned, report = clean_mesh_with_report(merge(room, shade), None,
+                                             ReconstructionConfig(target_faces=0, gravity_align=False))
+    assert report.pieces_removed_faces == 0 and cleaned.num_faces == room.num_faces + shade.num_faces
+    assert np.isclose(cleaned.vertices[:, 2].max(), 1.0)
+
+
 def test_a_mesh_in_unwelded_blocks_is_said_to_fall_apart():
     """Surfaces are found within a connected piece: a room exported in blocks whose seams are not shared
     yields few, and the clean report says why (HoloLens maps, whose largest block holds 15-30 %, are not)."""
