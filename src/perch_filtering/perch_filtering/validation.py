@@ -8,6 +8,8 @@ from perch_common.mesh import Mesh
 from perch_common.target import TargetVolume
 from perch_common.types import Surface
 
+FOREIGN_FACES_M = 0.25  # a surface's faces lying (median) farther than this from its plane are not its own
+
 
 def validate_inputs(mesh: Mesh, surfaces: list[Surface], target: TargetVolume | None, up: np.ndarray) -> np.ndarray:
     """Check surfaces, target and up axis against the mesh; return the unit up vector."""
@@ -22,6 +24,13 @@ def validate_inputs(mesh: Mesh, surfaces: list[Surface], target: TargetVolume | 
         raise ValueError(f"target volume: its centre {np.round(target.centroid(), 3).tolist()} lies outside the mesh bounds "
                          f"{np.round(lo, 3).tolist()} .. {np.round(hi, 3).tolist()}")
     seen: set[int] = set()
+    found: list[np.ndarray] = []
+
+    def centroids() -> np.ndarray:
+        if not found:
+            found.append(mesh.face_centroids())
+        return found[0]
+
     for k, s in enumerate(surfaces):
         name = f"surface {s.id} (input #{k})"
         if s.id in seen:
@@ -39,6 +48,13 @@ def validate_inputs(mesh: Mesh, surfaces: list[Surface], target: TargetVolume | 
                              f"0..{mesh.num_faces - 1}")
         if not s.boundary and not len(faces):
             raise ValueError(f"{name}: has neither a boundary nor faces")
+        if len(faces):
+            # Indices in range may still be another mesh's: a plane's own faces lie on it (segmentation
+            # keeps them within centimetres); the filter would judge a surface that is not there.
+            off = float(np.median(np.abs((centroids()[faces] - f.origin) @ np.asarray(f.normal, np.float64))))
+            if off > FOREIGN_FACES_M:
+                raise ValueError(f"{name}: its faces lie {off:.2f} m (median) from its plane: they are not this "
+                                 "mesh's faces of it (segment the mesh you filter, and send both)")
         for poly in s.boundary:
             for ring in poly:
                 ring = np.asarray(ring, np.float64)

@@ -54,6 +54,13 @@ def test_bad_surfaces(room):
     surfaces = copy.deepcopy(room[1])
     surfaces[0].frame.normal = np.array([0, 0, 2.0])
     check(room, "frame normal has length 2.0000", surfaces=surfaces)
+    # Indices in range but of another mesh (or another surface): its faces lie away from its plane.
+    surfaces = copy.deepcopy(room[1])
+    floor = next(k for k, s in enumerate(surfaces) if abs(s.frame.normal @ UP) > 0.9 and s.frame.origin @ UP < 0.5)
+    ceiling = next(k for k, s in enumerate(surfaces) if abs(s.frame.normal @ UP) > 0.9 and s.frame.origin @ UP > 2.0)
+    surfaces[floor].face_indices = surfaces[ceiling].face_indices.copy()
+    check(room, f"surface {surfaces[floor].id} (input #{floor}): its faces lie 2.80 m (median) from its plane",
+          surfaces=surfaces)
 
 
 def test_bad_target_and_up(room):
