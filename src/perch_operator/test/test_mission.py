@@ -26,8 +26,8 @@ def placement_msg(x: float) -> pm.CameraPlacement:
 class ScriptedStages:
     """Answers each stage like a healthy graph would; `fail` makes one stage raise."""
 
-    def __init__(self, mesh_msg, fail: str | None = None, regions: int = 1, clean_message: str = ""):
-        self.mesh_msg, self.fail, self.regions, self.clean_message = mesh_msg, fail, regions, clean_message
+    def __init__(self, mesh_msg, fail: str | None = None, regions: int = 1, clean_report=None):
+        self.mesh_msg, self.fail, self.regions, self.clean_report = mesh_msg, fail, regions, clean_report
         self.requests: list[tuple[str, object]] = []
 
     def call(self, stage, request, cancelled=lambda: False, progress=None):
@@ -40,7 +40,10 @@ class ScriptedStages:
 
             mesh = mesh_from_msg(request.mesh).transformed(alignment.to_aligned())
             mesh.frame_id = alignment.aligned_frame
-            return srv.CleanMesh.Response(success=True, mesh=mesh_to_msg(mesh), seconds=0.1, message=self.clean_message,
+            report = self.clean_report
+            return srv.CleanMesh.Response(success=True, mesh=mesh_to_msg(mesh), seconds=0.1,
+                                          message=report.summary() if report else "",
+                                          warnings=report.warnings if report else [],
                                           alignment=alignment_to_msg(alignment))
         if stage == "crop":
             return srv.Crop.Response(success=True, mesh=request.mesh, seconds=0.01,
@@ -121,13 +124,13 @@ def test_a_failure_says_what_the_clean_stage_warned_of(goal):
     report = CleanReport(faces_in=9, faces_out=9, up_source="gravity",
                          warnings=["removed 3 duplicate or degenerate faces", "the mesh falls apart into fragments: 9 "
                                    "disconnected pieces, the largest 0.06 m^2 (1% of the area)"])
-    mission = Mission(ScriptedStages(goal.mesh, regions=0, clean_message=report.summary()), options(), 1,
+    mission = Mission(ScriptedStages(goal.mesh, regions=0, clean_report=report), options(), 1,
                       lambda *f: None, lambda: False, lambda *ps: None, lambda o: None)
     with pytest.raises(ValueError, match="no perch regions"):
         mission.run(goal)
     assert mission.clean_hint() == ("; the clean stage warned: removed 3 duplicate or degenerate faces; the mesh falls "
                                     "apart into fragments: 9 disconnected pieces, the largest 0.06 m^2 (1% of the area)")
-    quiet = Mission(ScriptedStages(goal.mesh, regions=0, clean_message=CleanReport(9, 9).summary()), options(), 1,
+    quiet = Mission(ScriptedStages(goal.mesh, regions=0, clean_report=CleanReport(9, 9)), options(), 1,
                     lambda *f: None, lambda: False, lambda *ps: None, lambda o: None)
     with pytest.raises(ValueError):
         quiet.run(goal)

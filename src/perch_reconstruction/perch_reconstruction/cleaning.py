@@ -50,7 +50,7 @@ class CleanReport:
 
     def summary(self) -> str:
         """The clean reply's message: '<faces> (<pieces>); up from <source>', then '; <warning>' each (the
-        coordinator reads the warnings back from the third part on, for a failure's message)."""
+        reply's `warnings` holds them one by one)."""
         return "; ".join([f"{self.faces_in} -> {self.faces_out} faces ({self.pieces_removed_faces} in small pieces)",
                           f"up from {self.up_source}", *self.warnings])
 

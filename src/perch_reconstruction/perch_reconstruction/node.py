@@ -271,6 +271,7 @@ class ReconstructionNode(Node):
         self._answer_alignment(response, given.frame_id, report)
         response.success = True
         response.message = report.summary()
+        response.warnings = list(report.warnings)
         return response
 
     def _answer_alignment(self, response, input_frame: str, report: CleanReport | None) -> None:

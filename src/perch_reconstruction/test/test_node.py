@@ -155,6 +155,16 @@ def test_clean_mesh_service(ros, synthetic):
     assert reply.mesh.header.frame_id == "map_gravity_aligned" and reply.up_source == "gravity"
     back = cleaned.transformed(alignment_from_msg(reply.alignment).to_input())
     np.testing.assert_allclose(back.bounds(), scene.mesh.bounds(), atol=0.15)
+    assert list(reply.warnings) == []
+    # What the cleaning repaired comes back one line each (a mission's failure quotes them).
+    from perch_common.mesh import Mesh
+
+    faces = scene.mesh.faces
+    doubled = Mesh(scene.mesh.vertices, np.vstack([faces, faces[: len(faces) // 50]]), scene.mesh.vertex_colors)
+    request.mesh = mesh_to_msg(doubled)
+    reply = call_service(client, CleanMesh, "/perch/clean_mesh", request)
+    assert reply.success and f"removed {len(faces) // 50} duplicate or degenerate faces" in reply.warnings, reply.warnings
+    assert reply.message.endswith("; ".join(reply.warnings))
 
 
 def _progress_during(client, call) -> tuple:

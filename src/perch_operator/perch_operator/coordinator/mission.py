@@ -268,9 +268,8 @@ class Mission:
         # Cleaned after aligning: its vertex welding then works in the room's own frame, so the same
         # room in any orientation is cleaned alike. Its (near-identity) correction joins the alignment.
         reply = self._call("clean", srv.CleanMesh.Request(mesh=aligned_msg, gravity=vector_msg([0.0, 0.0, -1.0])))
-        # Its message is perch_reconstruction's CleanReport.summary(), "<faces> (<pieces>); up from <source>" and
-        # then its warnings (a mesh falling apart into fragments, repairs): they may explain a "nothing found".
-        self.clean_warnings = reply.message.split("; ")[2:]
+        # Its warnings (a mesh falling apart into fragments, repairs) may explain a "nothing found".
+        self.clean_warnings = list(reply.warnings)
         correction = alignment_from_msg(reply.alignment).rotation
         self.alignment = Alignment(self.alignment.input_frame, correction @ self.alignment.rotation,
                                    self.alignment.up_source, self.alignment.up_confidence)
