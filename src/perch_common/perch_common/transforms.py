@@ -65,9 +65,12 @@ UP_AXES = {"+x": (1, 0, 0), "-x": (-1, 0, 0), "+y": (0, 1, 0), "-y": (0, -1, 0),
            "+z": (0, 0, 1), "-z": (0, 0, -1)}
 
 
+UNCHECKED = "!"  # a given up axis ending in it is taken without checking it against the mesh (up_axis.choose_up)
+
+
 def parse_up_axis(text: str) -> np.ndarray:
-    """'+z', '-y', ... or 'x y z' components as a unit vector."""
-    key = text.strip().lower()
+    """'+z', '-y', ... or 'x y z' components as a unit vector (a trailing UNCHECKED is allowed)."""
+    key = text.strip().lower().removesuffix(UNCHECKED).strip()
     if key in UP_AXES:
         return np.array(UP_AXES[key], np.float64)
     if key in ("x", "y", "z"):

@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from perch_common.file_conventions import DEFAULT_CONVENTION, FileConvention, file_convention_of
-from perch_common.transforms import parse_up_axis
+from perch_common.transforms import UNCHECKED, parse_up_axis
 
 COS_10 = float(np.cos(np.radians(10.0)))
 SIN_3 = float(np.sin(np.radians(3.0)))
@@ -543,14 +543,20 @@ def choose_up(text: str, mesh, convention: str = "+z", option: str = "--up",
             "if it is wrong"])
     given = parse_up_axis(text)
     problem = contradiction(given, estimate)
+    written = text.strip().removesuffix(UNCHECKED).strip()
+    if problem and text.strip().endswith(UNCHECKED):   # the user's word, knowing what the mesh says
+        return UpChoice(given, "given", estimate, [
+            f"up axis {written} taken as given, unchecked: the mesh contradicts it ({problem})"])
     if problem:
         other = _uncontradicted(estimate, avoid=given)
         suggestion = (f"The mesh suggests up {estimate.axis_name()} (confidence {estimate.confidence:.2f}): pass "
                       f"{option} {_option_value(estimate.up)} (or {option} auto)") if estimate.confident else (
             f"The estimate is not confident ({estimate.confidence:.2f}; it considered "
             f"{', '.join(estimate.considered) or 'no axis'}): pass the true up"
-            + (f", e.g. {option} {_option_value(other)} if that is it" if other is not None else ""))
-        raise UpAxisError(f"{option} {text.strip()} contradicts the mesh: {problem}. {suggestion}")
+            + (f", e.g. {option} {_option_value(other)} if that is it" if other is not None else "")
+            # A mezzanine or a loft puts most horizontal faces high: the evidence can be wrong.
+            + f"; if {written} is up nonetheless, {option} '{written}{UNCHECKED}' takes it unchecked")
+        raise UpAxisError(f"{option} {written} contradicts the mesh: {problem}. {suggestion}")
     return UpChoice(given, "given", estimate)
 
 
@@ -636,4 +642,6 @@ def add_up_argument(parser, what: str = "the mesh") -> None:
     """The --up AXIS option of the file-based commands (plan, clean, segment, filter, place)."""
     parser.add_argument("--up", default="auto", metavar="AXIS",
                         help=f"up axis of {what}: auto (estimated; when unsure the file's convention: glTF/GLB "
-                             "+y, others +z), +x, -x, +y, -y, +z, -z or 'X Y Z'. Outputs stay in its own frame")
+                             "+y, others +z), +x, -x, +y, -y, +z, -z or 'X Y Z'; a given axis the mesh contradicts "
+                             "is refused, one ending in ! (e.g. '+z!') is taken unchecked. Outputs stay in its "
+                             "own frame")

@@ -353,3 +353,37 @@ def test_a_refused_axis_is_never_the_one_the_hint_suggests(corpus):
                                           r"The estimate is not confident .*: pass the true up, e\.g\. --up -y if"):
         choose_up("+y", mesh, header)
     assert choose_up("-y", mesh, header).source == "given"
+
+
+def mezzanine_room() -> Mesh:
+    """A 6 x 5 x 3 m room of closed 10 cm slabs with a mezzanine 2 m up over a third of it, its stairs and a
+    post (hunt 3's case): most horizontal faces between floor and ceiling sit in the upper half."""
+    import trimesh
+
+    def slab(lo, hi):
+        lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+        return trimesh.creation.box(extents=hi - lo, transform=trimesh.transformations.translation_matrix((lo + hi) / 2))
+
+    w, d, h, t = 6.0, 5.0, 3.0, 0.1
+    parts = [slab([0, 0, -t], [w, d, 0]), slab([0, 0, h], [w, d, h + t]), slab([-t, 0, 0], [0, d, h]),
+             slab([0, -t, 0], [w, 0, h]), slab([0, d, 0], [w, d + t, h]), slab([w, 0, 0], [w + t, d, h]),
+             slab([4, 0, 1.9], [w, d, 2.0]), slab([3.9, 0, 0], [4.0, 1.5, 1.9])]
+    parts += [slab([2.0 + 0.2 * k, 3.5, 0], [2.2 + 0.2 * k, 4.5, 0.19 * (k + 1)]) for k in range(10)]
+    room = trimesh.util.concatenate(parts)
+    return Mesh(room.vertices, room.faces)
+
+
+def test_a_refused_true_axis_can_be_taken_unchecked():
+    """A mezzanine room's evidence says +z would hang things from the floor; its true +z is refused, and
+    the refusal says how to insist ('+z!'), which is then taken with a warning naming the contradiction."""
+    mesh = mezzanine_room()
+    assert not estimate_mesh_up(mesh).confident
+    with pytest.raises(UpAxisError, match=r"^--up \+z contradicts the mesh: the horizontal faces between its floor "
+                                          r"and ceiling sit in its upper half.*; if \+z is up nonetheless, "
+                                          r"--up '\+z!' takes it unchecked$"):
+        choose_up("+z", mesh)
+    choice = choose_up("+z!", mesh)
+    assert choice.source == "given" and choice.up.tolist() == [0.0, 0.0, 1.0]
+    assert choice.warnings == ["up axis +z taken as given, unchecked: the mesh contradicts it (the horizontal faces "
+                               "between its floor and ceiling sit in its upper half: things would hang from its floor)"]
+    assert choose_up("-z!", mesh).warnings == []   # nothing contradicts it: no warning to give
