@@ -7,6 +7,9 @@ and along which horizontal furniture faces are one-sided (tops, never undersides
 The sign never relies on how complete the ceiling is. Votes, each in [-1, 1] along the axis:
 - furniture tops face up: horizontal faces between floor and ceiling are seen from above by a
   scanner, so their normals point up (needs normals pointing into free space, as scans have);
+  A level of that band as large as a quarter of the floor or ceiling (a dropped ceiling, a bulkhead,
+  a raised floor, a mezzanine) is a step of one, not furniture, and counts for neither sign: upside
+  down, a dropped ceiling is a raised floor;
 - furniture tops lie low: tables, seats and beds sit in the lower half of the room height;
   in a building of stacked storeys (along the scan's thinnest axis, two or more floor levels and
   ceiling levels spanning 4.4 m or more) both are judged storey by storey: faces clear of every
@@ -61,6 +64,7 @@ LEVEL_BIN = 0.05          # m: height slices in which a building's floor and cei
 LEVEL_SHARE = 0.04        # of the horizontal area: a slice holding this much is a floor or ceiling level
 STOREY_LEVELS = 2         # levels facing each way that make a scan stacked storeys (a room has 1 and 1)
 LEVEL_CLEARANCE = 0.1     # m: faces this near a level are that floor or ceiling, not furniture
+STEP_SHARE = 0.25         # of the larger end plane's area: a level of the band this large is a step of a floor or ceiling
 STOREY_SPAN = 4.4         # m: levels spanning less are one room (two storeys are at least 2 x 2.2 m)
 OPEN_END = 0.05           # end-plane area below this share of the cross-section: nothing scanned across that end
 CLOSED_END = 0.2          # at or above it at both ends: the scan is closed along that axis (walls, floor and ceiling)
@@ -187,9 +191,11 @@ def estimate_up(normals: np.ndarray, areas: np.ndarray, centroids: np.ndarray,
     for i, axis in enumerate(axes):
         votes = _sign_votes(axis, normals, areas, centroids, hint, storeys=i == thinnest)
         thin = float(extents.min() / max(extents[i], 1e-9))
-        # Rooms are wider than tall (the main cue); one-sided horizontal faces add to it. Position votes
-        # say nothing about the axis: walls between rooms sit anywhere across the plan.
-        geometry = 2.0 * thin + sum(abs(v.vote) * min(v.weight, 1.0) for v in votes if v.name in AXIS_VOTES)
+        # Rooms are wider than tall (the main cue); one-sided horizontal faces add to it, a floor's or
+        # ceiling's steps too (along a wrong axis the large "levels" are walls). Position votes say nothing
+        # about the axis: walls between rooms sit anywhere across the plan.
+        one_sided = _sign_votes(axis, normals, areas, centroids, hint, storeys=i == thinnest, steps_count=True)
+        geometry = 2.0 * thin + sum(abs(v.vote) * min(v.weight, 1.0) for v in one_sided if v.name in AXIS_VOTES)
         candidates.append([geometry, axis, votes, thin, geometry])
     geometry_order = sorted(range(3), key=lambda k: -candidates[k][0])
     geometry_clear = candidates[geometry_order[0]][0] - candidates[geometry_order[1]][0] >= 0.5
@@ -402,17 +408,28 @@ def _refine(axis: np.ndarray, normals: np.ndarray, areas: np.ndarray) -> np.ndar
 
 
 def _sign_votes(axis: np.ndarray, normals: np.ndarray, areas: np.ndarray, centroids: np.ndarray,
-                hint: np.ndarray | None, storeys: bool = False) -> list[UpVote]:
+                hint: np.ndarray | None, storeys: bool = False, steps_count: bool = False) -> list[UpVote]:
     """Votes for +axis being up (see the module doc); `storeys`: the axis may be a building's vertical
-    (the scan's thinnest), so stacked storeys along it are judged storey by storey."""
+    (the scan's thinnest), so stacked storeys along it are judged storey by storey; `steps_count`: a
+    floor's or ceiling's steps count as furniture (for how one-sided the axis is, not for its sign)."""
     cos = normals @ axis
     height = centroids @ axis
     low, high = np.percentile(height, [1, 99])
     span = max(high - low, 1e-9)
     horizontal = np.abs(cos) > COS_10
     levels = _storey_levels(height[horizontal], areas[horizontal], cos[horizontal], low, high) if storeys else None
+    at_low = float(areas[horizontal & (height <= low + EXTREME_SHARE * span)].sum())
+    at_high = float(areas[horizontal & (height >= high - EXTREME_SHARE * span)].sum())
+    steps = 0.0
     if levels is None:  # one storey: the band between floor and ceiling, halves of the room height
         band = horizontal & (height > low + BAND_MARGIN * span) & (height < high - BAND_MARGIN * span)
+        # A level as large as a floor or ceiling is a step of one (a dropped ceiling, a bulkhead, a raised
+        # floor, a mezzanine), not furniture: upside down a dropped ceiling is a raised floor, so it says
+        # nothing of the sign (counted as furniture, a bulkhead over 60 % of a room turned its up axis over,
+        # confidently, and drones were planned onto the floor).
+        step = (np.zeros_like(band) if steps_count
+                else band & _level_steps(height, areas, band, low, high, max(at_low, at_high)))
+        steps, band = float(areas[step].sum()), band & ~step
         lower_half = height < (low + high) / 2
     else:  # stacked storeys: faces clear of every slab, nearer the level below or above them
         gap = np.abs(height[:, None] - levels[None]).min(axis=1)
@@ -426,14 +443,14 @@ def _sign_votes(axis: np.ndarray, normals: np.ndarray, areas: np.ndarray, centro
     votes = [
         UpVote("furniture tops face up", _balance(up_area, down_area), band_weight,
                f"{up_area:.2f} m^2 of horizontal faces between floor and ceiling face up, {down_area:.2f} m^2 down"
-               + (f" ({len(levels)} floor/ceiling levels: stacked storeys)" if levels is not None else "")),
+               + (f" ({len(levels)} floor/ceiling levels: stacked storeys)" if levels is not None else "")
+               + (f" ({steps:.2f} m^2 more in levels as large as a floor or ceiling: steps of one, not counted)"
+                  if steps > 0 else "")),
         # Half weight: counters and wall cupboards sit high in kitchens and partial scans.
         UpVote("furniture tops lie low", _balance(lower, upper), 0.5 * band_weight,
                f"{lower:.2f} m^2 of them in the lower half of the {span:.2f} m height, {upper:.2f} m^2 in the upper"
                if levels is None else f"{lower:.2f} m^2 of them nearer the level below, {upper:.2f} m^2 the level above"),
     ]
-    at_low = float(areas[horizontal & (height <= low + EXTREME_SHARE * span)].sum())
-    at_high = float(areas[horizontal & (height >= high - EXTREME_SHARE * span)].sum())
     votes.append(UpVote("floor is the more complete end plane", _balance(at_low, at_high), 0.25,
                         f"{at_low:.2f} m^2 horizontal at the low end, {at_high:.2f} m^2 at the high end"))
     if hint is not None:
@@ -460,6 +477,18 @@ def _storey_levels(height: np.ndarray, areas: np.ndarray, cos: np.ndarray, low: 
     if min(len(ups), len(downs)) < STOREY_LEVELS or edges[big[-1]] - edges[big[0]] < STOREY_SPAN:
         return None
     return np.sort(0.5 * (edges[big] + edges[big + 1]))
+
+
+def _level_steps(height: np.ndarray, areas: np.ndarray, band: np.ndarray, low: float, high: float,
+                 end_plane: float) -> np.ndarray:
+    """Which faces lie in a level of the band holding at least STEP_SHARE of `end_plane` (the larger end
+    plane's area) within three LEVEL_BIN slices (a scanned step is not one flat slice)."""
+    edges = np.arange(low, high + LEVEL_BIN, LEVEL_BIN)
+    if len(edges) < 2 or not end_plane > 0:
+        return np.zeros(len(height), bool)
+    total, _ = np.histogram(height[band], edges, weights=areas[band])
+    large = np.convolve(total, np.ones(3), "same") >= STEP_SHARE * end_plane
+    return large[np.clip(np.searchsorted(edges, height, side="right") - 1, 0, len(total) - 1)]
 
 
 def _balance(a: float, b: float) -> float:

@@ -387,3 +387,36 @@ def test_a_refused_true_axis_can_be_taken_unchecked():
     assert choice.warnings == ["up axis +z taken as given, unchecked: the mesh contradicts it (the horizontal faces "
                                "between its floor and ceiling sit in its upper half: things would hang from its floor)"]
     assert choose_up("-z!", mesh).warnings == []   # nothing contradicts it: no warning to give
+
+
+def dropped_ceiling(mesh: Mesh, share: float = 0.6, drop: float = 0.5) -> Mesh:
+    """`mesh` (z-up) with its ceiling `drop` metres lower over the last `share` of its x extent, a vertical
+    step between the two levels (a bulkhead or dropped ceiling; hunt 5's case), cut into 8 cm edges first."""
+    import trimesh
+
+    vertices, faces = trimesh.remesh.subdivide_to_size(mesh.vertices, mesh.faces, max_edge=0.08)
+    z, x = vertices[:, 2], vertices[:, 0]
+    floor, ceiling = np.percentile(z, [1, 99])
+    low, high = np.percentile(x, [1, 99])
+    top = np.where(x > high - share * (high - low), ceiling - drop, ceiling)
+    base = floor + 0.9   # the room below stays as it is; above, heights shrink to the new ceiling
+    moved = z > base
+    vertices = vertices.copy()
+    vertices[moved, 2] = base + (z[moved] - base) * (top[moved] - base) / (ceiling - base)
+    return Mesh(vertices, faces)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_dropped_ceiling_is_a_step_of_the_ceiling_not_upside_down_furniture(seed):
+    """A ceiling 50 cm lower over 60 % of a room faces down between floor and ceiling, like table tops upside
+    down: counted as furniture it turned every generated room's up axis over, 'confident' (0.67-1.00), and
+    drones were planned onto the floor. A level that large is a step of a floor or ceiling and is not counted."""
+    scene = generate_scene(seed, ("room", "l_shaped", "room")[seed])
+    stepped = dropped_ceiling(scene.mesh)
+    for orientation in ("z-up", "y-down", "tilt-35"):
+        rotated, true_up, _ = oriented(stepped, np.array([0.0, 0.0, 1.0]), orientation)
+        estimate = estimate_mesh_up(rotated)
+        assert angle_deg(estimate.up, true_up) < 3.0, (orientation, estimate.evidence())
+        assert estimate.confident, (orientation, estimate.confidence, estimate.evidence())
+        facing = next(v for v in estimate.votes if v.name == "furniture tops face up")
+        assert "in levels as large as a floor or ceiling: steps of one, not counted" in facing.detail
