@@ -8,13 +8,14 @@ import time
 import numpy as np
 
 from perch_common.bench import emit, peak_rss_mb
+from perch_common.cli_types import positive_int
 
 
 def register(sub) -> None:
     """Add `perch bench transport`: mesh message conversion and cross-process round-trip times."""
     p = sub.add_parser("transport", help="mesh message conversion and cross-process round trip")
-    p.add_argument("--faces", type=int, default=300000)
-    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--faces", type=positive_int, default=300000, help="faces of the test mesh (>= 1)")
+    p.add_argument("--repeats", type=positive_int, default=5, help="timed runs (>= 1; the median is reported)")
     p.add_argument("--json", action="store_true", help="print JSON (the only output format)")
     p.set_defaults(func=_run)
 

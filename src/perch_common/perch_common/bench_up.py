@@ -10,6 +10,7 @@ import time
 import numpy as np
 
 from perch_common.bench import emit, peak_rss_mb
+from perch_common.cli_types import positive_int
 
 TARGET_S_PER_1M_FACES = 0.2
 MAX_ANGLE_DEG = 3.0
@@ -18,7 +19,7 @@ MAX_ANGLE_DEG = 3.0
 def register(sub) -> None:
     """Add `perch bench up` to the CLI."""
     p = sub.add_parser("up", help="up-axis estimate: angle error, sign, confidence, seconds per scan and orientation")
-    p.add_argument("--repeats", type=int, default=3, help="timed runs per case (the median is reported)")
+    p.add_argument("--repeats", type=positive_int, default=3, help="timed runs per case (>= 1; the median is reported)")
     p.add_argument("--json", action="store_true", help="print JSON (the only output format)")
     p.set_defaults(func=_run)
 

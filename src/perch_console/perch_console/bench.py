@@ -35,12 +35,15 @@ SERVICES = ["perch/crop", "perch/clean_mesh", "perch/segment", "perch/filter", "
 
 def register(sub) -> None:
     """The `perch bench console` benchmark."""
+    from perch_common.cli_types import int_between, positive_float
+    from perch_operator.bench import camera_count
+
     p = sub.add_parser("console", help="the console: time to the first picture of the room, CPU idle and in a mission")
     p.add_argument("--mesh", type=Path, required=True, help="the scan the console shows and the mission plans on")
     p.add_argument("--target", default=None, metavar="SPEC", help="as for perch plan (default: the cropped floor)")
-    p.add_argument("--cameras", type=int, default=4, help="cameras of the mission")
-    p.add_argument("--idle", type=float, default=10.0, help="seconds of idle CPU measurement")
-    p.add_argument("--port", type=int, default=8097, help="the console's port")
+    p.add_argument("--cameras", type=camera_count, default=4, help="cameras of the mission (0: the node's default)")
+    p.add_argument("--idle", type=positive_float, default=10.0, help="seconds of idle CPU measurement (> 0)")
+    p.add_argument("--port", type=int_between(0, 65535), default=8097, help="the console's port (0: a free one)")
     p.add_argument("--json", action="store_true", help="print JSON (always on; accepted for uniformity)")
     p.set_defaults(func=_run)
 

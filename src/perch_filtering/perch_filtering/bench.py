@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from perch_common.bench import emit, peak_rss_mb
+from perch_common.cli_types import non_negative_int, positive_float, positive_int
 
 
 def register(sub) -> None:
@@ -25,12 +26,12 @@ def register(sub) -> None:
     p = sub.add_parser("filter", help="time the filtering stage (and score it on generated scenes)")
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--mesh", help="mesh file; segmented first, only the filter is timed")
-    src.add_argument("--scene", type=int, metavar="SEED", help="generated scene with ground truth")
+    src.add_argument("--scene", type=non_negative_int, metavar="SEED", help="generated scene with ground truth")
     p.add_argument("--kind", default="apartment", help="scene kind for --scene")
-    p.add_argument("--holes", type=int, default=0, help="holes cut into the scene's walls")
+    p.add_argument("--holes", type=non_negative_int, default=0, help="holes cut into the scene's walls (>= 0)")
     p.add_argument("--target-mesh", help="target footprint (default for --mesh: MESH_target.ply beside it)")
-    p.add_argument("--target-height", type=float, default=1.2)
-    p.add_argument("--repeats", type=int, default=5, help="timed runs after one warm-up run")
+    p.add_argument("--target-height", type=positive_float, default=1.2, help="footprint extrusion (m, > 0)")
+    p.add_argument("--repeats", type=positive_int, default=5, help="timed runs (>= 1) after one warm-up run")
     p.add_argument("--no-score", action="store_true", help="--scene: skip precision/recall")
     p.add_argument("--json", action="store_true", help="print JSON (the only output format)")
     p.set_defaults(func=run)

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from perch_common.bench import emit, peak_rss_mb
+from perch_common.cli_types import non_negative_int, positive_float, positive_int
 from perch_placement.cli_problem import add_problem_arguments, load_config, load_problem, up_of
 
 LABELS = {"pso": "Greedy PSO", "random": "Random", "grid": "Grid", "naive": "Naive PSO", "celf": "CELF + refine",
@@ -22,22 +23,23 @@ def register(sub) -> None:
     """Add `perch bench placement`: the searches against the exhaustive reference."""
     parser = sub.add_parser("placement", help="placement search: methods vs the exhaustive reference")
     add_problem_arguments(parser, mesh_positional=False)
-    parser.add_argument("--cameras", type=int, default=5, help="largest camera count (runs 1..N)")
-    parser.add_argument("--seeds", type=int, default=30, help="search seeds per method and count")
+    parser.add_argument("--cameras", type=positive_int, default=5, help="largest camera count N >= 1 (runs 1..N)")
+    parser.add_argument("--seeds", type=positive_int, default=30, help="search seeds per method and count (>= 1)")
     parser.add_argument("--methods", default=parser_default_methods(),
                         help="comma-separated: pso, pso-unseeded, random, grid, naive, celf")
     parser.add_argument("--reference", action="store_true", help="also run the exhaustive reference")
-    parser.add_argument("--density", type=float, default=1000.0, help="points/m^3 for coverage and uncertainty")
-    parser.add_argument("--bound-check", type=int, default=0, metavar="N",
-                        help="also check the greedy online bound by exhaustive search on N small rooms")
+    parser.add_argument("--density", type=positive_float, default=1000.0,
+                        help="points/m^3 for coverage and uncertainty (> 0)")
+    parser.add_argument("--bound-check", type=non_negative_int, default=0, metavar="N",
+                        help="also check the greedy online bound by exhaustive search on N >= 0 small rooms")
     parser.add_argument("--objectives", default="",
                         help="comma-separated objectives to compare side by side at --cameras with greedy PSO "
                              "(fitness, expected, kview, worst_case): fitness, expected fitness under landing "
                              "error, k-view coverage, worst single-camera loss, certificate gap, seconds; "
                              "with it, --methods defaults to none")
-    parser.add_argument("--reference-grid", default="", metavar="SPACING,ANGLES",
+    parser.add_argument("--reference-grid", type=grid_text, default="", metavar="SPACING,ANGLES",
                         help="grid of the kview and worst_case references (default: the candidate set's)")
-    parser.add_argument("--expected-reference-grid", default="0.3,5", metavar="SPACING,ANGLES",
+    parser.add_argument("--expected-reference-grid", type=grid_text, default="0.3,5", metavar="SPACING,ANGLES",
                         help="grid of the expected objective's reference: it scores every candidate under "
                              "landing.search_samples landings, that many times the work (default 0.3,5)")
     parser.add_argument("--json", action="store_true", help="print JSON (always on; kept for scripts)")
@@ -104,6 +106,21 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(table, file=sys.stderr)
     return emit(result)
+
+
+def grid_text(text: str) -> str:
+    """argparse type of --reference-grid: 'SPACING,ANGLES' (spacing > 0 m, angles >= 1) or empty; the text as given."""
+    if text.strip():
+        parts = text.split(",")
+        try:
+            if len(parts) != 2:
+                raise argparse.ArgumentTypeError("")
+            positive_float(parts[0].strip())
+            positive_int(parts[1].strip())
+        except argparse.ArgumentTypeError:
+            raise argparse.ArgumentTypeError(f"{text!r}: give SPACING,ANGLES (a spacing > 0 m and a number of "
+                                             "angles >= 1, e.g. 0.3,5)") from None
+    return text
 
 
 def _grid(text: str) -> tuple[float | None, int | None]:

@@ -16,17 +16,19 @@ from perch_reconstruction.bag_write import BagTopics
 
 def register(sub) -> None:
     """Add `perch bench reconstruct`: fps with poses and odometry, ATE, Chamfer, cleaning, memory."""
+    from perch_common.cli_types import non_negative_int, positive_float, positive_int
+
     parser = sub.add_parser("reconstruct", help="reconstruction: fps with poses and with odometry, ATE, "
                                                 "Chamfer, cleaning time, memory")
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument("--bag", help="ROS 2 MCAP bag with recorded poses")
     source.add_argument("--frames", help="TUM/7-Scenes-style frame folder with poses (converted to a bag first)")
-    parser.add_argument("--limit", type=int, default=0, help="--frames: at most this many frames")
-    parser.add_argument("--voxel-size", type=float, help="TSDF voxel size (m)")
+    parser.add_argument("--limit", type=non_negative_int, default=0, help="--frames: at most this many frames (0: all)")
+    parser.add_argument("--voxel-size", type=positive_float, help="TSDF voxel size (m, > 0; default: the config's)")
     parser.add_argument("--render", default="out/bench/reconstruct.png",
                         help="where to write a rendering of the pose-given mesh ('' = none)")
-    parser.add_argument("--clean-faces", type=int, default=1_000_000,
-                        help="size of the mesh for the cleaning benchmark")
+    parser.add_argument("--clean-faces", type=positive_int, default=1_000_000,
+                        help="size of the mesh for the cleaning benchmark (faces, >= 1)")
     parser.add_argument("--json", action="store_true", help="print JSON (always on; kept for symmetry)")
     parser.set_defaults(func=run)
 

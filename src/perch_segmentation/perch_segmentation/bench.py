@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from perch_common.bench import emit, peak_rss_mb
+from perch_common.cli_types import non_negative_float, non_negative_int, positive_int, scene_resolution
 from perch_common.mesh import Mesh
 
 
@@ -20,14 +21,16 @@ def register(sub) -> None:
     p = sub.add_parser("segment", help="segmentation: seconds, peak memory, surfaces, accuracy on scenes")
     source = p.add_mutually_exclusive_group(required=True)
     source.add_argument("--mesh", type=Path, help="mesh file (e.g. ../shared/data/meshes/apartment.ply)")
-    source.add_argument("--scene", type=int, metavar="SEED", help="procedural scene with ground truth")
+    source.add_argument("--scene", type=non_negative_int, metavar="SEED", help="procedural scene with ground truth")
     p.add_argument("--kind", default="apartment", help="scene kind: room, l_shaped, two_rooms, apartment")
-    p.add_argument("--noise", type=float, default=0.0, help="scene vertex noise sigma (m)")
-    p.add_argument("--holes", type=int, default=0, help="scene: holes cut into walls")
-    p.add_argument("--resolution", type=float, default=0.1, help="scene face size (m); 0.022 gives ~1M faces")
-    p.add_argument("--subdivide", type=int, default=0, metavar="N",
-                   help="split every face into 4, N times (the apartment twice: 1.6M faces)")
-    p.add_argument("--repeats", type=int, default=3, help="timed runs (median reported) after one warm-up")
+    p.add_argument("--noise", type=non_negative_float, default=0.0, help="scene vertex noise sigma (m, >= 0)")
+    p.add_argument("--holes", type=non_negative_int, default=0, help="scene: holes cut into walls (>= 0)")
+    p.add_argument("--resolution", type=scene_resolution, default=0.1,
+                   help="scene face size (m, 0.02-0.5); 0.022 gives ~1M faces")
+    p.add_argument("--subdivide", type=non_negative_int, default=0, metavar="N",
+                   help="split every face into 4, N times (N >= 0; the apartment twice: 1.6M faces)")
+    p.add_argument("--repeats", type=positive_int, default=3,
+                   help="timed runs (>= 1; median reported) after one warm-up")
     p.add_argument("--baseline", choices=("patches", "ransac", "none"), default="patches",
                    help="Open3D baseline: planar patch detection (default) or sequential RANSAC")
     p.add_argument("--out", type=Path, default=Path("out/bench/segment"), help="folder for the PNG rendering")

@@ -59,10 +59,12 @@ def cached_mesh_mb(mesh) -> float:
 
 def register(sub) -> None:
     """`perch bench memory`."""
+    from perch_common.cli_types import non_negative_float, positive_int
+
     p = sub.add_parser("memory", help="node RSS before, during and after a very large request to every stage")
-    p.add_argument("--faces", type=int, default=2_000_000, help="at least this many faces")
-    p.add_argument("--mesh-cache-mb", type=float, default=0.0,
-                   help="the graph's PERCH_MESH_CACHE_MB (default 0: cache off, measure request buffers only)")
+    p.add_argument("--faces", type=positive_int, default=2_000_000, help="at least this many faces (>= 1)")
+    p.add_argument("--mesh-cache-mb", type=non_negative_float, default=0.0,
+                   help="the graph's PERCH_MESH_CACHE_MB (>= 0; default 0: cache off, measure request buffers only)")
     p.add_argument("--json", action="store_true", help="JSON on stdout (always)")
     p.set_defaults(func=_run)
 

@@ -44,22 +44,25 @@ OUTCOMES = ("cameras", "coverage", "fitness")   # also medians with --repeat (se
 
 def register(sub) -> None:
     """The `perch bench mission` benchmark."""
+    from perch_common.cli_types import non_negative_float, non_negative_int, positive_int, scene_resolution
     from perch_common.launch import add_graph_arguments
+    from perch_operator.bench import camera_count
 
     p = sub.add_parser("mission", help="a whole mission from the command's start: start-up, stages, transport, memory")
     source = p.add_mutually_exclusive_group()
     source.add_argument("--mesh", type=Path, help="environment mesh (default: a generated scene)")
-    source.add_argument("--scene", type=int, default=7, help="generated scene seed")
+    source.add_argument("--scene", type=non_negative_int, default=7, help="generated scene seed (>= 0)")
     p.add_argument("--kind", default="apartment", help="generated scene kind")
-    p.add_argument("--resolution", type=float, default=None, help="generated scene resolution (m; kind default)")
-    p.add_argument("--noise", type=float, default=0.0, help="generated scene vertex noise (m)")
+    p.add_argument("--resolution", type=scene_resolution, default=None,
+                   help="generated scene resolution (m, 0.02-0.5; kind default)")
+    p.add_argument("--noise", type=non_negative_float, default=0.0, help="generated scene vertex noise (m, >= 0)")
     p.add_argument("--target", default=None, metavar="SPEC", help="as for perch plan (default: the scene's "
                                                                    "own target; for --mesh the cropped floor)")
-    p.add_argument("--cameras", type=int, default=0, help="cameras (0: node default)")
+    p.add_argument("--cameras", type=camera_count, default=0, help="cameras (0: node default)")
     p.add_argument("--up", default="", help="the mesh's up axis, as for perch plan (+z, -y, auto, \"x y z\"; "
                                              "default: the coordinator's input_up_axis)")
-    p.add_argument("--missions", type=int, default=1, help="consecutive missions on one graph")
-    p.add_argument("--repeat", type=int, default=1, help="fresh processes to run (medians reported)")
+    p.add_argument("--missions", type=positive_int, default=1, help="consecutive missions on one graph (>= 1)")
+    p.add_argument("--repeat", type=positive_int, default=1, help="fresh processes to run (>= 1; medians reported)")
     p.add_argument("--reject", action="store_true", help="after the first mission, time one rejection's re-plan")
     p.add_argument("--record", action="store_true",
                    help="run the first mission as `perch plan` does: recorded to run.mcap, waypoints.yaml written "

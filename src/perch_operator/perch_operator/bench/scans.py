@@ -43,6 +43,7 @@ from perch_common.scan_corpus import (
     manifest_scans,
     up_error,
 )
+from perch_operator.bench import camera_count
 
 
 def register(sub) -> None:
@@ -56,7 +57,8 @@ def register(sub) -> None:
                    help="also every scan of this MANIFEST.tsv (the shared format: tab-separated columns 'file' "
                         "and 'up', files beside it; repeatable)")
     p.add_argument("--no-missions", action="store_true", help="the up estimate only (no graph, no missions)")
-    p.add_argument("--cameras", type=int, default=CAMERAS, help=f"cameras per mission (default {CAMERAS})")
+    p.add_argument("--cameras", type=camera_count, default=CAMERAS,
+                   help=f"cameras per mission (default {CAMERAS}; 0: the node's default)")
     p.add_argument("--json", action="store_true", help="print JSON (the only output format)")
     p.set_defaults(func=_run)
 

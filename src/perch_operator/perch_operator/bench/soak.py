@@ -500,8 +500,10 @@ class CoordinatorHeaptrack:
 
 def register(sub) -> None:
     """`perch bench soak`."""
+    from perch_common.cli_types import positive_int
+
     p = sub.add_parser("soak", help="missions with killed/cancelled clients, bad requests and a node respawn")
-    p.add_argument("--missions", type=int, default=50)
+    p.add_argument("--missions", type=positive_int, default=50, help="missions to run (>= 1)")
     p.add_argument("--seed", type=int, default=0, help="seed of the random mix")
     p.add_argument("--work", type=Path, help="folder for the missions' outputs (default: a temporary one)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON (always JSON on stdout)")
@@ -512,7 +514,8 @@ def register(sub) -> None:
                    help="run the coordinator under heaptrack (slower) and SIGKILL it after the last mission: "
                         "`heaptrack_print -f DIR/operator.end.zst -d DIR/operator.early.zst -l` lists what it "
                         "allocated after --heaptrack-after missions and still held; its RSS includes heaptrack's own")
-    p.add_argument("--heaptrack-after", type=int, default=10)
+    p.add_argument("--heaptrack-after", type=positive_int, default=10,
+                   help="--heaptrack: the mission (>= 1) after which the growth is measured")
     p.add_argument("--smaps", type=Path, metavar="DIR",
                    help="keep the coordinator's /proc/PID/smaps after each mission in DIR (which mappings grow)")
     register_faults(p)
@@ -803,8 +806,10 @@ class FaultSoak:
 
 def register_faults(p) -> None:
     """`perch bench soak --faults N`'s options."""
-    p.add_argument("--faults", type=int, default=0,
-                   help="instead: N missions each with a stage node, the coordinator or the launcher SIGKILLed "
+    from perch_common.cli_types import non_negative_int
+
+    p.add_argument("--faults", type=non_negative_int, default=0,
+                   help="instead: N >= 0 missions each with a stage node, the coordinator or the launcher SIGKILLed "
                         "mid-mission (seeded), each followed by an ordinary mission")
 
 
