@@ -8,16 +8,20 @@
 from __future__ import annotations
 
 import dataclasses
+import errno
 import http
 import ipaddress
+import socket
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+from perch_common.cli_types import int_between
 from perch_common.errors import PerchError
 from perch_common.mesh import add_units_arguments
+from perch_common.outputs import atomic_path, check_writable_file
 
 DEFAULT_PORT = 8080
 
@@ -29,12 +33,62 @@ def register(sub) -> None:
     add_units_arguments(p, "--mesh")
     p.add_argument("--host", default="127.0.0.1",
                    help="address to serve on (default loopback only); any other needs the token printed in the URL")
-    p.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"port (default {DEFAULT_PORT}; 0: a free one)")
+    p.add_argument("--port", type=int_between(0, 65535), default=DEFAULT_PORT,
+                   help=f"port (default {DEFAULT_PORT}; 0: a free one); one in use is refused")
     p.add_argument("--token", default="", help="the URL token (default: none on loopback, a new random one when exposed)")
     p.add_argument("--recording", type=Path, help="show a mission's run.mcap (its scan, markers, proposals and views)")
     p.add_argument("--screenshot", type=Path, metavar="PNG",
                    help="open the console in headless chromium, save what it shows once the room is drawn, and exit")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --screenshot file (else refused)")
     p.set_defaults(func=_console)
+
+
+def check_can_serve(host: str, port: int) -> None:
+    """Raise PerchError unless `host`:`port` can be bound here, as the server will bind it.
+
+    Checked before viser starts: on a port in use viser silently serves on the next one, and on an
+    address it cannot bind it tries 1000 ports and then waits forever."""
+    try:
+        addresses = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    except (OSError, UnicodeError) as exc:
+        raise PerchError(f"--host {host}: cannot be served on here ({getattr(exc, 'strerror', None) or exc}); "
+                         "give an address of this machine (127.0.0.1, or 0.0.0.0 for all)") from None
+    for family, kind, proto, _, address in addresses:
+        with socket.socket(family, kind, proto) as probe:
+            probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)   # as asyncio's server: TIME_WAIT is free
+            if family == socket.AF_INET6:
+                probe.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 1)   # as asyncio's server too
+            try:
+                probe.bind(address)
+            except OSError as exc:
+                raise _bind_error(host, port, exc) from None
+
+
+def _bind_error(host: str, port: int, exc: OSError) -> PerchError:
+    if exc.errno in (errno.EADDRINUSE, errno.EACCES):
+        return PerchError(f"--port {port}: cannot be used on {host} ({exc.strerror}); give another port, "
+                          "or --port 0 for any free one")
+    return PerchError(f"--host {host}: cannot be served on here ({exc.strerror}); give an address of this "
+                      "machine (127.0.0.1, or 0.0.0.0 for all)")
+
+
+def check_screenshot(path: Path, overwrite: bool) -> None:
+    """A screenshot is a .png file in a writable folder, new unless --overwrite: checked before the console
+    and chromium start (a folder failed in Playwright after the room was drawn; a file was replaced)."""
+    check_writable_file(path, "--screenshot", "console.png")
+    if path.suffix.lower() != ".png":
+        raise PerchError(f"--screenshot {path}: not a .png file; give a PNG path (e.g. {path.with_suffix('.png')})")
+    if path.exists() and not overwrite:
+        raise PerchError(f"--screenshot {path}: the file exists; give a new path, or add --overwrite to replace it")
+
+
+def check_recording(recording: Path) -> None:
+    """Missing, empty or not an MCAP: refused before anything is served."""
+    from perch_operator.outputs.runfile import _open
+
+    if not Path(recording).is_file():
+        raise PerchError(f"{recording}: no such recording (give --recording a run.mcap)")
+    _open(recording)[0].close()   # the recording reader's own check (MCAP magic), with its fix
 
 
 def is_loopback(host: str) -> bool:
@@ -87,11 +141,17 @@ def start_console(mesh_path: Path | None, host: str = "127.0.0.1", port: int = D
 
     if mesh_path is not None and not Path(mesh_path).is_file():
         raise PerchError(f"{mesh_path}: no such scan file (give --mesh a .ply/.obj/.glb mesh)")
+    if recording is not None:
+        check_recording(recording)
+    check_can_serve(host, port)
     if not is_loopback(host):
         token = token or new_token()
     if token:   # always beyond loopback; on loopback when one is given
         require_token(token)
     console = Console(host=host, port=port)
+    if port and console.server.get_port() != port:   # taken since the check: viser moved on rather than fail
+        console.server.stop()
+        raise _bind_error(host, port, OSError(errno.EADDRINUSE, "address already in use"))
     graph = ConsoleGraph(console.changed)
     console.attach(graph)
     if mesh_path is not None:
@@ -100,8 +160,6 @@ def start_console(mesh_path: Path | None, host: str = "127.0.0.1", port: int = D
         console.place_boxes(mesh.vertices)
         console.show_scan(mesh, Path(mesh_path).name)
     if recording is not None:
-        if not Path(recording).is_file():
-            raise PerchError(f"{recording}: no such recording (give --recording a run.mcap)")
         graph.show_recording(recording)
         if graph.scan is not None and mesh_path is None:
             points = np.array([(p.x, p.y, p.z) for p in graph.scan.points[::3]])
@@ -117,6 +175,8 @@ def _console(args) -> int:
     from perch_operator.cli.runner import client_context
 
     started = time.monotonic()
+    if args.screenshot is not None:
+        check_screenshot(args.screenshot, args.overwrite)
     with client_context():
         console, graph, url = start_console(args.mesh, args.host, args.port, args.token, args.recording,
                                             args.scale, args.shift)
@@ -162,8 +222,8 @@ def screenshot(url: str, path: Path, size: tuple[int, int] = (1600, 1000), timeo
             if time.monotonic() - started > timeout:
                 raise PerchError(f"the room was not drawn within {timeout:.0f} s")
         dismiss_notices(page)   # shown again once WebGL started
-        Path(path).parent.mkdir(parents=True, exist_ok=True)
-        page.screenshot(path=str(path))
+        with atomic_path(path) as partial:   # an interrupted run never leaves half a PNG over the user's
+            page.screenshot(path=str(partial))
         browser.close()
     return time.monotonic() - started
 

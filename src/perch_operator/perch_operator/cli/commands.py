@@ -11,7 +11,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from perch_common.conventions import CONFIRM_SERVICE
+from perch_common.cli_types import positive_float
+from perch_common.conventions import CONFIRM_SERVICE, MISSION_STATUS_TOPIC
 from perch_common.errors import PerchError
 from perch_operator.outputs.text import evidence_text
 
@@ -23,24 +24,71 @@ def register(sub) -> None:
     for name, help_text in (("accept", "accept a proposal"), ("reject", "reject a proposal (re-plans that drone)"),
                             ("failed", "report an accepted perch that failed in flight (re-plans it)")):
         a = actions.add_parser(name, help=help_text)
-        a.add_argument("id", type=int, help="proposal id (see `perch operator list`)")
-        a.add_argument("--reason", default="", help="why (recorded with the decision)")
+        a.add_argument("id", type=message_id, help="proposal id (see `perch operator list`)")
+        a.add_argument("--reason", type=reason_text, default="",
+                       help=f"why (recorded with the decision; one line, at most {MAX_REASON} characters)")
         a.set_defaults(func=_decide, decision=name)
     review = actions.add_parser("review", help="decide a surface review (missions with --review-surfaces N)")
-    review.add_argument("id", type=int, help="review id (published on /perch/surface_review)")
+    review.add_argument("id", type=message_id, help="review id (published on /perch/surface_review)")
     review.add_argument("--reject", default="", help="comma-separated surface ids to reject; none: approve all")
-    review.add_argument("--reason", default="")
+    review.add_argument("--reason", type=reason_text, default="",
+                        help=f"why (one line, at most {MAX_REASON} characters)")
     review.add_argument("--crop", action="append", default=[], metavar="ID:CX,CY,CZ,SX,SY,SZ[,YAW_DEG]",
                         help="approve surface ID trimmed to the part inside this box (input frame, metres; "
                              "faces with their centroid inside are kept); repeat for several surfaces")
     review.set_defaults(func=_review)
     cancel = actions.add_parser("cancel", help="cancel the running mission (e.g. one whose client is stuck)")
-    cancel.add_argument("--timeout", type=float, default=10.0, help="seconds to wait for the coordinator")
+    cancel.add_argument("--timeout", type=positive_float, default=10.0, help="seconds to wait for the coordinator")
     cancel.set_defaults(func=_cancel)
-    lst = actions.add_parser("list", help="show the proposals of the current mission")
-    lst.add_argument("--wait", type=float, default=2.0, help="seconds to collect proposals")
+    lst = actions.add_parser("list", help="show the proposals of the current mission (those `accept`, `reject` "
+                                          "and `failed` act on)")
+    lst.add_argument("--wait", type=positive_float, default=2.0,
+                     help="seconds to find the coordinator and collect the proposals")
     lst.set_defaults(func=_list)
     p.set_defaults(func=lambda args: p.print_help() or 2)
+
+
+MAX_REASON = 500   # characters of a decision's --reason: a sentence or two, not a document
+_LINE_BREAKING = {"\u2028", "\u2029", "\u202a", "\u202b", "\u202c", "\u202d", "\u202e",
+                  "\u2066", "\u2067", "\u2068", "\u2069"}   # line/paragraph separators, bidi overrides
+
+
+def reason_text(text: str) -> str:
+    """A decision's reason (argparse type): one line of at most MAX_REASON characters, no control
+    characters (a newline or a terminal escape would garble every `perch operator list`)."""
+    import argparse
+    import unicodedata
+
+    bad = next((c for c in text if unicodedata.category(c) == "Cc" or c in _LINE_BREAKING), None)
+    if bad is not None:
+        raise argparse.ArgumentTypeError(f"holds the control character {bad!r}; give the reason as one line of "
+                                         "plain text (no newlines, tabs or terminal escapes)")
+    if len(text) > MAX_REASON:
+        raise argparse.ArgumentTypeError(f"is {len(text)} characters long; give at most {MAX_REASON} "
+                                         "(a sentence or two)")
+    return text
+
+
+def message_id(text: str) -> int:
+    """A proposal or review id (argparse type): a whole number 0 .. 2^32-1, as the messages carry."""
+    import argparse
+
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number; give the id `perch operator list` "
+                                         "shows") from None
+    if not 0 <= value < 2 ** 32:
+        raise argparse.ArgumentTypeError(f"{text} is out of range; ids are whole numbers from 0 to {2 ** 32 - 1}")
+    return value
+
+
+def printable(text: str, limit: int | None = None) -> str:
+    """Text received from the graph, safe for a terminal line: control characters (newlines, ANSI
+    escapes, bidi overrides) shown escaped (\\n, \\x1b, \\u202e), and cut after `limit` characters."""
+    shown = text if limit is None or len(text) <= limit else text[:limit]
+    safe = "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii") for c in shown)
+    return safe + (f"... ({len(text) - limit} more characters)" if shown is not text else "")
 
 
 def _with_node(name: str, body):
@@ -194,8 +242,8 @@ def _call_and_report(srv_type, name: str, request, timeout: float):
         except TimeoutError as exc:
             raise PerchError(f"{exc}; is the graph running (`perch launch`)?") from None
         if not reply.success:
-            raise PerchError(reply.message)
-        print(reply.message)
+            raise PerchError(printable(reply.message))
+        print(printable(reply.message))
         return reply
 
     return _with_node("perch_operator_cli", body)
@@ -207,22 +255,69 @@ def _proposal_line(p) -> str:
     pos = p.placement.drone_pose.position
     return (f"proposal {p.id:>4}  drone {p.placement.drone_index}  {Status(p.status).name.lower():<8} "
             f"at ({pos.x:.2f}, {pos.y:.2f}, {pos.z:.2f}) m  gain {p.placement.marginal_gain:.4f}  "
-            f"{evidence_text(p.evidence)}" + (f"  ({p.reason})" if p.reason else ""))
+            f"{evidence_text(p.evidence)}" + (f"  ({printable(p.reason, MAX_REASON)})" if p.reason else ""))
+
+
+_STATES = {1: "running", 2: "running", 3: "cancelling", 4: "succeeded", 5: "cancelled", 6: "failed"}  # GoalStatus
 
 
 def _list(args) -> int:
-    from perch_interfaces.msg import Proposal
+    """The current mission's proposals: what `accept`, `reject` and `failed` act on.
+
+    perch/proposals keeps a history (transient local, 100 deep) of every mission's proposals, each
+    tagged with its mission's goal id: the current mission is the one the coordinator's latched
+    waypoint set names (else its latest goal), and its state comes from the goal status list. No
+    coordinator within --wait s is an error, as for `accept`."""
+    from action_msgs.msg import GoalStatusArray
+    from rclpy.qos import qos_profile_action_status_default
+
+    from perch_interfaces.msg import PerchWaypointSet, Proposal
+    from perch_operator.api.client import GoalStatusWatch
     from perch_operator.cli.runner import spin_for
-    from perch_operator.coordinator.node import LATCHED
+    from perch_operator.coordinator.node import LATCHED, LATCHED_LAST
 
     def body(node) -> int:
         latest: dict[int, Proposal] = {}
+        goals: dict[bytes, tuple[int, int]] = {}    # goal id -> (accepted at, ns; status)
+        sets: list[PerchWaypointSet] = []
+
+        def on_status(msg) -> None:
+            goals.clear()
+            goals.update({bytes(s.goal_info.goal_id.uuid): (s.goal_info.stamp.sec * 10 ** 9 + s.goal_info.stamp.nanosec,
+                                                            s.status) for s in msg.status_list})
+
         node.create_subscription(Proposal, "perch/proposals", lambda m: latest.__setitem__(m.id, m), LATCHED)
-        spin_for(node, args.wait)
-        if not latest:
-            print("no proposals (is a mission running? `perch plan ...`)")
-        for pid in sorted(latest):
-            print(_proposal_line(latest[pid]))
+        node.create_subscription(GoalStatusArray, MISSION_STATUS_TOPIC, on_status, qos_profile_action_status_default)
+        node.create_subscription(PerchWaypointSet, "perch/mission_waypoints", sets.append, LATCHED_LAST)
+        deadline, seen = time.monotonic() + args.wait, False
+        while time.monotonic() < deadline:
+            seen = seen or bool(GoalStatusWatch.writers_of(node))
+            spin_for(node, min(0.1, max(0.0, deadline - time.monotonic())))
+        if not seen:
+            raise PerchError(f"no mission coordinator in the graph within {args.wait:g} s (nothing serves "
+                             f"{node.resolve_topic_name(MISSION_STATUS_TOPIC)}); is the graph running "
+                             "(`perch launch`)? On a slow network give it longer (--wait)")
+        mission = bytes(sets[-1].mission_id.uuid) if sets and any(sets[-1].mission_id.uuid) else \
+            max(goals, key=lambda g: goals[g][0], default=None)
+        if mission is None:
+            print("no proposals: no mission has run on this graph yet (`perch plan ... --no-launch`)")
+            return 0
+        name = mission.hex()   # as the dispatcher and the waypoint files show it
+        state = _STATES.get(goals[mission][1], "unknown") if mission in goals else "ended"
+        shown = [latest[i] for i in sorted(latest) if bytes(latest[i].mission_id.uuid) == mission]
+        if state in ("cancelled", "failed", "cancelling"):
+            print(f"no proposals to decide: mission {name} {'is being cancelled' if state == 'cancelling' else state}; "
+                  "decisions on its proposals are refused (they were never dispatched); run a new mission")
+            return 0
+        if not shown:
+            print(f"no proposals yet: mission {name} is {state}" + (
+                  " (it proposes perches once its optimise stage has run)" if state == "running" else ""))
+            return 0
+        print(f"mission {name} ({state}): {len(shown)} proposal(s)" + (
+              "; it has ended: `perch operator failed ID` reports an accepted perch that failed in flight, and "
+              "the replacement it proposes can be decided" if state != "running" else ""))
+        for proposal in shown:
+            print(_proposal_line(proposal))
         return 0
 
     return _with_node("perch_operator_list", body)
@@ -332,18 +427,38 @@ def _record(args) -> int:
 def register_view(sub) -> None:
     """Add `perch view`: open a mission's rerun recording."""
     p = sub.add_parser("view", help="open a mission's rerun recording (run.rrd) in the rerun viewer")
-    p.add_argument("recording", type=Path, help="run.rrd written by perch plan / perch demo")
+    p.add_argument("recording", type=Path, help="run.rrd (or run.mcap) written by perch plan / perch demo")
     p.add_argument("--web", action="store_true", help="serve the web viewer (open the printed URL in a browser)")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="address the viewer's servers listen on (default loopback only, as perch console; "
+                        "0.0.0.0 exposes them, with no token)")
     p.set_defaults(func=_view)
 
 
-def viewer_command(recording: Path, web: bool) -> list[str] | None:
-    """The rerun viewer command for a recording (web viewer without a display); None without rerun."""
+RRD_MAGIC = b"RRF"   # every rerun .rrd starts with RRF0/RRF1/RRF2 (its encoding version)
+
+
+def check_viewable(recording: Path) -> None:
+    """Refuse what is not a recording before the viewer starts (rerun logged an error and kept serving)."""
+    from perch_operator.outputs.runfile import MCAP_MAGIC
+
+    if not recording.is_file():
+        raise FileNotFoundError(f"{recording}: no such recording")
+    with open(recording, "rb") as handle:
+        head = handle.read(len(MCAP_MAGIC))
+    if not head.startswith(RRD_MAGIC) and head != MCAP_MAGIC:
+        raise PerchError(f"{recording}: not a recording ({'empty' if not head else 'neither .rrd nor MCAP'}); "
+                         "give the run.rrd (or run.mcap) that perch plan or perch demo wrote")
+
+
+def viewer_command(recording: Path, web: bool, host: str = "127.0.0.1") -> list[str] | None:
+    """The rerun viewer command for a recording (web viewer without a display), its servers bound to
+    `host` (rerun's own default is every interface); None without rerun."""
     exe = shutil.which("rerun") or (str(Path(sys.executable).with_name("rerun"))
                                     if Path(sys.executable).with_name("rerun").exists() else None)
     if exe is None:
         return None
-    return [exe, *(["--web-viewer"] if web else []), str(recording)]
+    return [exe, *(["--web-viewer"] if web else []), "--bind", host, str(recording)]
 
 
 def has_display() -> bool:
@@ -352,9 +467,8 @@ def has_display() -> bool:
 
 
 def _view(args) -> int:
-    if not args.recording.is_file():
-        raise FileNotFoundError(f"{args.recording}: no such recording")
-    cmd = viewer_command(args.recording, args.web)
+    check_viewable(args.recording)
+    cmd = viewer_command(args.recording, args.web, args.host)
     if cmd is None:
         raise PerchError("the rerun viewer is not installed here (pip install rerun-sdk); or copy "
                          f"{args.recording} to a machine that has it and run `rerun {args.recording.name}`")

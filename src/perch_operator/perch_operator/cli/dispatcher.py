@@ -12,6 +12,10 @@ action, that process must be the only one serving it, and its goal status list m
 mission. A set that cannot be attributed within ATTRIBUTE_WITHIN seconds (another node writes on
 the topic, a second action server, an unknown mission) is refused with a log line naming the
 writers, and the previous set stays.
+
+The --output file is replaced only while it is a waypoints file of write_waypoints_yaml's layout,
+writable, and not a mission's output (replace_refusal): any other file there is refused when the
+dispatcher starts, and left alone (with a log line) should it appear later.
 """
 
 from __future__ import annotations
@@ -108,11 +112,63 @@ class Dispatcher(Node):
             log.info(f"  drone {waypoint['drone_index']}: perch at ({x:.2f}, {y:.2f}, {z:.2f}) in "
                      f"{waypoint['frame_id']} (proposal {waypoint['proposal_id']})")
         if self.output is not None:
+            refused = replace_refusal(self.output)   # the file may have changed since the start
+            if refused:
+                log.error(f"--output {self.output}: not written: {refused}")
+                return
             try:
                 write_waypoints_yaml(self.output, self.received)
             except OSError as exc:   # e.g. the disk filled up since the start: said, and the dispatcher goes on
                 log.error(f"could not write --output {self.output} ({exc.strerror or exc}); its previous "
                           "content is kept")
+
+
+WAYPOINT_FILE_KEYS = {"frame_id", "units", "waypoints"}   # write_waypoints_yaml's layout ("coordinates" optional)
+LARGEST_WAYPOINT_FILE = 1 << 20   # bytes: a larger file is not a waypoints file (and is not read whole)
+
+
+def is_waypoints_file(path: Path) -> bool:
+    """Whether `path` holds a waypoints file as write_waypoints_yaml writes it: a YAML mapping of exactly
+    frame_id, units, optionally coordinates, and waypoints, a list of waypoint_dict mappings."""
+    import yaml
+
+    from perch_interfaces.msg import PerchWaypoint
+
+    try:
+        if path.stat().st_size > LARGEST_WAYPOINT_FILE:
+            return False
+        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+        return False
+    keys = set(waypoint_dict(PerchWaypoint()))
+    return (isinstance(doc, dict) and WAYPOINT_FILE_KEYS <= set(doc) <= WAYPOINT_FILE_KEYS | {"coordinates"}
+            and isinstance(doc["frame_id"], str) and isinstance(doc["units"], str)
+            and isinstance(doc["waypoints"], list)
+            and all(isinstance(w, dict) and set(w) == keys for w in doc["waypoints"]))
+
+
+def replace_refusal(path: Path) -> str:
+    """Why the dispatcher must not replace `path` ('' when it may: absent, or a writable waypoints file
+    that is not a mission's output). What the user keeps there is never replaced."""
+    import os
+
+    from perch_common.outputs import MANIFEST_NAME, written_by_perch
+
+    if path.is_symlink():
+        return ("is a symbolic link (writing would replace the link with a file); give the file it points to, "
+                "or a new path")
+    if not path.exists():
+        return ""
+    if not os.access(path, os.W_OK) or not path.stat().st_mode & 0o222:
+        return (f"is read-only, and perch dispatch never replaces a read-only file; give a new path, or make it "
+                f"writable (chmod u+w {path}) if it may be replaced")
+    if (path.parent / MANIFEST_NAME).is_file() and path.name in written_by_perch(path.parent):
+        return ("is a mission's output (listed in its folder's " + MANIFEST_NAME + "); give the dispatcher a "
+                "file of its own, e.g. a new path")
+    if not is_waypoints_file(path):
+        return ("exists and is not a waypoints file written by perch dispatch; it is never replaced: give a new "
+                "path, or move the file away")
+    return ""
 
 
 def main(output: Path | None = None) -> int:
@@ -124,6 +180,11 @@ def main(output: Path | None = None) -> int:
 
     if output is not None:   # checked now, not when the first waypoint set arrives
         check_writable_file(output, "--output", "waypoints.yaml")
+        refused = replace_refusal(output)
+        if refused:
+            from perch_common.errors import PerchError
+
+            raise PerchError(f"--output {output}: {refused}")
     use_perch_dds()   # host-only like the graph, unless PERCH_NETWORK=1
 
     # the graph's namespace (perch --namespace N dispatch) for the relative topic name

@@ -37,11 +37,12 @@ def box_from_ros(msg: pm.OrientedBox, what: str) -> Box:
         raise ValueError(f"{what}: {exc}") from None
 
 
-def proposal_msg(proposal: Proposal, alignment: Alignment, regions=()) -> pm.Proposal:
+def proposal_msg(proposal: Proposal, alignment: Alignment, regions=(), mission_id: UUID | None = None) -> pm.Proposal:
     """A proposal as published, its placement in the input frame, with the safety evidence of its
-    perch region (one of `regions`, PerchRegion messages; -1 values when it is not among them)."""
+    perch region (one of `regions`, PerchRegion messages; -1 values when it is not among them), tagged
+    with its mission (the goal id: the topic's history holds earlier missions' proposals too)."""
     region = next((r for r in regions if r.id == proposal.placement.region_id), None)
-    return pm.Proposal(id=proposal.id, status=int(proposal.status), reason=proposal.reason,
+    return pm.Proposal(id=proposal.id, mission_id=mission_id or UUID(), status=int(proposal.status), reason=proposal.reason,
                        placement=placement_msg(proposal, alignment),
                        evidence=region.evidence if region is not None else evidence_to_msg(PerchEvidence()))
 

@@ -386,7 +386,7 @@ class OperatorNode(Node):
             response.success, response.message = True, outcome.message
             if outcome.replacement is not None:
                 response.replacement = proposal_msg(outcome.replacement, self.operator.alignment,
-                                                    self.operator.optimise_request.regions)
+                                                    self.operator.optimise_request.regions, self._mission_id)
         except (ProposalError, ValueError) as exc:
             response.success, response.message = False, str(exc)
         except (StageError, PerchError, TimeoutError) as exc:
@@ -416,7 +416,7 @@ class OperatorNode(Node):
         regions = self.operator.optimise_request.regions
         cameras = []
         for proposal in proposals:
-            published = proposal_msg(proposal, alignment, regions)
+            published = proposal_msg(proposal, alignment, regions, self._mission_id)
             self.proposals_pub.publish(published)
             if published.id not in self._shown:
                 self._submit_view(self._publish_view, proposal, self.operator.optimise_request)
