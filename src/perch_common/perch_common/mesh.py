@@ -340,6 +340,50 @@ def scale_problem(extent: float, what: str = "mesh") -> str | None:
             f"(--scale, or multiply its coordinates by that factor)")
 
 
+FEET_HEIGHT = 6.0           # m: a space at least this tall ...
+FEET_FURNITURE = 1.3        # m: ... whose furniture tops stand (median) this high is likely in feet (0.3048)
+FURNITURE_MIN_AREA = 1.0    # m^2 of furniture tops for their height to say anything
+FLOOR_LEVEL_SHARE = 0.25    # of the floor's area: an upward level this large is a floor (a storey's), not furniture
+
+
+def feet_problem(mesh: Mesh, up: np.ndarray, what: str = "mesh") -> str | None:
+    """A message when `mesh` (up along `up`) looks like a room in feet read as metres, else None.
+
+    Its size cannot tell (a room in feet is 8-12 m across and 8-10 m tall, a hall's size), but furniture
+    can: tables, seats and beds stand 0.4-1 m high in every room, and in feet 1.3-3.3 m. Up-facing
+    horizontal faces between 0.25 m above the floor and half the height, levels as large as a quarter
+    of the floor left out (a storey's floor, from which the tops above it are measured), stand
+    (area-weighted median) FEET_FURNITURE or more high
+    in a space FEET_HEIGHT or more tall only when read in the wrong unit (the shared real scans: 0.3-0.8 m,
+    one 1.7 m in a 3.5 m room; in feet 1.6-2.6 m in 7.9-10.4 m)."""
+    up = np.asarray(up, np.float64) / np.linalg.norm(up)
+    height = mesh.face_centroids() @ up
+    floor, ceiling = np.percentile(height, [1, 99])
+    tall = float(ceiling - floor)
+    if tall < FEET_HEIGHT:
+        return None
+    areas = mesh.face_areas()
+    facing_up = mesh.face_normals() @ up > np.cos(np.radians(10.0))
+    at_floor = float(areas[facing_up & (height <= floor + 0.05 * tall)].sum())
+    band = facing_up & (height > floor + 0.25) & (height < floor + 0.5 * tall)
+    edges = np.arange(floor, floor + 0.5 * tall + 0.1, 0.1)
+    levels, _ = np.histogram(height[band], edges, weights=areas[band])
+    slab = levels >= FLOOR_LEVEL_SHARE * max(at_floor, 1e-9)
+    band &= ~slab[np.clip(np.searchsorted(edges, height, side="right") - 1, 0, len(levels) - 1)]
+    if float(areas[band].sum()) < FURNITURE_MIN_AREA:
+        return None
+    # Each top's height above the floor it stands on: the ground floor or a storey's below it.
+    floors = np.concatenate([[floor], edges[:-1][slab]])
+    above = height[band] - floors[np.searchsorted(floors, height[band], side="right") - 1]
+    order = np.argsort(above)
+    cumulative = np.cumsum(areas[band][order])
+    median = float(above[order][np.searchsorted(cumulative, 0.5 * cumulative[-1])])
+    if median < FEET_FURNITURE:
+        return None
+    return (f"{what} is {tall:.1f} m tall and its furniture tops stand {median:.1f} m above its floor (tables and "
+            f"seats stand 0.4-1 m high), which suggests it is in feet ({tall * 0.3048:.1f} m tall: --scale 0.3048)")
+
+
 def validate_mesh(mesh: Mesh, what: str = "mesh") -> Mesh:
     """Raise MeshError naming every fatal problem; return the mesh unchanged otherwise."""
     problems = inspect_mesh(mesh, warnings=False)

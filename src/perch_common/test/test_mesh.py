@@ -309,3 +309,33 @@ def test_an_obj_with_relative_indices_reads_each_face_after_its_own_vertices(tmp
     corners = np.sort(mesh.vertices[mesh.faces].reshape(-1, 3, 3).sum(axis=1), axis=0)
     assert np.allclose(corners, [[1, 1, 0], [1, 1, 0], [16, 16, 6]])
     assert np.isclose(mesh.face_areas().sum(), 1.5)
+
+
+@pytest.mark.parametrize("kind", ["room", "l_shaped", "apartment", "multi_storey"])
+def test_a_space_in_feet_is_told_by_its_furniture_and_one_in_metres_is_not(kind):
+    """Hunt 5: a scan in feet read as metres (8-10 m tall, its tables 2.4 m high) was planned without a word.
+    Its size cannot tell (a hall's), its furniture can; a multi-storey building's furniture is measured from
+    the storey it stands on (from the ground, its upper storeys' tables stood 3 m high)."""
+    from perch_common.mesh import feet_problem
+    from perch_common.scene_generator import generate_scene
+
+    scene = generate_scene(1, kind, **({"floors": 3} if kind == "multi_storey" else {}))
+    up = np.asarray(scene.up, np.float64)
+    assert feet_problem(scene.mesh, up) is None
+    message = feet_problem(Mesh(scene.mesh.vertices / 0.3048, scene.mesh.faces), up)
+    assert message is not None and message.startswith("mesh is ") and message.endswith(" m tall: --scale 0.3048)")
+    assert "its furniture tops stand" in message and "which suggests it is in feet" in message
+
+
+def test_the_shared_real_scans_are_in_metres_and_the_office_in_feet_is_not():
+    from perch_common.data import shared_file
+    from perch_common.mesh import feet_problem
+    from perch_common.scan_orientations import REAL_SCANS
+
+    path = shared_file("meshes", "icl_office_kt2.obj")
+    if path is None:
+        pytest.skip("../shared/data/meshes/icl_office_kt2.obj is absent (real scans are optional)")
+    office = load_mesh(path)
+    up = REAL_SCANS["icl_office_kt2.obj"]
+    assert feet_problem(office, up) is None
+    assert "suggests it is in feet (2.4 m tall" in feet_problem(Mesh(office.vertices / 0.3048, office.faces), up)

@@ -381,3 +381,32 @@ def test_surfaces_under_review_are_shown_in_the_input_frame(meshes):
     np.testing.assert_allclose(xyz(shown[0].frame.origin), 0.5 * up, atol=1e-9)
     # the filter still got the surface in the gravity-aligned frame
     assert dict(mission.caller.requests)["filter"].surfaces[0].frame.normal.z == 1.0
+
+
+def test_a_room_in_feet_stops_an_auto_accepted_mission_and_is_flagged_in_a_reviewed_one():
+    """Hunt 5: a scan in feet read as metres (9 m tall, its tables 2.4 m high) was planned without a word and
+    every perch was unsafe in true metres. Its furniture says so; without a reviewer the mission stops."""
+    from perch_common.mesh import Mesh, MeshError
+    from perch_common.scene_generator import generate_scene
+
+    room = generate_scene(1, "room").mesh
+    in_feet = Mesh(room.vertices / 0.3048, room.faces)
+    goal = PlanPerches.Goal(mesh=mesh_to_msg(in_feet), num_cameras=2, auto_accept=True, seed=4, up_axis="+z")
+    stages = ScriptedStages(goal.mesh)
+    with pytest.raises(MeshError, match=r"^the mesh is \d+\.\d m tall and its furniture tops stand \d\.\d m above its "
+                                        r"floor .* suggests it is in feet .*: pass --scale 0\.3048 if it is in feet, or "
+                                        r"run without --auto-accept to review every proposal$"):
+        run(stages, goal)
+    assert stages.requests == []   # nothing ran on it
+    from perch_operator.coordinator.stages import MissionCancelled
+
+    goal.auto_accept = False   # reviewed: each proposal says the unit is in doubt
+    proposed = []
+    mission = Mission(ScriptedStages(goal.mesh), options(auto=False), 1, lambda *f: None, lambda: bool(proposed),
+                      lambda *ps: proposed.extend(ps), lambda o: None)
+    with pytest.raises(MissionCancelled):
+        mission.run(goal)
+    assert proposed and all(p.reason.startswith("unit unconfirmed: the mesh is") for p in proposed)
+    in_metres = PlanPerches.Goal(mesh=mesh_to_msg(room), num_cameras=2, auto_accept=True, seed=4, up_axis="+z")
+    mission, result, *_ = run(ScriptedStages(in_metres.mesh), in_metres)
+    assert result.success and not any("unit" in n for n in mission.notes)

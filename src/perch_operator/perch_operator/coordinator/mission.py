@@ -16,7 +16,7 @@ import numpy as np
 
 from perch_common.conventions import FILTER_NAMES
 from perch_common.frames import Alignment
-from perch_common.mesh import Mesh, MeshError, far_problem, load_mesh, scale_problem, validate_mesh
+from perch_common.mesh import Mesh, MeshError, far_problem, feet_problem, load_mesh, scale_problem, validate_mesh
 from perch_common.request_validation import validate_request
 from perch_common.ros.conversions import (
     exclusion_to_msg,
@@ -94,6 +94,11 @@ class Operator:
     replan_seconds: list[float] = field(default_factory=list)
     surfaces: list = field(default_factory=list)   # the filter's surfaces and removals, for viewers
     removals: list = field(default_factory=list)
+    unit_unconfirmed: str = ""  # why the mesh's unit is in doubt ('' when it is not), for every proposal
+
+    def caution(self) -> str:
+        """What every proposal of the mission says: an up axis or a unit that was not confirmed ('')."""
+        return "; ".join(note for note in (self.alignment.up_unconfirmed, self.unit_unconfirmed) if note)
 
 
 def _refuse_target_outside(target, mesh: Mesh, aligned: Mesh, alignment: Alignment) -> None:
@@ -135,6 +140,7 @@ class Mission:
         self.alignment = Alignment(options.frame_id, np.eye(3), "none", 0.0)
         self.notes: list[str] = []  # warnings for the result message (e.g. an up axis from the file's convention)
         self.clean_warnings: list[str] = []  # what the clean stage warned of, for a failure's message
+        self.unit_unconfirmed = ""  # a given mesh whose unit looks wrong (feet_problem), reviewed
         self.stage_names: list[str] = []
         self.stage_seconds: list[float] = []
         self._planned = [s for s in STAGE_WEIGHTS]
@@ -221,7 +227,8 @@ class Mission:
         operator = Operator(ProposalBook(self.options.exclusion_radius, self.first_proposal_id), request,
                             self.options.auto_accept or goal.auto_accept, self.alignment,
                             (optimised.fitness, optimised.coverage, optimised.mean_uncertainty),
-                            surfaces=classed_surfaces(surfaces, filtered.removals), removals=list(filtered.removals))
+                            surfaces=classed_surfaces(surfaces, filtered.removals), removals=list(filtered.removals),
+                            unit_unconfirmed=self.unit_unconfirmed)
         operator.robustness = optimised
         self.on_operator(operator)
         confirmed = self._confirm(operator, optimised.placements)
@@ -283,8 +290,14 @@ class Mission:
         text = goal.up_axis or self.options.input_up
         convention = goal.up_convention or file_convention(goal.mesh_path or None)
         # Auto-accepted, nobody checks the up axis: an unsure estimate stops the mission (UnsureUpError).
-        choice = choose_up(text, mesh, convention, require_confident=self.options.auto_accept or goal.auto_accept)
-        for warning in choice.warnings:
+        auto_accept = self.options.auto_accept or goal.auto_accept
+        choice = choose_up(text, mesh, convention, require_confident=auto_accept)
+        feet = feet_problem(mesh, choice.up, "the mesh")
+        if feet and auto_accept:   # a guess at the unit, as at the up axis: nobody reviews the result
+            raise MeshError(f"{feet}. An auto-accepted mission does not place drones in a guessed unit: pass "
+                            "--scale 0.3048 if it is in feet, or run without --auto-accept to review every proposal")
+        self.unit_unconfirmed = f"unit unconfirmed: {feet}" if feet else ""
+        for warning in choice.warnings + ([self.unit_unconfirmed] if feet else []):
             self.notes.append(warning)
             self.feedback("clean", self._fraction(), warning)
         return Alignment(frame_id, choice.estimate.aligned_rotation(choice.up), choice.source,
@@ -322,7 +335,7 @@ class Mission:
         events = []
         for slot, placement in enumerate(placements):
             proposal = operator.book.propose(slot, placement_from_msg(placement))
-            proposal.reason = operator.alignment.up_unconfirmed   # '' unless the up axis is a fallback
+            proposal.reason = operator.caution()   # '' unless the up axis is a fallback or the unit in doubt
             events.append(copy.copy(proposal))   # as proposed: deciding changes the book's own
             if operator.auto_accept:
                 events.append(operator.book.decide(proposal.id, Decision.ACCEPT, "auto_accept policy"))
@@ -388,7 +401,7 @@ def replan_slot(caller: StageCaller, operator: Operator, slot: int) -> Proposal 
     operator.scores = (reply.fitness, reply.coverage, reply.mean_uncertainty)
     operator.robustness = reply
     proposal = operator.book.propose(slot, placement_from_msg(reply.placements[0]))
-    proposal.reason = operator.alignment.up_unconfirmed   # '' unless the up axis is a fallback
+    proposal.reason = operator.caution()   # '' unless the up axis is a fallback or the unit in doubt
     return proposal
 
 
