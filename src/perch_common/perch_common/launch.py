@@ -87,6 +87,7 @@ def use_perch_dds(env: dict | None = None, network: bool | None = None) -> dict:
         # samples) instead of its own, which keeps the largest message's buffers for good.
         target.setdefault(USE_XML_QOS_ENV, "1")
     if network:
+        _check_network_key(target)
         target[NETWORK_ENV] = "1"   # child processes (respawned nodes) stay networked too
         if target.get("ROS_AUTOMATIC_DISCOVERY_RANGE") == "SYSTEM_DEFAULT" and _ours(target):
             target.pop("ROS_AUTOMATIC_DISCOVERY_RANGE")
@@ -99,6 +100,17 @@ def use_perch_dds(env: dict | None = None, network: bool | None = None) -> dict:
     else:
         target.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     return target
+
+
+def _check_network_key(env: dict) -> None:
+    """A networked graph signs its commands with the shared key (perch_common.network_auth): one that cannot
+    be used is refused before anything starts (the graph started, and every mission failed with no reason)."""
+    from perch_common.network_auth import AuthError, key_path, load_key
+
+    try:
+        load_key(key_path(env))
+    except (OSError, AuthError) as exc:
+        raise ConfigError(f"--network needs the graph's key: {exc}") from None
 
 
 def discovery_conflict(env: dict, network: bool) -> str:

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from perch_common.config import ConfigError
 from perch_common.launch import (
     CONTAINER,
     GraphProcesses,
@@ -52,7 +53,7 @@ def test_a_running_participant_marks_its_domain_in_use_and_a_free_one_is_found(t
         assert other is not None and other != domain and other not in domains_in_use()
 
 
-def test_local_profile_whitelists_loopback_and_network_opens_it():
+def test_local_profile_whitelists_loopback_and_network_opens_it(tmp_path):
     local = use_perch_dds({}, network=False)
     assert local["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "SYSTEM_DEFAULT"   # LOCALHOST would replace the transports
     assert local["FASTRTPS_DEFAULT_PROFILES_FILE"] == str(dds_profile(False))
@@ -61,11 +62,19 @@ def test_local_profile_whitelists_loopback_and_network_opens_it():
     assert "<useBuiltinTransports>false</useBuiltinTransports>" in text
     # Sample buffers are freed with their samples: rmw_fastrtps applies the profile's memory policy.
     assert local["RMW_FASTRTPS_USE_QOS_FROM_XML"] == "1" and "<historyMemoryPolicy>DYNAMIC<" in text
-    opened = use_perch_dds({"PERCH_NETWORK": "1"})
+    opened = use_perch_dds({"PERCH_NETWORK": "1", "PERCH_KEY_FILE": str(tmp_path / "network.key")})
     assert opened["FASTRTPS_DEFAULT_PROFILES_FILE"] == str(dds_profile(True))
     assert "ROS_AUTOMATIC_DISCOVERY_RANGE" not in opened
     assert "interfaceWhiteList" not in dds_profile(True).read_text()
     assert opened["RMW_FASTRTPS_USE_QOS_FROM_XML"] == "1" and "<historyMemoryPolicy>DYNAMIC<" in dds_profile(True).read_text()
+    # A networked graph signs its commands: a key it cannot use is refused before anything starts (hunt 6:
+    # the graph started and every mission failed with an empty reason).
+    shared = tmp_path / "shared.key"
+    shared.write_bytes(bytes(32))
+    shared.chmod(0o644)
+    with pytest.raises(ConfigError, match=r"^--network needs the graph's key: .*shared\.key: the network key is "
+                                          r"readable by other users \(mode 644\); `chmod 600 "):
+        use_perch_dds({"PERCH_NETWORK": "1", "PERCH_KEY_FILE": str(shared)})
     kept = use_perch_dds({"FASTRTPS_DEFAULT_PROFILES_FILE": "/mine.xml"})
     assert kept["FASTRTPS_DEFAULT_PROFILES_FILE"] == "/mine.xml" and kept["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
     assert "RMW_FASTRTPS_USE_QOS_FROM_XML" not in kept   # a user's own profile: rmw_fastrtps's defaults stay

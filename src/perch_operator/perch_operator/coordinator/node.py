@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import sys
 import threading
+import traceback
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 
@@ -223,6 +224,11 @@ class OperatorNode(Node):
         with self._busy:
             try:
                 return self._run_mission(goal_handle)
+            except Exception as exc:   # a fault of the coordinator's own: the client still gets a reason, not ""
+                self.get_logger().error(f"mission failed: internal error: {traceback.format_exc()}")
+                if goal_handle.is_active:
+                    goal_handle.abort()
+                return PlanPerches.Result(success=False, message=f"internal error: {type(exc).__name__}: {exc}")
             finally:
                 # The action server keeps finished goals (with their requests) for result_timeout;
                 # drop the mesh so that memory does not grow with every mission. Re-planning keeps
