@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from perch_common.cli_types import non_negative_float
 from perch_common.errors import PerchError
 from perch_common.mesh import add_units_arguments
 from perch_common.outputs import atomic_path, refuse_overwriting_inputs
@@ -79,9 +80,9 @@ def register_bag(sub) -> None:
     info.set_defaults(func=_info)
     play = bag.add_parser("play", help="publish a bag's messages in time order")
     play.add_argument("bag")
-    play.add_argument("--rate", type=float, default=1.0, help="speed factor (0: as fast as possible)")
+    play.add_argument("--rate", type=non_negative_float, default=1.0, help="speed factor (0: as fast as possible)")
     play.add_argument("--topics", nargs="+", help="only these topics")
-    play.add_argument("--wait-subscribers", type=float, default=0.0,
+    play.add_argument("--wait-subscribers", type=non_negative_float, default=0.0,
                       help="wait up to this many seconds for subscribers before starting")
     play.set_defaults(func=_play)
     parser.set_defaults(func=lambda args: parser.print_help() or 2)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 import time
 from pathlib import Path
 
@@ -36,6 +37,8 @@ def play_bag(path: str | Path, rate: float = 1.0, topics: list[str] | None = Non
     if rate < 0:
         raise ValueError(f"rate must be >= 0 (0 = as fast as possible), got {rate}")
     info = bag_info(path)
+    if info["damage"]:   # played as far as it goes, as reconstruct reads it: said, as `perch bag info` says it
+        print(f"warning: damaged bag, played as far as it goes: {info['damage']}", file=sys.stderr)
     chosen = topics or list(info["topics"])
     unknown = [t for t in chosen if t not in info["topics"]]
     if unknown:

@@ -124,3 +124,16 @@ def test_bag_info_cli_prints_the_damage(synthetic_bag, tmp_path, capsys):
     out = capsys.readouterr().out
     assert "DAMAGED: the summary at the end of the file is cut short" in out and "Traceback" not in out
     np.testing.assert_equal(bag_info(path)["gravity"], [0.0, 0.0, -1.0])
+
+
+def test_bag_play_says_a_bag_is_damaged_and_plays_what_it_holds(synthetic_bag, tmp_path, capsys):
+    """Hunt 6: a bag cut short played 57 of 181 messages and exited 0 without a word (bag info said DAMAGED)."""
+    from perch_common.cli import main
+
+    path = _damaged(synthetic_bag, tmp_path, "cut", lambda data: bytes(data[: len(data) // 2]))
+    assert main(["bag", "play", str(path), "--rate", "0", "--topics", "/camera/pose"]) == 0
+    captured = capsys.readouterr()
+    assert captured.err.startswith("warning: damaged bag, played as far as it goes: ") and "cut short" in captured.err
+    assert '"published": {"/camera/pose": ' in captured.out
+    assert main(["bag", "play", str(synthetic_bag), "--rate", "0", "--topics", "/camera/pose"]) == 0
+    assert "warning" not in capsys.readouterr().err
