@@ -178,3 +178,18 @@ def test_list_shows_only_the_current_missions_proposals(coordinator):
     done = _perch("operator", "list", "--wait", "5")
     assert done.returncode == 0 and _listed(done.stdout) == [], (done.stdout, done.stderr)
     assert done.stdout.startswith(f"no proposals to decide: mission {'04' * 16} cancelled; decisions"), done.stdout
+
+
+def test_plan_no_launch_without_a_graph_fails_within_its_timeout_and_leaves_nothing(tmp_path):
+    """Hunt 6: it took 41 s whatever --timeout, advised `perch plan` (the command in use), and left FAILED and a
+    run.mcap that made the retry with the same -o need --overwrite; --config was silently ignored."""
+    out = tmp_path / "mission"
+    started = time.monotonic()
+    done = _perch("plan", "--scene", "1", "--no-launch", "-o", str(out), "--auto-accept", "--quiet", "--timeout", "2")
+    assert done.returncode == 1, (done.stdout, done.stderr)
+    assert done.stderr.startswith("perch: error: no mission coordinator: action perch/plan_perches did not appear "
+                                  "within 2 s; start the graph with `perch launch` (`perch plan` without "
+                                  "--no-launch starts its own)"), done.stderr
+    assert time.monotonic() - started < 30 and not out.exists()
+    done = _perch("plan", "--scene", "1", "--no-launch", "--config", str(tmp_path / "mine.yaml"), "-o", str(out))
+    assert done.returncode == 1 and done.stderr.startswith("perch: error: --config with --no-launch: "), done.stderr

@@ -33,6 +33,10 @@ class GoalRejected(PerchError):
     """The coordinator refused the goal (another mission is running); nothing was started."""
 
 
+class NoCoordinator(GoalRejected):
+    """No mission coordinator answered: the mission was never sent; nothing was started."""
+
+
 class CoordinatorGone(PerchError):
     """The coordinator running the mission died or restarted; the mission is lost with it."""
 
@@ -174,9 +178,11 @@ def run_mission(node, goal: PlanPerches.Goal, timeout: float = 600.0, server_wai
     presence = ClientPresence(node)   # this goal's client, for the coordinator (GoalWatch)
     presence.announce(goal_id.uuid)
     try:
+        server_wait = min(server_wait, timeout)
         if not client.wait_for_server(timeout_sec=server_wait):
-            raise PerchError(f"no mission coordinator: action {ACTION} did not appear within {server_wait:.0f} s; "
-                             "start the graph with `perch launch` (or use `perch plan`, which launches it)")
+            raise NoCoordinator(f"no mission coordinator: action {ACTION} did not appear within {server_wait:g} s; "
+                                "start the graph with `perch launch` (`perch plan` without --no-launch starts "
+                                "its own)")
         deadline = time.monotonic() + timeout
         def send():
             return client.send_goal_async(

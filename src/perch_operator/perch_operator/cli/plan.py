@@ -247,9 +247,10 @@ def run_plan(goal, args, describe: dict) -> int:
     use_perch_dds(network=args.network or None)
     started = time.monotonic()
     launch = not args.no_launch
-    if args.param and not launch:
-        raise PerchError("-p with --no-launch: the running graph keeps the parameters it was started with; set "
-                         "them on it (`ros2 param set /perch_placement num_cameras 3`, refused where a parameter "
+    if (args.param or args.config) and not launch:
+        given = "-p" if args.param else "--config"
+        raise PerchError(f"{given} with --no-launch: the running graph keeps the parameters it was started with; "
+                         "set them on it (`ros2 param set /perch_placement num_cameras 3`, refused where a parameter "
                          "is read-only) or drop --no-launch to start a graph with them")
     check_overrides(parse_overrides(args.param), mission_nodes(), args.config, namespace.current())  # before anything starts
     domain = choose_domain() if launch else None

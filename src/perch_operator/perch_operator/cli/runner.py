@@ -325,7 +325,7 @@ def run_recorded_mission(node, goal: PlanPerches.Goal, out_dir: Path, progress: 
     services = [node.resolve_service_name(s.service) for s in STAGES.values()]
     expected = [service + EVENT_SUFFIX for service in services if service in offered]
     mission_topics = [node.resolve_topic_name(name) for name in MISSION_TOPICS]
-    silent = recorder.wait_matched(expected + mission_topics, lambda t: spin_for(node, t), timeout=10.0)
+    silent = recorder.wait_matched(expected + mission_topics, lambda t: spin_for(node, t), timeout=min(10.0, timeout))
     for topic in silent:
         if topic in mission_topics:
             continue  # transient local on the coordinator's side; the result carries what outputs need
