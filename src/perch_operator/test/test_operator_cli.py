@@ -193,3 +193,13 @@ def test_plan_no_launch_without_a_graph_fails_within_its_timeout_and_leaves_noth
     assert time.monotonic() - started < 30 and not out.exists()
     done = _perch("plan", "--scene", "1", "--no-launch", "--config", str(tmp_path / "mine.yaml"), "-o", str(out))
     assert done.returncode == 1 and done.stderr.startswith("perch: error: --config with --no-launch: "), done.stderr
+
+
+def test_plan_refuses_options_that_do_not_apply_to_its_source(tmp_path):
+    """Hunt 6: --scale with --scene and --kind with --mesh were silently ignored."""
+    done = _perch("plan", "--scene", "1", "--scale", "2", "-o", str(tmp_path / "a"), "--auto-accept")
+    assert done.returncode == 1 and done.stderr.startswith("perch: error: --scale and --shift apply to --mesh"), \
+        done.stderr
+    done = _perch("plan", "--mesh", str(tmp_path / "room.ply"), "--kind", "room", "-o", str(tmp_path / "b"))
+    assert done.returncode == 1 and done.stderr.startswith("perch: error: --kind applies to --scene"), done.stderr
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()

@@ -26,7 +26,9 @@ def register_plan(sub) -> None:
     source.add_argument("--mesh", type=Path, help="environment mesh (PLY/OBJ/GLB/glTF/STL), in any orientation (--up)")
     source.add_argument("--bag", type=Path, help="RGB-D bag to reconstruct first")
     source.add_argument("--scene", type=int, metavar="SEED", help="a generated scene with this seed")
-    p.add_argument("--kind", default="apartment", help="generated scene kind (room, l_shaped, two_rooms, apartment)")
+    p.add_argument("--kind", default=None,
+                   help="generated scene kind, with --scene (room, l_shaped, two_rooms, apartment, building, "
+                        "multi_storey; default apartment)")
     p.add_argument("--target", default=None, metavar="SPEC",
                    help="floor (the cropped floor area, default for --mesh/--bag) | "
                         "box:CX,CY,CZ,SX,SY,SZ[,YAW_DEG] | several boxes joined by '+' (each weighted equally) | "
@@ -162,6 +164,11 @@ def _plan(args) -> int:
     from perch_common.up_axis import file_convention
     from perch_interfaces.action import PlanPerches
 
+    if args.kind is not None and args.scene is None:
+        raise PerchError("--kind applies to --scene (a generated scene): a mesh or a bag is what it is")
+    if not args.mesh and (args.scale != 1.0 or args.shift is not None):
+        raise PerchError("--scale and --shift apply to --mesh (and a footprint --target read with it): a generated "
+                         "scene and a bag's reconstruction are in metres")
     check_output_folder(args.out, args.overwrite, [args.mesh, args.bag, args.target and args.target.split(":")[0]])
     if args.up.strip().lower() != "auto":
         parse_up_axis(args.up)  # a malformed axis fails here, before anything is launched
@@ -195,6 +202,7 @@ def _plan(args) -> int:
     else:
         from perch_common.scene_generator import generate_scene
 
+        args.kind = args.kind or "apartment"
         scene = generate_scene(args.scene, args.kind)
         goal.mesh = mesh_to_msg(scene.mesh)
         if args.target is None:
