@@ -339,6 +339,7 @@ def deferred_interrupt():
 
 def _demo(args) -> int:
     """`make demo`: launch the graph, plan on the seeded apartment with auto-accept, print the summary."""
+    from perch_common.outputs import MANIFEST_NAME, written_by_perch
     from perch_common.scene_generator import generate_scene
     from perch_operator.api.client import scene_goal
 
@@ -347,6 +348,10 @@ def _demo(args) -> int:
     goal = scene_goal(scene, args.cameras)
     print(f"perch demo: generated apartment (seed {args.seed}): {scene.mesh.num_faces:,} faces, "
           f"target {scene.target.volume():.1f} m^3", file=sys.stderr)
+    earlier = sorted(written_by_perch(args.out)) if (args.out / MANIFEST_NAME).is_file() else []
+    if earlier:   # the demo's own folder, replaced each run: said, so that nobody keeps work there unawares
+        print(f"perch demo: replacing the earlier demo's outputs in {args.out}/ ({', '.join(earlier)}); copy them "
+              "elsewhere first to keep them", file=sys.stderr)
     code = run_plan(goal, args, {"source": f"generated apartment scene, seed {args.seed}", "demo": True})
     print(f"perch demo: done in {time.monotonic() - started:.1f} s; open {args.out}/report.html "
           f"or `perch view {args.out}/run.rrd`")
