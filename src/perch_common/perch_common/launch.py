@@ -491,7 +491,11 @@ def _run(args) -> int:
         if args.up.strip().lower() != "auto":
             parse_up_axis(args.up)  # a malformed axis fails before anything starts
         overrides.append(f"perch_operator:input_up_axis:={args.up}")
-    graph = GraphProcesses(args.config, args.nodes.split(",") if args.nodes else None, overrides, args.log_dir,
+    nodes = [n.strip() for n in args.nodes.split(",") if n.strip()] if args.nodes is not None else None
+    if nodes == []:
+        raise ConfigError(f"--nodes {args.nodes!r} names no node; give them comma-separated (perch launch --list "
+                          "shows them), or leave --nodes out to start all")
+    graph = GraphProcesses(args.config, nodes, overrides, args.log_dir,
                            namespace=args.launch_namespace, mode=args.graph_mode, network=args.network or None)
     if args.list or not graph.nodes:
         for name in graph.units:

@@ -88,6 +88,16 @@ def test_launch_lists_installed_listed_nodes(tmp_path):
         GraphProcesses(config, nodes=["nope"])
 
 
+def test_launch_nodes_that_name_no_node_are_refused(capsys):
+    """Hunt 6: `--nodes ",,"` said `unknown node(s) , , `."""
+    from perch_common.cli import main
+
+    with pytest.raises(SystemExit) as exited:
+        main(["launch", "--nodes", ",,"])
+    assert exited.value.code == 1
+    assert "--nodes ',,' names no node; give them comma-separated" in capsys.readouterr().err
+
+
 def test_the_coordinator_runs_on_glibc_malloc_unless_the_user_chose_an_allocator():
     import os
 

@@ -30,6 +30,12 @@ class RawMessage:
 
 
 def _check_file(path: Path) -> None:
+    if path.is_dir():   # `ros2 bag record` writes a folder: its metadata.yaml and the .mcap (or .db3) files
+        inside = sorted(path.glob("*.mcap"))
+        raise PerchError(f"{path}: is a folder, not a bag file; give the .mcap file in it"
+                         + (f" ({inside[0].name})" if len(inside) == 1 else
+                            f" (it holds {len(inside)}: one at a time)" if inside else
+                            " (it holds none: a .db3 bag needs `ros2 bag convert` to MCAP first)"))
     if not path.is_file():
         raise PerchError(f"{path}: no such bag file")
     with open(path, "rb") as f:

@@ -137,3 +137,13 @@ def test_bag_play_says_a_bag_is_damaged_and_plays_what_it_holds(synthetic_bag, t
     assert '"published": {"/camera/pose": ' in captured.out
     assert main(["bag", "play", str(synthetic_bag), "--rate", "0", "--topics", "/camera/pose"]) == 0
     assert "warning" not in capsys.readouterr().err
+
+
+def test_a_bag_folder_is_named_as_such(synthetic_bag, tmp_path):
+    """Hunt 6: `bag play` on the folder `ros2 bag record` writes said "no such bag file"."""
+    folder = tmp_path / "recorded"
+    folder.mkdir()
+    (folder / "recorded_0.mcap").write_bytes(synthetic_bag.read_bytes())
+    with pytest.raises(PerchError, match=r"recorded: is a folder, not a bag file; give the \.mcap file in it "
+                                         r"\(recorded_0\.mcap\)$"):
+        bag_info(folder)
