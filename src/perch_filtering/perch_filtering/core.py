@@ -69,7 +69,11 @@ ANY_YAW_STEP_DEG = 15.0  # yaws in which such a window's support is asked
 CELL_HALF_DIAGONAL = 0.5 * 2 ** 0.5  # cells
 NOISE_SIGMAS = 3.0  # scan noise sigmas in front of a plane that count as the surface itself (surface_band)
 SUPPORT_BIN = 0.1  # depth bins of the support statistics, as a share of plane_tolerance (3 mm at 3 cm)
-ANY_YAW_COST = 1.5  # CPU per m^2 of a ceiling's (or floor's) judging, of a wall's (turned windows; 4.9 vs 3.2 ms)
+# Time per m^2 of a ceiling's (or floor's) judging, of a wall's, when two processes judge side by side:
+# turned windows, a fall column and sight lines to every target point (the building's 483 m^2 ceiling:
+# 1.1 against 0.75 us a cell alone, its share 1.6 s against 1.3 s alone; at 1.5 its share took 1.93 s
+# and the other 1.55 s, at 1.85 1.65-1.79 s and 1.69-1.80 s).
+ANY_YAW_COST = 1.85
 SPLIT_MIN_CELLS = 200_000  # raster cells (m^2 of enabled surface / cell^2) from which a second process judges half
 SPLIT_MIN_OBSERVED_CELLS = 100_000  # kept cells from which it checks half of them for observed space
 SPLIT_PATIENCE = 10.0  # s the second process may take beyond the caller's share before it is judged here
@@ -173,7 +177,7 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
         clock.lap("line_of_sight")
         return work
 
-    # Each surface's judging costs about its raster's cells, a ceiling's (turned windows) 1.5 times a wall's.
+    # Each surface's judging costs about its raster's cells, a ceiling's ANY_YAW_COST times a wall's.
     judging_cost = [s.area / config.cell ** 2 * (ANY_YAW_COST if s.surface_class in ANY_YAW_CLASSES else 1.0)
                     if class_enabled(s.surface_class, config) else 0.0 for s in oriented]
     work, second_process = _shared_out(judge, judging_cost, SPLIT_MIN_CELLS, config, _evidence_at_alive,

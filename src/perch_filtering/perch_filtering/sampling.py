@@ -135,15 +135,14 @@ def run_positions(where: np.ndarray, start: np.ndarray, stop: np.ndarray) -> np.
 
 
 def stable_sort(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(np.argsort(key, kind="stable"), the sorted keys) of non-negative int keys, 3x faster: key and index
-    packed into one int64 and sorted (unique values, so any sort is stable); falls back when they do not fit."""
-    bits = max(1, int(len(key)).bit_length())
-    if len(key) == 0 or int(key.max()) >= 1 << (63 - bits) or int(key.min()) < 0:
+    """(np.argsort(key, kind="stable"), the sorted keys) of non-negative int keys below 2^32: two passes of
+    numpy's radix sort (its stable sort of 16-bit keys), low half then high. On the building's 3.1 M sample
+    buckets 0.05 s, against 0.07 s for argsort of the int64 keys and 0.21 s for sorting keys packed with
+    their index (numpy 2.4); its time does not depend on the samples' order. Other keys: argsort."""
+    if len(key) == 0 or int(key.min()) < 0 or int(key.max()) >= 1 << 32:
         order = np.argsort(key, kind="stable")
         return order, key[order]
-    packed = key.astype(np.int64) << bits
-    packed |= np.arange(len(key), dtype=np.int64)
-    packed.sort()
-    sorted_key = packed >> bits
-    packed &= (1 << bits) - 1
-    return packed, sorted_key
+    order = np.argsort((key & 0xFFFF).astype(np.uint16), kind="stable")
+    if int(key.max()) >= 1 << 16:
+        order = order[np.argsort((key[order] >> 16).astype(np.uint16), kind="stable")]
+    return order, key[order]

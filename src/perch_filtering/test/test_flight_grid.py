@@ -88,7 +88,7 @@ def test_connected_to_and_grown_equal_isin_and_binary_dilation(seed):
 
 def test_stable_sort_equals_numpy_stable():
     rng = np.random.default_rng(3)
-    for n, top in ((0, 1), (1, 1), (1000, 7), (100_000, 50_000), (10, 1 << 60)):
+    for n, top in ((0, 1), (1, 1), (1000, 7), (100_000, 50_000), (100_000, 1 << 32), (1000, 1 << 40), (10, 1 << 60)):
         key = rng.integers(0, top, n)
         order, sorted_key = stable_sort(key)
         np.testing.assert_array_equal(order, np.argsort(key, kind="stable"))
