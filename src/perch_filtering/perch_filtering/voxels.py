@@ -5,14 +5,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage
 
 from perch_common.target import TargetVolume
 from perch_common.threads import side_by_side
 from perch_common.transforms import rotation_between
 from perch_filtering.sampling import cell_keys, project
 
-SIX_CONNECTED = ndimage.generate_binary_structure(3, 1)
 # Open space (for orienting surfaces) is more than 1.5 voxels from any sample: one voxel of
 # sampling noise either side of a thin wall never connects the two sides.
 OPEN_SPACE_VOXELS = 1.5
@@ -92,10 +90,8 @@ def build_flight_grid(points: np.ndarray, rotation: np.ndarray, target: TargetVo
     grid = FlightGrid(rotation, lo, voxel, occupied, occupied, occupied)
     seeds = grid.indices(target.sample(count=4000, seed=seed))
     seeds = seeds[np.all((seeds >= 0) & (seeds < shape), axis=1)]
-    # The two labellings are independent and scipy's releases the GIL: side by side when two threads may run.
-    grid.open_space, grid.reachable = side_by_side(
-        lambda: _connected_to(distance > OPEN_SPACE_VOXELS, seeds),
-        lambda: _connected_to(distance >= drone_radius / voxel, seeds))
+    grid.open_space = _connected_to(distance > OPEN_SPACE_VOXELS, seeds)
+    grid.reachable = _connected_to(distance >= drone_radius / voxel, seeds)
     grid.hover = grid.reachable & (distance >= hover_voxels)
     grid.reachable_near = _grown(grid.reachable)
     return grid
@@ -146,7 +142,7 @@ def free_distance(occupied: np.ndarray, reach: int = 16) -> np.ndarray:
 
 
 def _grown(mask: np.ndarray) -> np.ndarray:
-    """binary_dilation(mask, SIX_CONNECTED) (outside counts as False), by shifted ORs."""
+    """Binary dilation of `mask` by its 6 face neighbours (outside counts as False), by shifted ORs."""
     out = mask.copy()
     for axis in range(mask.ndim):
         lead = [slice(None)] * mask.ndim
@@ -157,12 +153,14 @@ def _grown(mask: np.ndarray) -> np.ndarray:
     return out
 
 
-def _connected_to(free: np.ndarray, seeds: np.ndarray, labels: np.ndarray | None = None) -> np.ndarray:
-    """The voxels of `free` 6-connected to a seed: one labelling (into `labels`, int32 of free's shape,
-    when given), then a lookup table of kept labels."""
-    if labels is None:
-        labels = np.empty(free.shape, np.int32)
-    count = ndimage.label(free, structure=SIX_CONNECTED, output=labels)
+def _connected_to(free: np.ndarray, seeds: np.ndarray) -> np.ndarray:
+    """The voxels of `free` 6-connected to a seed: one labelling, then a lookup table of kept labels.
+
+    connected-components-3d labels the building's 12.7 M voxels in 0.023 s against scipy's 0.096 s (the
+    same components, test_flight_grid); it holds the interpreter, so the two labellings run in turn."""
+    import cc3d
+
+    labels, count = cc3d.connected_components(free, connectivity=6, return_N=True)
     keep = np.zeros(count + 1, bool)
     if len(seeds):
         keep[labels[seeds[:, 0], seeds[:, 1], seeds[:, 2]]] = True

@@ -74,16 +74,20 @@ def test_the_hover_reach_decides_every_threshold_as_a_longer_reach(seed):
         np.testing.assert_array_equal(short > threshold, long > threshold)
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_connected_to_and_grown_equal_isin_and_binary_dilation(seed):
+SIX_CONNECTED = ndimage.generate_binary_structure(3, 1)
+
+
+@pytest.mark.parametrize("seed, shape, density", [(0, (30, 20, 10), 0.55), (1, (30, 20, 10), 0.55), (2, (30, 20, 10), 0.55),
+                                                  (3, (160, 160, 80), 0.15)])  # > 65,535 components
+def test_connected_to_and_grown_equal_isin_and_binary_dilation(seed, shape, density):
     rng = np.random.default_rng(seed)
-    free = rng.random((30, 20, 10)) < 0.55
-    seeds = rng.integers(0, [30, 20, 10], size=(int(rng.integers(0, 8)), 3))
-    labels, _ = ndimage.label(free, structure=voxels.SIX_CONNECTED)
+    free = rng.random(shape) < density
+    seeds = rng.integers(0, shape, size=(int(rng.integers(0, 8)), 3))
+    labels, _ = ndimage.label(free, structure=SIX_CONNECTED)
     hit = np.unique(labels[seeds[:, 0], seeds[:, 1], seeds[:, 2]])
     plain = np.isin(labels, hit[hit > 0])
     np.testing.assert_array_equal(voxels._connected_to(free, seeds), plain)
-    np.testing.assert_array_equal(voxels._grown(plain), ndimage.binary_dilation(plain, voxels.SIX_CONNECTED))
+    np.testing.assert_array_equal(voxels._grown(plain), ndimage.binary_dilation(plain, SIX_CONNECTED))
 
 
 def test_stable_sort_equals_numpy_stable():
