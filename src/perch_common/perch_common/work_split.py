@@ -80,23 +80,25 @@ def _exit_status(child) -> str:
 
 
 def in_two_processes(run: Callable[[object], T], mine, theirs, patience: Callable[[float], float],
-                     send: Callable | None = None) -> SplitRun[T]:
+                     send: Callable | None = None, run_theirs: Callable | None = None) -> SplitRun[T]:
     """`run(mine)` here and `run(theirs)` in a forked child, at the same time, each on one thread.
 
     `patience(s)` is how long the caller waits for the child once its own share took `s` seconds;
     past it the child is killed and its share computed here. `send(result)` is what the child sends
     of its result (all of it by default): `theirs` is that when `child` is "done", else run(theirs).
+    `run_theirs`, when given, runs the child's share instead of `run` (in the child, or here in its place).
     """
+    theirs_run = run_theirs if run_theirs is not None else run
     if work_threads() < 2:  # one core: the child would only take turns with the caller
         with one_thread():
-            return SplitRun(run(mine), run(theirs), "one thread allowed")
+            return SplitRun(run(mine), theirs_run(theirs), "one thread allowed")
     context = multiprocessing.get_context("fork")
     receiver, sender = context.Pipe(duplex=False)
     child = None
     try:
         try:
-            child = context.Process(target=_child_main, args=(run, theirs, send, sender, os.getpid()), daemon=True,
-                                    name="perch-share")
+            child = context.Process(target=_child_main, args=(theirs_run, theirs, send, sender, os.getpid()),
+                                    daemon=True, name="perch-share")
             with warnings.catch_warnings():  # Python >= 3.12 warns on any fork of a threaded process
                 warnings.filterwarnings("ignore", message=".*fork.*", category=DeprecationWarning)
                 child.start()
@@ -110,7 +112,7 @@ def in_two_processes(run: Callable[[object], T], mine, theirs, patience: Callabl
             result = run(mine)
         if child is None:
             with one_thread():
-                return SplitRun(result, run(theirs), reason)
+                return SplitRun(result, theirs_run(theirs), reason)
         deadline = time.monotonic() + max(0.0, patience(time.monotonic() - started))
         status, payload = "", None
         while True:
@@ -130,7 +132,7 @@ def in_two_processes(run: Callable[[object], T], mine, theirs, patience: Callabl
         if status == "done":
             return SplitRun(result, payload, "done")
         with one_thread():
-            return SplitRun(result, run(theirs), f"{status}: {payload}".strip())
+            return SplitRun(result, theirs_run(theirs), f"{status}: {payload}".strip())
     finally:
         receiver.close()
         if child is not None:

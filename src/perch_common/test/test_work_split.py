@@ -69,6 +69,25 @@ def test_a_lost_child_share_is_computed_by_the_caller(run, status, patience):
     assert split.mine == ([1, 4], CALLER, 1, True) and split.theirs == ([9, 16], CALLER, 1, True)
 
 
+def cubes(share):
+    return [x ** 3 for x in share], os.getpid()
+
+
+def cubes_failing_in_the_child(share):
+    if os.getpid() != CALLER:
+        raise RuntimeError("only in the child")
+    return cubes(share)
+
+
+@pytest.mark.parametrize("theirs_run, status", [(cubes, "done"), (cubes_failing_in_the_child, "failed")])
+def test_the_childs_share_runs_its_own_function_there_or_here(theirs_run, status):
+    split = in_two_processes(squares, [1, 2], [3, 4], patient, run_theirs=theirs_run)
+    assert split.child.startswith(status)
+    assert split.mine == ([1, 4], CALLER, 1, True)
+    values, pid = split.theirs
+    assert values == [27, 64] and (pid != CALLER) == (status == "done")
+
+
 def test_an_error_in_the_callers_share_is_raised_and_the_child_killed():
     def failing_here(share):
         if os.getpid() == CALLER:

@@ -24,6 +24,7 @@ from __future__ import annotations
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -75,7 +76,8 @@ SUPPORT_BIN = 0.1  # depth bins of the support statistics, as a share of plane_t
 # and the other 1.55 s, at 1.85 1.65-1.79 s and 1.69-1.80 s).
 ANY_YAW_COST = 1.85
 SPLIT_MIN_CELLS = 200_000  # raster cells (m^2 of enabled surface / cell^2) from which a second process judges half
-SPLIT_MIN_OBSERVED_CELLS = 100_000  # kept cells from which it checks half of them for observed space
+SPLIT_MIN_OBSERVED_CELLS = 100_000  # cells alive after line of sight from which a second process checks observed space
+REACHABILITY_COST = 0.15  # the caller's reachability, as a share of the observed-space rule's cost
 SPLIT_PATIENCE = 10.0  # s the second process may take beyond the caller's share before it is judged here
 
 
@@ -111,6 +113,18 @@ class _Work:
     band: float = 0.0       # m, geometry nearer the plane is the scanned surface itself (surface_band)
     evidence: dict = field(default_factory=dict)  # PerchEvidence field -> per-cell map
     window: np.ndarray | None = None  # ceilings and floors: the any-yaw window's disc; None: upright (walls)
+
+
+class _Observed(NamedTuple):
+    """One surface after the observed-space rule: its removal, kept cells, the observed evidence at
+    them and its regions; `before_reachability` when judged on the cells alive before reachability."""
+
+    removal: FilterRemoval
+    kept: np.ndarray
+    approach_observed: np.ndarray
+    fall_observed: np.ndarray
+    regions: list[PerchRegion]
+    before_reachability: bool = False
 
 
 def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, up: np.ndarray,
@@ -183,28 +197,42 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
     work, second_process = _shared_out(judge, judging_cost, SPLIT_MIN_CELLS, config, _evidence_at_alive,
                                        _evidence_spread)
     clock.lap("second_process")
-    report(0.7, "reachability")
-    reached = _reachability([w for w in work if w.raster is not None], grid, scene.mesh, config)
-    clock.lap("reachability")
+    live = [w for w in work if w.raster is not None]
+    reached: list[tuple[_Work, np.ndarray]] = []
 
-    def observe_and_outline(w: _Work, kept: np.ndarray) -> tuple:
-        """The observed-space rule on one reached surface, then its regions (numbered from 0): its removal,
-        kept cells, the two observed evidence maps at them (the rays are per kept cell; the maps are read
-        nowhere else) and the regions."""
+    def observe_and_outline(w: _Work, kept: np.ndarray, before_reachability: bool = False) -> _Observed:
+        """The observed-space rule on one surface's `kept` cells (updated), then its regions (numbered
+        from 0). The rays are per kept cell; the observed maps are read nowhere else than at them."""
         _observed(w, kept, scene, up, config, mesh.viewpoints)
-        return (w.removal, kept, w.evidence["approach_observed"][kept], w.evidence["fall_observed"][kept],
-                _regions(w, kept, 0, mesh.frame_id, config))
+        return _Observed(w.removal, kept, w.evidence["approach_observed"][kept], w.evidence["fall_observed"][kept],
+                         _regions(w, kept, 0, mesh.frame_id, config), before_reachability)
 
-    def observe(indices: list[int]) -> list[tuple]:
-        """observe_and_outline on the reached surfaces `indices` (each surface's answer is its own, so its
-        regions are outlined in the share that observed it)."""
-        return _per_surface(lambda pair: observe_and_outline(*pair), [reached[i] for i in indices],
-                            "observed space: surface", 0.85, 0.99)
+    def reach_and_observe(indices: list[int]) -> list[_Observed]:
+        """Reachability on every live surface (Open3D's queries: the caller's), then observe_and_outline
+        on the cells it kept of the surfaces `indices`."""
+        report(0.7, "reachability")
+        reached.extend(_reachability(live, grid, scene.mesh, config))
+        clock.lap("reachability")
+        return _per_surface(lambda i: observe_and_outline(*reached[i]), indices, "observed space: surface",
+                            0.85, 0.99)
 
-    observed, observed_split = _shared_out(observe, [float(kept.sum()) for _, kept in reached],
-                                           SPLIT_MIN_OBSERVED_CELLS, config)
+    def observe_alive(indices: list[int]) -> list[_Observed]:
+        """The second process's share, beside reachability: observe_and_outline on the cells alive after
+        line of sight (a cell's observed share does not depend on the other cells asked)."""
+        return [observe_and_outline(live[i], live[i].alive.copy(), True) for i in indices]
+
+    # The caller starts with reachability: it is that much ahead when the observed space is shared out.
+    observe_cost = [float(w.alive.sum()) for w in live]
+    observed, observed_split = _shared_out(reach_and_observe, observe_cost, SPLIT_MIN_OBSERVED_CELLS, config,
+                                           run_theirs=observe_alive,
+                                           head_start=REACHABILITY_COST * float(sum(observe_cost)))
+    for i, (w, kept) in enumerate(reached):
+        # Reachability removes next to nothing; where it removed cells of a surface judged beside it, the
+        # rule is applied again to the cells it kept (the same answer as one process gives).
+        if observed[i].before_reachability and not np.array_equal(w.alive, kept):
+            observed[i] = observe_and_outline(w, kept)
     regions: list[PerchRegion] = []
-    for (w, _), (removal, kept, approach, fall, outlined) in zip(reached, observed):
+    for w, (removal, kept, approach, fall, outlined, _) in zip(live, observed):
         w.removal = removal
         w.evidence.update(approach_observed=_spread(approach, kept), fall_observed=_spread(fall, kept))
         for region in outlined:   # numbered in surface order, as one process numbers them
@@ -238,15 +266,17 @@ def _surface_threads() -> int:
 
 
 def _shared_out(run, cost: list[float], min_cost: float, config: FilterConfig, send=None,
-                receive=None) -> tuple[list, str]:
+                receive=None, run_theirs=None, head_start: float = 0.0) -> tuple[list, str]:
     """run(all indices) -> one result per index, in two processes when the items' `cost` (raster cells)
     reaches `min_cost` (what pays for a fork): the items are shared out largest first, each to the
-    lighter share. `send`/`receive` shrink what the second process returns and restore it."""
+    lighter share, the caller's `head_start` ahead (work of its own besides the items). `send`/`receive`
+    shrink what the second process returns and restore it; `run_theirs` runs the second share instead
+    of `run` (in the child, or here in its place)."""
     cost = np.asarray(cost, np.float64)
     if config.processes < 2 or cost.sum() < min_cost or np.count_nonzero(cost) < 2:
         return run(list(range(len(cost)))), ""
     shares: tuple[list[int], list[int]] = ([], [])
-    loads = [0.0, 0.0]
+    loads = [head_start, 0.0]
     for i in np.argsort(-cost, kind="stable"):
         lighter = int(loads[1] < loads[0])
         shares[lighter].append(int(i))
@@ -254,7 +284,8 @@ def _shared_out(run, cost: list[float], min_cost: float, config: FilterConfig, s
     mine, theirs = sorted(shares[0]), sorted(shares[1])
     # The child's share should take about as long as the caller's: past three times that (and a
     # floor for a loaded machine), it is taken as lost and computed here.
-    split = in_two_processes(run, mine, theirs, patience=lambda own: max(SPLIT_PATIENCE, 2.0 * own), send=send)
+    split = in_two_processes(run, mine, theirs, patience=lambda own: max(SPLIT_PATIENCE, 2.0 * own), send=send,
+                             run_theirs=run_theirs)
     theirs_result = receive(split.theirs) if receive is not None and split.child == "done" else split.theirs
     by_index = dict(zip(mine, split.mine)) | dict(zip(theirs, theirs_result))
     return [by_index[i] for i in range(len(cost))], split.child

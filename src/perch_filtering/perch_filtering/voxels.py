@@ -14,6 +14,7 @@ from perch_filtering.sampling import cell_keys, project
 # Open space (for orienting surfaces) is more than 1.5 voxels from any sample: one voxel of
 # sampling noise either side of a thin wall never connects the two sides.
 OPEN_SPACE_VOXELS = 1.5
+PICK_BY_COMPARISON = 8  # components connected to the seeds up to which each is picked by a comparison
 SLAB_BYTES = 1 << 20  # free_distance combines the z slices in slabs of about this size (L2-resident)
 
 
@@ -154,15 +155,22 @@ def _grown(mask: np.ndarray) -> np.ndarray:
 
 
 def _connected_to(free: np.ndarray, seeds: np.ndarray) -> np.ndarray:
-    """The voxels of `free` 6-connected to a seed: one labelling, then a lookup table of kept labels.
+    """The voxels of `free` 6-connected to a seed: one labelling, then the seeds' labels picked out.
 
     connected-components-3d labels the building's 12.7 M voxels in 0.023 s against scipy's 0.096 s (the
-    same components, test_flight_grid); it holds the interpreter, so the two labellings run in turn."""
+    same components, test_flight_grid); it holds the interpreter, so the two labellings run in turn.
+    The seeds lie in a few components: one comparison per component (2 ms each) instead of a lookup
+    table gathered at every voxel (20 ms)."""
     import cc3d
 
     labels, count = cc3d.connected_components(free, connectivity=6, return_N=True)
-    keep = np.zeros(count + 1, bool)
-    if len(seeds):
-        keep[labels[seeds[:, 0], seeds[:, 1], seeds[:, 2]]] = True
-    keep[0] = False
-    return keep[labels]
+    picked = np.unique(labels[seeds[:, 0], seeds[:, 1], seeds[:, 2]]) if len(seeds) else np.zeros(0, labels.dtype)
+    picked = picked[picked > 0]
+    if len(picked) > PICK_BY_COMPARISON:
+        keep = np.zeros(count + 1, bool)
+        keep[picked] = True
+        return keep[labels]
+    out = np.zeros(free.shape, bool)
+    for label in picked:
+        out |= labels == label
+    return out

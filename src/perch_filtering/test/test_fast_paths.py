@@ -193,9 +193,11 @@ def test_per_surface_threads_keep_the_order_and_stop_at_an_error(monkeypatch):
     assert 5 in started and max(started) < 5 + 2 * 2 + 1
 
 
-def test_two_processes_give_the_one_process_answer(room, monkeypatch):
+@pytest.mark.parametrize("reachability_removes", [False, True])
+def test_two_processes_give_the_one_process_answer(room, monkeypatch, reachability_removes):
     """The surfaces judged in two processes (a forked child takes half) give exactly the regions,
-    evidence and removals of one process."""
+    evidence and removals of one process; also where reachability, which runs beside the second
+    process's observed space, removes cells of the surfaces that process judged."""
     from filtering_accuracy import filter_input_surfaces
 
     from perch_filtering import core
@@ -203,6 +205,19 @@ def test_two_processes_give_the_one_process_answer(room, monkeypatch):
     monkeypatch.setenv("OMP_NUM_THREADS", "2")
     monkeypatch.setattr(core, "SPLIT_MIN_CELLS", 0)  # split whatever the size (a fork pays from ~a building)
     monkeypatch.setattr(core, "SPLIT_MIN_OBSERVED_CELLS", 0)
+    if reachability_removes:   # every surface loses its first row of live cells to reachability
+        measured = core._reachability
+
+        def removing(work, *args):
+            out = measured(work, *args)
+            for w, kept in out:
+                rows = np.flatnonzero(kept.any(axis=1))
+                if len(rows):
+                    w.removal.reachability += float(kept[rows[0]].sum() * w.raster.cell_area)
+                    kept[rows[0]] = False
+                    w.removal.area_kept = float(kept.sum() * w.raster.cell_area)
+            return out
+        monkeypatch.setattr(core, "_reachability", removing)
     surfaces = filter_input_surfaces(room)
     one = core.filter_surfaces(room.mesh, surfaces, room.target, room.up, core.FilterConfig(processes=1))
     two = core.filter_surfaces(room.mesh, surfaces, room.target, room.up, core.FilterConfig(processes=2))
