@@ -218,8 +218,11 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
 
     def observe_alive(indices: list[int]) -> list[_Observed]:
         """The second process's share, beside reachability: observe_and_outline on the cells alive after
-        line of sight (a cell's observed share does not depend on the other cells asked)."""
-        return [observe_and_outline(live[i], live[i].alive.copy(), True) for i in indices]
+        line of sight (a cell's observed share does not depend on the other cells asked), on copies of
+        the surfaces' removals and evidence (the caller's stay as reachability left them, should it run
+        this share itself and then judge a surface again)."""
+        return [observe_and_outline(replace(live[i], removal=replace(live[i].removal), evidence=dict(live[i].evidence)),
+                                    live[i].alive.copy(), True) for i in indices]
 
     # The caller starts with reachability: it is that much ahead when the observed space is shared out.
     observe_cost = [float(w.alive.sum()) for w in live]

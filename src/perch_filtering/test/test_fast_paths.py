@@ -193,14 +193,27 @@ def test_per_surface_threads_keep_the_order_and_stop_at_an_error(monkeypatch):
     assert 5 in started and max(started) < 5 + 2 * 2 + 1
 
 
-@pytest.mark.parametrize("reachability_removes", [False, True])
-def test_two_processes_give_the_one_process_answer(room, monkeypatch, reachability_removes):
+@pytest.mark.parametrize("reachability_removes, observed_fails_in_child", [(False, False), (True, False), (True, True)])
+def test_two_processes_give_the_one_process_answer(room, monkeypatch, reachability_removes, observed_fails_in_child):
     """The surfaces judged in two processes (a forked child takes half) give exactly the regions,
     evidence and removals of one process; also where reachability, which runs beside the second
-    process's observed space, removes cells of the surfaces that process judged."""
+    process's observed space, removes cells of the surfaces that process judged, and where that
+    process fails and the caller takes its share."""
+    import os
+
     from filtering_accuracy import filter_input_surfaces
 
     from perch_filtering import core
+
+    caller = os.getpid()
+    if observed_fails_in_child:
+        observed = core._observed
+
+        def failing_in_the_child(*args, **kwargs):
+            if os.getpid() != caller:
+                raise RuntimeError("observed space lost in the child")
+            return observed(*args, **kwargs)
+        monkeypatch.setattr(core, "_observed", failing_in_the_child)
 
     monkeypatch.setenv("OMP_NUM_THREADS", "2")
     monkeypatch.setattr(core, "SPLIT_MIN_CELLS", 0)  # split whatever the size (a fork pays from ~a building)
@@ -219,9 +232,12 @@ def test_two_processes_give_the_one_process_answer(room, monkeypatch, reachabili
             return out
         monkeypatch.setattr(core, "_reachability", removing)
     surfaces = filter_input_surfaces(room)
-    one = core.filter_surfaces(room.mesh, surfaces, room.target, room.up, core.FilterConfig(processes=1))
-    two = core.filter_surfaces(room.mesh, surfaces, room.target, room.up, core.FilterConfig(processes=2))
-    assert (one.second_process, two.second_process) == ("", "done") and "second_process" in two.timings
+    # Strict about unobserved space, so that the rule removes cells where reachability removed some too.
+    strict = dict(enclosed_escape_share=0.05, max_unobserved_share=0.0) if observed_fails_in_child else {}
+    one = core.filter_surfaces(room.mesh, surfaces, room.target, room.up, core.FilterConfig(processes=1, **strict))
+    two = core.filter_surfaces(room.mesh, surfaces, room.target, room.up, core.FilterConfig(processes=2, **strict))
+    assert one.second_process == "" and "second_process" in two.timings
+    assert two.second_process.startswith("failed: RuntimeError") if observed_fails_in_child else two.second_process == "done"
     assert len(one.regions) >= 4 and one.removals == two.removals
     assert [(r.source_surface, r.area, r.evidence) for r in one.regions] == \
         [(r.source_surface, r.area, r.evidence) for r in two.regions]
