@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from perch_common.mesh import Mesh
@@ -24,12 +26,7 @@ def validate_inputs(mesh: Mesh, surfaces: list[Surface], target: TargetVolume | 
         raise ValueError(f"target volume: its centre {np.round(target.centroid(), 3).tolist()} lies outside the mesh bounds "
                          f"{np.round(lo, 3).tolist()} .. {np.round(hi, 3).tolist()}")
     seen: set[int] = set()
-    found: list[np.ndarray] = []
-
-    def centroids() -> np.ndarray:
-        if not found:
-            found.append(mesh.face_centroids())
-        return found[0]
+    centroids = functools.cache(mesh.face_centroids)  # once, and only when a surface has faces
 
     for k, s in enumerate(surfaces):
         name = f"surface {s.id} (input #{k})"
