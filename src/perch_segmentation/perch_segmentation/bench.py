@@ -22,7 +22,8 @@ def register(sub) -> None:
     source = p.add_mutually_exclusive_group(required=True)
     source.add_argument("--mesh", type=Path, help="mesh file (e.g. ../shared/data/meshes/apartment.ply)")
     source.add_argument("--scene", type=non_negative_int, metavar="SEED", help="procedural scene with ground truth")
-    p.add_argument("--kind", default="apartment", help="scene kind: room, l_shaped, two_rooms, apartment")
+    p.add_argument("--kind", default="apartment",
+                   help="scene kind: room, l_shaped, two_rooms, apartment, building, multi_storey")
     p.add_argument("--noise", type=non_negative_float, default=0.0, help="scene vertex noise sigma (m, >= 0)")
     p.add_argument("--holes", type=non_negative_int, default=0, help="scene: holes cut into walls (>= 0)")
     p.add_argument("--resolution", type=scene_resolution, default=0.1,
