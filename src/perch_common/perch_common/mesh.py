@@ -356,6 +356,8 @@ def feet_problem(mesh: Mesh, up: np.ndarray, what: str = "mesh") -> str | None:
     (area-weighted median) FEET_FURNITURE or more high
     in a space FEET_HEIGHT or more tall only when read in the wrong unit (the shared real scans: 0.3-0.8 m,
     one 1.7 m in a 3.5 m room; in feet 1.6-2.6 m in 7.9-10.4 m)."""
+    from perch_common.up_axis import height_levels, in_levels
+
     up = np.asarray(up, np.float64) / np.linalg.norm(up)
     height = mesh.face_centroids() @ up
     floor, ceiling = np.percentile(height, [1, 99])
@@ -366,10 +368,9 @@ def feet_problem(mesh: Mesh, up: np.ndarray, what: str = "mesh") -> str | None:
     facing_up = mesh.face_normals() @ up > np.cos(np.radians(10.0))
     at_floor = float(areas[facing_up & (height <= floor + 0.05 * tall)].sum())
     band = facing_up & (height > floor + 0.25) & (height < floor + 0.5 * tall)
-    edges = np.arange(floor, floor + 0.5 * tall + 0.1, 0.1)
-    levels, _ = np.histogram(height[band], edges, weights=areas[band])
+    edges, levels = height_levels(height, areas, band, floor, floor + 0.5 * tall, 0.1)
     slab = levels >= FLOOR_LEVEL_SHARE * max(at_floor, 1e-9)
-    band &= ~slab[np.clip(np.searchsorted(edges, height, side="right") - 1, 0, len(levels) - 1)]
+    band &= ~in_levels(slab, height, edges)
     if float(areas[band].sum()) < FURNITURE_MIN_AREA:
         return None
     # Each top's height above the floor it stands on: the ground floor or a storey's below it.

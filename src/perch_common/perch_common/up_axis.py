@@ -468,9 +468,8 @@ def _storey_levels(height: np.ndarray, areas: np.ndarray, cos: np.ndarray, low: 
     STOREY_SPAN. None otherwise: a room's floor and ceiling, with or without a table level, are one storey."""
     if high - low < 2 * LEVEL_BIN or not areas.sum() > 0:
         return None
-    edges = np.arange(low, high + LEVEL_BIN, LEVEL_BIN)
-    total, _ = np.histogram(height, edges, weights=areas)
-    facing_up, _ = np.histogram(height, edges, weights=areas * (cos > 0))
+    edges, total = height_levels(height, areas, None, low, high, LEVEL_BIN)
+    _, facing_up = height_levels(height, areas * (cos > 0), None, low, high, LEVEL_BIN)
     big = np.flatnonzero(total >= LEVEL_SHARE * areas.sum())
     ups = big[facing_up[big] >= 2 / 3 * total[big]]
     downs = big[facing_up[big] <= 1 / 3 * total[big]]
@@ -483,12 +482,27 @@ def _level_steps(height: np.ndarray, areas: np.ndarray, band: np.ndarray, low: f
                  end_plane: float) -> np.ndarray:
     """Which faces lie in a level of the band holding at least STEP_SHARE of `end_plane` (the larger end
     plane's area) within three LEVEL_BIN slices (a scanned step is not one flat slice)."""
-    edges = np.arange(low, high + LEVEL_BIN, LEVEL_BIN)
-    if len(edges) < 2 or not end_plane > 0:
+    if not high > low or not end_plane > 0:   # no slice
         return np.zeros(len(height), bool)
-    total, _ = np.histogram(height[band], edges, weights=areas[band])
-    large = np.convolve(total, np.ones(3), "same") >= STEP_SHARE * end_plane
-    return large[np.clip(np.searchsorted(edges, height, side="right") - 1, 0, len(total) - 1)]
+    edges, total = height_levels(height, areas, band, low, high, LEVEL_BIN)
+    return in_levels(np.convolve(total, np.ones(3), "same") >= STEP_SHARE * end_plane, height, edges)
+
+
+def height_levels(height: np.ndarray, areas: np.ndarray, faces: np.ndarray | None, low: float, high: float,
+                  width: float) -> tuple[np.ndarray, np.ndarray]:
+    """Slices `width` thick along an axis from `low` to past `high`: their edges and the area of the
+    faces (`faces`: a mask, None for all) whose `height` lies in each (the up-axis estimate's storeys
+    and steps, mesh.feet_problem's storeys)."""
+    edges = np.arange(low, high + width, width)
+    which = slice(None) if faces is None else faces
+    area, _ = np.histogram(height[which], edges, weights=areas[which])
+    return edges, area
+
+
+def in_levels(flags: np.ndarray, height: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """Per face, the flag of the slice (height_levels' `edges`) its `height` lies in (the end slices
+    for heights beyond them)."""
+    return flags[np.clip(np.searchsorted(edges, height, side="right") - 1, 0, len(flags) - 1)]
 
 
 def _balance(a: float, b: float) -> float:
