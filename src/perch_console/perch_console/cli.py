@@ -84,11 +84,11 @@ def check_screenshot(path: Path, overwrite: bool) -> None:
 
 def check_recording(recording: Path) -> None:
     """Missing, empty or not an MCAP: refused before anything is served."""
-    from perch_operator.outputs.runfile import _open
+    from perch_operator.outputs import runfile
 
     if not Path(recording).is_file():
         raise PerchError(f"{recording}: no such recording (give --recording a run.mcap)")
-    _open(recording)[0].close()   # the recording reader's own check (MCAP magic), with its fix
+    runfile.check_recording(recording)   # the recording reader's own check (MCAP magic), with its fix
 
 
 def is_loopback(host: str) -> bool:

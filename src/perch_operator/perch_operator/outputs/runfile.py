@@ -31,19 +31,16 @@ class StageCall:
     key: tuple = field(default=(), repr=False)
 
 
-def _open(path: str | Path):
-    from mcap.reader import make_reader
-
+def check_recording(path: str | Path) -> None:
+    """Raise, naming the fix, unless `path` is an MCAP file (a missing file named as such)."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such recording")
-    handle = open(path, "rb")
-    if handle.read(len(MCAP_MAGIC)) != MCAP_MAGIC:   # the reader's EndOfFile / InvalidMagic said nothing of the fix
-        handle.close()
+    with open(path, "rb") as handle:
+        magic = handle.read(len(MCAP_MAGIC))
+    if magic != MCAP_MAGIC:   # the reader's EndOfFile / InvalidMagic said nothing of the fix
         raise PerchError(f"{path}: not an MCAP recording ({'empty' if path.stat().st_size == 0 else 'another format'}); "
                          "give the run.mcap that perch plan, perch demo or perch record wrote")
-    handle.seek(0)
-    return handle, make_reader(handle)
 
 
 def recorded_namespace(path: str | Path) -> str:
@@ -64,7 +61,7 @@ def iter_messages(path: str | Path, topics: list[str] | None = None) -> Iterator
     namespace = recorded_namespace(path)
     wanted = None if topics is None else [namespace + t for t in topics]
     readers: dict[int, Any] = {}
-    _open(path)[0].close()   # a missing file named as such
+    check_recording(path)
     # A recording cut short (its recorder killed) is read as far as it goes (perch_common.mcap_read).
     for schema, channel, message in iter_mcap(path, wanted):
         topic = channel.topic[len(namespace):] if channel.topic.startswith(namespace + "/") else channel.topic
@@ -126,7 +123,7 @@ def metadata(path: str | Path) -> dict[str, dict[str, Any]]:
     """Metadata records by name, JSON values decoded where they are JSON."""
     from perch_common.mcap_read import scan_mcap
 
-    _open(path)[0].close()
+    check_recording(path)
     out: dict[str, dict[str, Any]] = {}
     for name, record in scan_mcap(path).metadata.items():   # read also from a recording without summary
         values = {}
@@ -143,6 +140,6 @@ def channel_counts(path: str | Path) -> dict[str, int]:
     """Messages per topic (those that could be read)."""
     from perch_common.mcap_read import scan_mcap
 
-    _open(path)[0].close()
+    check_recording(path)
     scan = scan_mcap(path)   # counted by reading, so a recording without summary is counted too
     return {scan.channels[cid].topic: n for cid, n in scan.counts.items() if cid in scan.channels}
