@@ -70,6 +70,7 @@ class PerchCommander:
         self._proposal_sub = self.node.create_subscription(pm.Proposal, "perch/proposals", self._on_proposal,
                                                            latched, callback_group=self._group)
         self._proposals: dict[int, pm.Proposal] = {}
+        self._mission_uuid: bytes | None = None   # the running mission's goal id: its proposals carry it
         self._goal_handle = None
         self._goal_future = None
         self._result_future = None
@@ -108,6 +109,8 @@ class PerchCommander:
             self._feedback, self._result, self._status, self._rejected = None, None, MissionResult.UNKNOWN, False
             self._goal_handle = self._result_future = None
         goal_id = UUID(uuid=list(uuid.uuid4().bytes))
+        with self._lock:
+            self._mission_uuid = bytes(goal_id.uuid)
         self._presence.announce(goal_id.uuid)
         self._goal_future = self._action.send_goal_async(goal, feedback_callback=self._on_feedback,
                                                          goal_uuid=goal_id)
@@ -226,5 +229,6 @@ class PerchCommander:
 
     def _on_proposal(self, proposal: pm.Proposal) -> None:
         with self._lock:
-            if self._goal_future is not None:   # proposals latched from an earlier mission are not this one's
+            # Only this mission's: the topic keeps earlier missions' proposals for late joiners.
+            if self._mission_uuid is not None and bytes(proposal.mission_id.uuid) == self._mission_uuid:
                 self._proposals[proposal.id] = proposal
