@@ -179,6 +179,14 @@ def test_list_shows_only_the_current_missions_proposals(coordinator):
     assert done.returncode == 0 and _listed(done.stdout) == [], (done.stdout, done.stderr)
     assert done.stdout.startswith(f"no proposals to decide: mission {'04' * 16} cancelled; decisions"), done.stdout
 
+    coordinator.start(5)                       # it proposes; then the action server forgets its goal (expired)
+    coordinator.propose(9)
+    coordinator.goals.clear()
+    coordinator._publish_status()
+    done = _perch("operator", "list", "--wait", "5")   # the latched waypoint set still names the mission
+    assert done.returncode == 0 and _listed(done.stdout) == [9], (done.stdout, done.stderr)
+    assert done.stdout.startswith(f"mission {'05' * 16} (ended): 1 proposal(s); it has ended"), done.stdout
+
 
 def test_plan_no_launch_without_a_graph_fails_within_its_timeout_and_leaves_nothing(tmp_path):
     """Hunt 6: it took 41 s whatever --timeout, advised `perch plan` (the command in use), and left FAILED and a
