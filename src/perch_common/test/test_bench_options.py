@@ -64,6 +64,8 @@ REFUSED = [
     ("placement", "--bound-check", ["-1"], ">= 0"),
     ("placement", "--reference-grid", ["0,5", "0.3,0", "0.3", "a,b", "nan,5"], "SPACING,ANGLES"),
     ("placement", "--expected-reference-grid", ["-0.3,5"], "SPACING,ANGLES"),
+    ("placement", "--scene", ["-1"], ">= 0"),   # the placement problem's options (perch place shares them)
+    ("placement", "--target-height", ["0", "-3", "nan"], "> 0"),
     ("reconstruct", "--limit", ["-5"], ">= 0"),
     ("reconstruct", "--voxel-size", ["0", "-0.01", "nan"], "> 0"),
     ("reconstruct", "--clean-faces", ["0"], ">= 1"),

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from perch_common.cli_types import non_negative_int, positive_float
 from perch_common.config import load_node_config
 from perch_common.conventions import DEFAULT_CLASS_ANGLE_DEG, surface_class
 from perch_common.frames import Alignment
@@ -43,11 +44,13 @@ def add_problem_arguments(parser: argparse.ArgumentParser, mesh_positional: bool
     add_up_argument(parser, "the mesh file and the target given with it")
     parser.add_argument("--target", "--target-mesh", dest="target_mesh",
                         help="target footprint mesh, extruded upwards by --target-height")
-    parser.add_argument("--target-height", type=float, default=1.2, help="footprint extrusion (m)")
+    parser.add_argument("--target-height", type=positive_float, default=1.2, help="footprint extrusion (m, > 0)")
     parser.add_argument("--target-box", type=float, nargs=6, metavar=("CX", "CY", "CZ", "SX", "SY", "SZ"),
                         help="axis-aligned target box: centre and size (m)")
-    parser.add_argument("--scene", type=int, help="use generated scene SEED instead of a mesh")
-    parser.add_argument("--scene-kind", default="apartment", help="room | l_shaped | two_rooms | apartment")
+    parser.add_argument("--scene", type=non_negative_int, metavar="SEED",
+                        help="use generated scene SEED (>= 0) instead of a mesh")
+    parser.add_argument("--scene-kind", default="apartment",
+                        help="room | l_shaped | two_rooms | apartment | building | multi_storey")
     parser.add_argument("--regions", default="filtered", choices=("filtered", "unfiltered"),
                         help="perch regions from segmentation+filtering, or every wall/ceiling surface")
     parser.add_argument("--params", help="ROS parameter file (default: config/perch.yaml)")
