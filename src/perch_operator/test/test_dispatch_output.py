@@ -103,3 +103,28 @@ def test_a_file_that_changes_after_start_up_is_not_replaced(tmp_path, ros_contex
     finally:
         dispatcher.destroy_node()
     assert os.listdir(tmp_path) == ["waypoints.yaml"]
+
+
+def test_it_says_at_start_up_what_it_waits_for(tmp_path):
+    """Hunt 6: started before any mission it printed nothing: running or stuck looked the same."""
+    import select
+    import time
+
+    path = tmp_path / "waypoints.yaml"
+    started = subprocess.Popen([sys.executable, "-m", "perch_common.cli", "dispatch", "--output", str(path)],
+                               stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, cwd=tmp_path,
+                               env=testing.isolated_ros_env())
+    try:
+        deadline, said = time.monotonic() + 60, b""
+        while b"before this start" not in said and time.monotonic() < deadline:   # the end of its first line
+            if select.select([started.stderr], [], [], max(0.0, deadline - time.monotonic()))[0]:
+                chunk = os.read(started.stderr.fileno(), 4096)
+                if not chunk:   # it exited
+                    break
+                said += chunk
+        text = said.decode()
+        assert "waiting for the accepted perches on /perch/mission_waypoints" in text, text
+        assert f"(kept in {path})" in text
+    finally:
+        started.terminate()
+        started.wait(30)

@@ -54,6 +54,10 @@ class Dispatcher(Node):
                                  qos_profile_action_status_default)
         self.create_subscription(PerchWaypointSet, WAYPOINT_SET_TOPIC, self._on_set, LATCHED_LAST)
         self.create_timer(0.2, self._settle)
+        # Said at start, so that a dispatcher started before any mission is seen to be listening.
+        self.get_logger().info(f"waiting for the accepted perches on {self.resolve_topic_name(WAYPOINT_SET_TOPIC)}"
+                               + (f" (kept in {output})" if output is not None else "")
+                               + ": the current mission's set arrives even if it ended before this start")
 
     def _on_status(self, msg) -> None:
         self._goals |= {bytes(s.goal_info.goal_id.uuid) for s in msg.status_list}
