@@ -83,12 +83,17 @@ def check_screenshot(path: Path, overwrite: bool) -> None:
 
 
 def check_recording(recording: Path) -> None:
-    """Missing, empty or not an MCAP: refused before anything is served."""
+    """Missing, empty, not an MCAP or not a Perch run (no /perch/ topic): refused before anything is served."""
     from perch_operator.outputs import runfile
 
     if not Path(recording).is_file():
         raise PerchError(f"{recording}: no such recording (give --recording a run.mcap)")
     runfile.check_recording(recording)   # the recording reader's own check (MCAP magic), with its fix
+    topics = runfile.recorded_topics(recording)
+    if not any("/perch/" in "/" + topic.lstrip("/") for topic in topics):   # a camera bag (in any namespace)
+        held = f"its topics: {', '.join(topics[:4])}{', ...' if len(topics) > 4 else ''}" if topics else "no topics"
+        raise PerchError(f"{recording}: not a Perch run recording ({held}); give --recording the run.mcap that perch "
+                         "plan, perch demo or perch record wrote (a camera bag is planned with `perch plan --bag`)")
 
 
 def is_loopback(host: str) -> bool:

@@ -81,6 +81,14 @@ def test_a_missing_or_foreign_recording_is_refused_before_serving(tmp_path):
     assert_refused(perch("console", "--recording", str(tmp_path / "missing.mcap"), "--port", "0"),
                    "missing.mcap: no such recording")
     assert_refused(perch("console", "--recording", str(text), "--port", "0"), "not an MCAP recording")
+    # Hunt 6: a camera bag (an MCAP of images, no /perch/ topic) was served as an empty console.
+    from perch_reconstruction.bag_write import write_bag
+    from perch_reconstruction.synthetic import DEFAULT_INTRINSICS, synthetic_room_frames
+
+    _, frames = synthetic_room_frames(seed=1, count=2)
+    write_bag(tmp_path / "camera.mcap", frames, DEFAULT_INTRINSICS)
+    assert_refused(perch("console", "--recording", str(tmp_path / "camera.mcap"), "--port", "0"),
+                   "camera.mcap: not a Perch run recording (its topics: /camera/")
 
 
 def test_a_screenshot_must_be_a_new_png_file(tmp_path):

@@ -136,6 +136,22 @@ def metadata(path: str | Path) -> dict[str, dict[str, Any]]:
     return out
 
 
+def recorded_topics(path: str | Path) -> list[str]:
+    """The topics of a recording, sorted: from its summary when it has one (no message is read), else
+    from a scan of the whole file."""
+    from mcap.reader import make_reader
+
+    check_recording(path)
+    try:
+        with open(path, "rb") as handle:
+            summary = make_reader(handle).get_summary()
+    except Exception:   # noqa: BLE001 - a damaged summary: the scan below reads what there is
+        summary = None
+    if summary is not None and summary.channels:
+        return sorted({channel.topic for channel in summary.channels.values()})
+    return sorted(channel_counts(path))
+
+
 def channel_counts(path: str | Path) -> dict[str, int]:
     """Messages per topic (those that could be read)."""
     from perch_common.mcap_read import scan_mcap
