@@ -100,6 +100,8 @@ def test_a_union_target_checks_every_box(room):
     ("--seed", str(2 ** 63), f"{2 ** 63} does not fit a 64-bit seed"),
     ("--timeout", "nan", "nan must be a finite number > 0"),
     ("--timeout", "-5", "-5 must be a finite number > 0"),
+    ("--review-surfaces", "-2", "-2 must be an integer from 0 to 4294967295"),   # 0 is no review, not a default
+    ("--review-surfaces", str(2 ** 32), f"{2 ** 32} must be an integer from 0 to 4294967295"),
 ])
 def test_cli_numbers_are_range_checked_before_they_become_goal_fields(option, text, message, capsys):
     from perch_operator.cli.plan import register_plan

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from perch_common.cli_types import positive_float
+from perch_common.cli_types import int_between, positive_float
 from perch_common.errors import PerchError
 from perch_common.mesh import add_units_arguments
 from perch_common.up_axis import add_up_argument
@@ -40,7 +40,7 @@ def register_plan(sub) -> None:
     p.add_argument("--seed", type=seed_int, default=-1, help="optimiser seed (negative: the node's default)")
     p.add_argument("--auto-accept", action="store_true", help="accept every proposal (else: perch operator ...)")
     add_up_argument(p, "the mesh (--mesh)")
-    p.add_argument("--review-surfaces", type=non_negative_int, default=0, metavar="N",
+    p.add_argument("--review-surfaces", type=int_between(0, 2 ** 32 - 1), default=0, metavar="N",  # 0: no review
                    help="before filtering, wait for `perch operator review ID [--reject ...]` on the N largest surfaces")
     _common(p)
     p.set_defaults(func=_plan)
@@ -59,10 +59,12 @@ def register_demo(sub) -> None:
                    quiet=False, overwrite=True)
 
 
-def non_negative_int(text: str, maximum: int = 2 ** 32 - 1) -> int:
-    """argparse type: an integer 0..maximum (a negative or too large count is an error, never silently
-    changed: the goal's uint32 fields would wrap 4294967296 to 0)."""
+def camera_count(text: str) -> int:
+    """argparse type: cameras to place, 0 (the node's default) to MAX_CAMERAS (never silently changed:
+    the goal's uint32 field would wrap 4294967296 to 0)."""
     import argparse
+
+    from perch_common.request_validation import MAX_CAMERAS
 
     try:
         value = int(text)
@@ -70,16 +72,9 @@ def non_negative_int(text: str, maximum: int = 2 ** 32 - 1) -> int:
         raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
     if value < 0:
         raise argparse.ArgumentTypeError(f"{value} is negative; give 0 (the node's default) or more")
-    if value > maximum:
-        raise argparse.ArgumentTypeError(f"{value} is too large; give 0 (the node's default) to {maximum}")
+    if value > MAX_CAMERAS:
+        raise argparse.ArgumentTypeError(f"{value} is too large; give 0 (the node's default) to {MAX_CAMERAS}")
     return value
-
-
-def camera_count(text: str) -> int:
-    """argparse type: cameras to place, 0 (the node's default) to MAX_CAMERAS."""
-    from perch_common.request_validation import MAX_CAMERAS
-
-    return non_negative_int(text, MAX_CAMERAS)
 
 
 def seed_int(text: str) -> int:
