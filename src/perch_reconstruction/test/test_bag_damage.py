@@ -147,3 +147,28 @@ def test_a_bag_folder_is_named_as_such(synthetic_bag, tmp_path):
     with pytest.raises(PerchError, match=r"recorded: is a folder, not a bag file; give the \.mcap file in it "
                                          r"\(recorded_0\.mcap\)$"):
         bag_info(folder)
+
+
+def test_bag_play_refuses_topics_not_encoded_as_cdr(tmp_path, capsys):
+    """Hunt 6: an MCAP of JSON messages was played: its JSON bytes went out as if they were CDR images."""
+    import json
+
+    from mcap.writer import Writer
+
+    from perch_common.cli import main
+
+    path = tmp_path / "json.mcap"
+    with open(path, "wb") as f:
+        writer = Writer(f)
+        writer.start()
+        schema = writer.register_schema(name="sensor_msgs/msg/Image", encoding="jsonschema", data=b'{"type":"object"}')
+        channel = writer.register_channel(topic="/camera/rgb", message_encoding="json", schema_id=schema)
+        for i in range(3):
+            writer.add_message(channel_id=channel, log_time=i, publish_time=i, data=json.dumps({"i": i}).encode())
+        writer.finish()
+    with pytest.raises(SystemExit) as exit_:
+        main(["bag", "play", str(path), "--rate", "0"])
+    assert exit_.value.code == 1
+    captured = capsys.readouterr()
+    assert "/camera/rgb (json) not CDR-encoded; perch bag play publishes a ROS 2 bag's CDR messages" in captured.err
+    assert "published" not in captured.out and "Traceback" not in captured.err
