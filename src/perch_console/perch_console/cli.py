@@ -88,8 +88,7 @@ def check_recording(recording: Path) -> None:
 
     if not Path(recording).is_file():
         raise PerchError(f"{recording}: no such recording (give --recording a run.mcap)")
-    runfile.check_recording(recording)   # the recording reader's own check (MCAP magic), with its fix
-    topics = runfile.recorded_topics(recording)
+    topics = runfile.recorded_topics(recording)   # the recording reader's own check first (MCAP magic), with its fix
     if not any("/perch/" in "/" + topic.lstrip("/") for topic in topics):   # a camera bag (in any namespace)
         held = f"its topics: {', '.join(topics[:4])}{', ...' if len(topics) > 4 else ''}" if topics else "no topics"
         raise PerchError(f"{recording}: not a Perch run recording ({held}); give --recording the run.mcap that perch "

@@ -138,7 +138,7 @@ def stable_sort(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(np.argsort(key, kind="stable"), the sorted keys) of non-negative int keys below 2^32: two passes of
     numpy's radix sort (its stable sort of 16-bit keys), low half then high. On the building's 3.1 M sample
     buckets 0.05 s, against 0.07 s for argsort of the int64 keys and 0.21 s for sorting keys packed with
-    their index (numpy 2.4); its time does not depend on the samples' order. Other keys: argsort."""
+    their index (numpy 2.4); as many keys in random order: 0.10 s against argsort's 0.18 s. Other keys: argsort."""
     if len(key) == 0 or int(key.min()) < 0 or int(key.max()) >= 1 << 32:
         order = np.argsort(key, kind="stable")
         return order, key[order]

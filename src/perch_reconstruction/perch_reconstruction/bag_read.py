@@ -78,6 +78,16 @@ def bag_info(path: str | Path) -> dict:
             "damage": scan.damage(), "lost": lost}
 
 
+def require_cdr(info: dict, topics: list[str], remedy: str = "") -> None:
+    """Raise PerchError naming those of `topics` (bag_info's) that are not CDR-encoded: their bytes are no
+    ROS 2 messages to decode or to publish (an MCAP of JSON or Protobuf messages)."""
+    foreign = {t: info["topics"][t]["encoding"] for t in topics if info["topics"][t]["encoding"] != "cdr"}
+    if foreign:
+        listed = ", ".join(f"{t} ({encoding or 'no encoding'})" for t, encoding in foreign.items())
+        raise PerchError(f"{info['path']}: {listed} not CDR-encoded, as a ROS 2 bag's messages are (record with "
+                         f"ros2 bag record or perch bag{remedy})")
+
+
 def frames_damage(info: dict, topics: BagTopics = BagTopics()) -> str:
     """What a damaged bag (bag_info) lost, in frames: '' for an intact one. A frame needs its colour and
     its depth image, so the frames lost are the larger of the two topics' losses."""
@@ -162,6 +172,8 @@ def read_bag_frames(path: str | Path, topics: BagTopics = BagTopics(), depth_sca
                              f"{' or '.join(allowed)}")
         if present[topic]["count"] == 0:
             raise PerchError(f"{path}: topic {topic} has no messages")
+    read = (topics.color, topics.depth, topics.camera_info, topics.pose, TF_TOPIC, TF_STATIC_TOPIC)
+    require_cdr(info, [t for t in read if t in present])
     decode = _Decoder()
     intrinsics = None
     for raw in iter_raw(path, [topics.camera_info]):

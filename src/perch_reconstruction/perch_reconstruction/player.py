@@ -8,7 +8,7 @@ from pathlib import Path
 
 from perch_common.errors import PerchError
 from perch_common.ros.msgdefs import message_class as installed_message_class
-from perch_reconstruction.bag_read import bag_info, iter_raw
+from perch_reconstruction.bag_read import bag_info, iter_raw, require_cdr
 
 # A publisher sees its subscriber a moment before the subscriber's side of the match is complete;
 # samples sent in between are lost even when reliable.
@@ -43,11 +43,8 @@ def play_bag(path: str | Path, rate: float = 1.0, topics: list[str] | None = Non
     unknown = [t for t in chosen if t not in info["topics"]]
     if unknown:
         raise PerchError(f"{path}: no topic(s) {', '.join(unknown)}; it has {', '.join(info['topics']) or 'none'}")
-    foreign = {t: info["topics"][t]["encoding"] for t in chosen if info["topics"][t]["encoding"] != "cdr"}
-    if foreign:   # their bytes would go out as if they were CDR: every subscriber would read garbage
-        listed = ", ".join(f"{t} ({encoding or 'no encoding'})" for t, encoding in foreign.items())
-        raise PerchError(f"{path}: {listed} not CDR-encoded; perch bag play publishes a ROS 2 bag's CDR messages "
-                         "as recorded (record with ros2 bag record or perch bag, or leave those topics out with --topics)")
+    # Other encodings' bytes would go out as if they were CDR: every subscriber would read garbage.
+    require_cdr(info, chosen, ", or leave those topics out with --topics")
     counts = {t: 0 for t in chosen}
     with ros_context([]):
         node = rclpy.create_node("perch_bag_player")

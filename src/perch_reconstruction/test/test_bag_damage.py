@@ -3,6 +3,8 @@ as far as it goes, and bag info and the reconstruction say what was lost; nothin
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -149,26 +151,45 @@ def test_a_bag_folder_is_named_as_such(synthetic_bag, tmp_path):
         bag_info(folder)
 
 
-def test_bag_play_refuses_topics_not_encoded_as_cdr(tmp_path, capsys):
-    """Hunt 6: an MCAP of JSON messages was played: its JSON bytes went out as if they were CDR images."""
+def _json_bag(path: Path, topics: dict[str, str]) -> Path:
+    """An MCAP of JSON messages (another tool's, not a ROS 2 bag) on `topics` (topic -> type name)."""
     import json
 
     from mcap.writer import Writer
 
-    from perch_common.cli import main
-
-    path = tmp_path / "json.mcap"
     with open(path, "wb") as f:
         writer = Writer(f)
         writer.start()
-        schema = writer.register_schema(name="sensor_msgs/msg/Image", encoding="jsonschema", data=b'{"type":"object"}')
-        channel = writer.register_channel(topic="/camera/rgb", message_encoding="json", schema_id=schema)
-        for i in range(3):
-            writer.add_message(channel_id=channel, log_time=i, publish_time=i, data=json.dumps({"i": i}).encode())
+        for topic, type_name in topics.items():
+            schema = writer.register_schema(name=type_name, encoding="jsonschema", data=b'{"type":"object"}')
+            channel = writer.register_channel(topic=topic, message_encoding="json", schema_id=schema)
+            for i in range(3):
+                writer.add_message(channel_id=channel, log_time=i, publish_time=i, data=json.dumps({"i": i}).encode())
         writer.finish()
+    return path
+
+
+def test_a_bag_of_json_messages_is_refused_by_reconstruct(tmp_path):
+    """Its JSON bytes were decoded as CDR: a TypeError traceback."""
+    from perch_reconstruction.bag_read import read_bag_frames
+
+    path = _json_bag(tmp_path / "json.mcap", {"/camera/color/image_raw": "sensor_msgs/msg/Image",
+                                               "/camera/depth/image_raw": "sensor_msgs/msg/Image",
+                                               "/camera/depth/camera_info": "sensor_msgs/msg/CameraInfo"})
+    with pytest.raises(PerchError, match=r"json\.mcap: /camera/color/image_raw \(json\), /camera/depth/image_raw "
+                                         r"\(json\), /camera/depth/camera_info \(json\) not CDR-encoded"):
+        read_bag_frames(path)
+
+
+def test_bag_play_refuses_topics_not_encoded_as_cdr(tmp_path, capsys):
+    """Hunt 6: an MCAP of JSON messages was played: its JSON bytes went out as if they were CDR images."""
+    from perch_common.cli import main
+
+    path = _json_bag(tmp_path / "json.mcap", {"/camera/rgb": "sensor_msgs/msg/Image"})
     with pytest.raises(SystemExit) as exit_:
         main(["bag", "play", str(path), "--rate", "0"])
     assert exit_.value.code == 1
     captured = capsys.readouterr()
-    assert "/camera/rgb (json) not CDR-encoded; perch bag play publishes a ROS 2 bag's CDR messages" in captured.err
+    assert "/camera/rgb (json) not CDR-encoded, as a ROS 2 bag's messages are" in captured.err
+    assert "leave those topics out with --topics" in captured.err
     assert "published" not in captured.out and "Traceback" not in captured.err
