@@ -97,9 +97,11 @@ class Spinner:
     def __init__(self, node):
         from rclpy.executors import SingleThreadedExecutor
 
+        from perch_common.ros.spinning import keep_spinning
+
         self.executor = SingleThreadedExecutor()
         self.executor.add_node(node)
-        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.thread = threading.Thread(target=keep_spinning, args=(self.executor,), daemon=True)
 
     def __enter__(self):
         self.thread.start()

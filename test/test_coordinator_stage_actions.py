@@ -32,6 +32,7 @@ class GoalWatch:
         from rclpy.qos import qos_profile_action_status_default
 
         from perch_common.conventions import STAGE_SERVICES
+        from perch_common.ros.spinning import keep_spinning
         from perch_interfaces.srv import Segment
 
         self.node = rclpy.create_node("stage_actions_test")
@@ -49,7 +50,7 @@ class GoalWatch:
             Segment.Event, "/perch/segment/_service_event", self.segment_events.append, qos_profile_services_default))
         self.executor = MultiThreadedExecutor(num_threads=2)
         self.executor.add_node(self.node)
-        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.thread = threading.Thread(target=keep_spinning, args=(self.executor,), daemon=True)
         self.thread.start()
         # Every status writer and the segment service's two event writers (service, action) matched.
         poll_until(lambda: all(s.get_publisher_count() >= 1 for s in self.subscriptions[:-1])
@@ -177,6 +178,7 @@ def test_stage_calls_survive_responses_that_overtake_their_registration():
 
     from perch_common.cancellation import Cancelled, checkpoint
     from perch_common.ros.service import create_stage_action
+    from perch_common.ros.spinning import keep_spinning
     from perch_common.ros.testing import use_isolated_ros_env
     from perch_common.work import report
     from perch_interfaces import action, srv
@@ -214,7 +216,7 @@ def test_stage_calls_survive_responses_that_overtake_their_registration():
         for node, threads in ((server, 4), (coordinator, 2)):   # the coordinator's executor has 2 threads
             executor = MultiThreadedExecutor(num_threads=threads, context=context)
             executor.add_node(node)
-            threading.Thread(target=executor.spin, daemon=True).start()
+            threading.Thread(target=keep_spinning, args=(executor,), daemon=True).start()
             executors.append(executor)
         outcomes: dict[str, list[str]] = {stage: [] for stage in types}
         feedback = {stage: 0 for stage in types}
@@ -300,6 +302,7 @@ def test_a_stage_call_survives_a_lost_message(losses):
     from rclpy.executors import MultiThreadedExecutor
 
     from perch_common.ros.service import create_stage_action
+    from perch_common.ros.spinning import keep_spinning
     from perch_common.ros.testing import use_isolated_ros_env
     from perch_interfaces import action, srv
     from perch_operator.coordinator.stages import StageCaller
@@ -327,7 +330,7 @@ def test_a_stage_call_survives_a_lost_message(losses):
         for node, threads in ((server, 2), (coordinator, 2)):
             executor = MultiThreadedExecutor(num_threads=threads, context=context)
             executor.add_node(node)
-            threading.Thread(target=executor.spin, daemon=True).start()
+            threading.Thread(target=keep_spinning, args=(executor,), daemon=True).start()
             executors.append(executor)
         started = time.monotonic()
         reply = caller.call("filter", srv.Filter.Request())

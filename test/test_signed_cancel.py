@@ -56,6 +56,7 @@ def test_a_networked_mission_ends_on_a_signed_cancel_taken_once(own_domain, tmp_
     from perch_common.conventions import MISSION_ACTION
     from perch_common.ros.conversions import mesh_to_msg, target_to_msg
     from perch_common.ros.service import CANCEL_TOPIC
+    from perch_common.ros.spinning import keep_spinning
     from perch_common.ros.testing import node_process, poll_until
     from perch_common.scene_generator import generate_scene
     from perch_interfaces import srv
@@ -92,7 +93,7 @@ def test_a_networked_mission_ends_on_a_signed_cancel_taken_once(own_domain, tmp_
 
     # The stand-in stage in a thread of its own (its callbacks block until released).
     stage_side = MultiThreadedExecutor(num_threads=2, context=stage_context)
-    stage_thread = threading.Thread(target=stage_side.spin, daemon=True)
+    stage_thread = threading.Thread(target=keep_spinning, args=(stage_side,), daemon=True)
     client_side = SingleThreadedExecutor(context=client_context)
     nodes = []
     try:

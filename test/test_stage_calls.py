@@ -27,6 +27,7 @@ def segmentation(tmp_path_factory):
     from rclpy.executors import MultiThreadedExecutor
 
     from perch_common.launch import GraphProcesses
+    from perch_common.ros.spinning import keep_spinning
     from perch_common.ros.testing import use_isolated_ros_env
 
     use_isolated_ros_env()
@@ -38,7 +39,7 @@ def segmentation(tmp_path_factory):
     executor = MultiThreadedExecutor(num_threads=4)
     for node in clients:
         executor.add_node(node)
-    spinning = threading.Thread(target=executor.spin, daemon=True)
+    spinning = threading.Thread(target=keep_spinning, args=(executor,), daemon=True)
     spinning.start()
     try:
         assert not graph.wait_for_services(clients[0], [SERVICE], 120), f"no {SERVICE}; logs in {logs}"

@@ -38,6 +38,7 @@ def graph(result_timeout):
     from rclpy.qos import qos_profile_services_default
 
     from perch_common.ros.service import answering, create_stage_action, create_stage_service
+    from perch_common.ros.spinning import keep_spinning
     from perch_common.ros.testing import use_isolated_ros_env
     from perch_interfaces import action, srv
 
@@ -74,7 +75,7 @@ def graph(result_timeout):
     executor = MultiThreadedExecutor(num_threads=4, context=context)
     executor.add_node(server)
     executor.add_node(client_node)
-    spinner = threading.Thread(target=executor.spin, daemon=True)
+    spinner = threading.Thread(target=keep_spinning, args=(executor,), daemon=True)
     spinner.start()
     try:
         assert client.wait_for_server(timeout_sec=WAIT)

@@ -24,6 +24,7 @@ from unique_identifier_msgs.msg import UUID
 from visualization_msgs.msg import Marker, MarkerArray
 
 from perch_common.conventions import CONFIRM_SERVICE, MISSION_ACTION, MISSION_FEEDBACK_TOPIC, MISSION_STATUS_TOPIC
+from perch_common.ros.spinning import keep_spinning
 from perch_common.ros.static_transforms import TF_STATIC_QOS, TF_STATIC_TOPIC, matrix_from_transform
 from perch_console.state import MissionPicture, shortfall_of
 from perch_interfaces import msg as pm
@@ -75,7 +76,7 @@ class ConsoleGraph:
         self.review = self.node.create_client(srv.ReviewSurfaces, "perch/review_surfaces", callback_group=group)
         self.executor = MultiThreadedExecutor(num_threads=3)
         self.executor.add_node(self.node)
-        self._thread = threading.Thread(target=self.executor.spin, name="perch-console-ros", daemon=True)
+        self._thread = threading.Thread(target=keep_spinning, args=(self.executor,), name="perch-console-ros", daemon=True)
         self._thread.start()
 
     def close(self) -> None:

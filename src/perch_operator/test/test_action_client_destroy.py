@@ -94,8 +94,36 @@ def test_destroying_clients_while_the_node_spins_leaves_the_executor_running(spu
     assert thread.is_alive() and not errors, f"the spin thread died after {made} clients: {errors[:1]}"
     # Every client left the node, and the last one's handle is freed once the executor has passed.
     assert not any(isinstance(w, RegisteringActionClient) for w in node.waitables)
+    # The one-shot timers that freed the handles go too; the executor runs them in no set order (one seen
+    # run the last client's before earlier ones'), so this waits for all of them.
     deadline = time.monotonic() + 10
-    while not _handle_freed(last):
-        assert time.monotonic() < deadline, "the last client's handle was never freed"
+    while not _handle_freed(last) or list(node.timers):
+        assert time.monotonic() < deadline, (f"the last client's handle freed: {_handle_freed(last)}; "
+                                             f"{len(list(node.timers))} freeing timers left")
         time.sleep(0.05)
-    assert not list(node.timers)   # the one-shot timers that freed the handles are gone
+
+
+def test_a_commander_made_and_destroyed_while_its_users_executor_spins_leaves_it_running(spun_node):
+    """PerchCommander lives on a user's node, spun by rclpy's own executor (no keep_spinning there): what
+    it destroys from the user's thread (its presence writers, proposal reader, cancel writer) has no
+    event handlers, which rclpy 7.1 lists in a wait set without checking that they still exist."""
+    import uuid
+
+    from perch_operator.api.client import MissionCanceller
+    from perch_operator.api.commander import PerchCommander
+
+    node, errors, thread = spun_node
+    made = 0
+    deadline = time.monotonic() + CHURN_SECONDS / 2
+    while time.monotonic() < deadline and thread.is_alive():
+        commander = PerchCommander(node)
+        commander._presence.announce(uuid.uuid4().bytes)
+        canceller = MissionCanceller(node)
+        destroyed = [commander._proposal_sub, commander._presence._writer, commander._presence._observer,
+                     canceller.publisher]
+        assert not any(entity.event_handlers for entity in destroyed)
+        time.sleep(0)
+        canceller.destroy()
+        commander.destroy()
+        made += 1
+    assert thread.is_alive() and not errors, f"the spin thread died after {made} commanders: {errors[:1]}"

@@ -21,7 +21,7 @@ class GraphlessNode:
     def get_publishers_info_by_topic(self, topic):
         return []
 
-    def create_publisher(self, *args):   # the recorder's observer marker (nothing is ever published)
+    def create_publisher(self, *args, **kwargs):   # the recorder's observer marker (nothing is ever published)
         return None
 
     def destroy_publisher(self, publisher):

@@ -18,6 +18,7 @@ from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 
 from perch_common.memory import freeze_startup_objects, tune_memory
 from perch_common.mesh_cache import PROCESS_CACHE
+from perch_common.ros.spinning import keep_spinning
 from perch_common.threads import limit_threads
 
 # Threads per hosted node: a long service call must never starve another node's callbacks
@@ -67,7 +68,7 @@ class NodeContainer:
     def spin(self) -> None:
         """Spin here until shutdown (Ctrl-C or the context ends)."""
         try:
-            self.executor.spin()
+            keep_spinning(self.executor)
         except (KeyboardInterrupt, ExternalShutdownException):
             pass
 

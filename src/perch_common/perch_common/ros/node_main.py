@@ -14,6 +14,7 @@ from perch_common.config import ConfigError
 from perch_common.memory import freeze_startup_objects, tune_memory
 from perch_common.mesh_cache import PROCESS_CACHE
 from perch_common.processes import die_with_parent
+from perch_common.ros.spinning import keep_spinning
 from perch_common.threads import limit_threads
 
 
@@ -53,7 +54,7 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None, threads
         executor = make_executor(threads)
         executor.add_node(node)
         try:
-            executor.spin()
+            keep_spinning(executor)
         except (KeyboardInterrupt, ExternalShutdownException):
             pass
         finally:

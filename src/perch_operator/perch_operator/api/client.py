@@ -19,6 +19,7 @@ from unique_identifier_msgs.msg import UUID
 
 from perch_common.conventions import MISSION_ACTION, MISSION_STATUS_TOPIC
 from perch_common.errors import PerchError
+from perch_common.ros.spinning import destroyable_publisher
 from perch_interfaces.action import PlanPerches
 from perch_operator.api.presence import ClientPresence
 from perch_operator.coordinator.action_client import RESULT_WAIT, TERMINAL
@@ -95,7 +96,7 @@ class MissionCanceller:
 
         self.node = node
         self._msg = StageCancel
-        self.publisher = node.create_publisher(StageCancel, CANCEL_TOPIC, 10, callback_group=callback_group)
+        self.publisher = destroyable_publisher(node, StageCancel, CANCEL_TOPIC, 10, callback_group=callback_group)
 
     def send(self, goal_id: UUID, reason: str) -> None:
         """Publish one signed cancel of the mission `goal_id` (a new token each second)."""

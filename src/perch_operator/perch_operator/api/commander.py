@@ -31,6 +31,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from unique_identifier_msgs.msg import UUID
 
 from perch_common.conventions import CONFIRM_SERVICE, MISSION_ACTION
+from perch_common.ros.spinning import destroyable_subscription
 from perch_interfaces import msg as pm
 from perch_interfaces import srv
 from perch_interfaces.action import PlanPerches
@@ -67,8 +68,9 @@ class PerchCommander:
         self._signed = MissionCanceller(self.node, callback_group=self._group) if networked() else None
         latched = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        self._proposal_sub = self.node.create_subscription(pm.Proposal, "perch/proposals", self._on_proposal,
-                                                           latched, callback_group=self._group)
+        # destroyable: `destroy` may come from any thread while the user's executor spins the node
+        self._proposal_sub = destroyable_subscription(self.node, pm.Proposal, "perch/proposals", self._on_proposal,
+                                                      latched, callback_group=self._group)
         self._proposals: dict[int, pm.Proposal] = {}
         self._mission_uuid: bytes | None = None   # the running mission's goal id: its proposals carry it
         self._goal_handle = None

@@ -7,14 +7,16 @@ import threading
 from unique_identifier_msgs.msg import UUID
 
 from perch_common.conventions import MISSION_OBSERVER_TOPIC, mission_client_topic
+from perch_common.ros.spinning import destroyable_publisher
 
 
 def observer_writer(node):
     """A writer on MISSION_OBSERVER_TOPIC: `node` is a Perch tool that reads every mission's feedback
     without being every mission's client (a console, a commander, a recorder). For a plain ROS client's
     goal, whose client has no presence writer, the coordinator then leaves this node's feedback readers
-    out when it watches for the client. Nothing is published on it; destroy it with the reader."""
-    return node.create_publisher(UUID, MISSION_OBSERVER_TOPIC, 1)
+    out when it watches for the client. Nothing is published on it; destroy it with the reader (from any
+    thread: a user's node may spin with rclpy's own executor)."""
+    return destroyable_publisher(node, UUID, MISSION_OBSERVER_TOPIC, 1)
 
 
 class ClientPresence:
@@ -34,7 +36,7 @@ class ClientPresence:
 
     def announce(self, goal_id) -> None:
         """Be goal `goal_id`'s client (16 bytes, or a UUID message's list); an earlier goal's writer goes."""
-        writer = self.node.create_publisher(UUID, mission_client_topic(goal_id), 1)
+        writer = destroyable_publisher(self.node, UUID, mission_client_topic(goal_id), 1)
         with self._lock:
             earlier, self._writer = self._writer, writer
         if earlier is not None:
