@@ -75,6 +75,41 @@ def test_rclpys_own_spin_dies_of_the_race(node):
     executor.shutdown()
 
 
+class Spinning:
+    """`spin(executor)` in a thread for the block; `died` holds what ended it early. Leaving the block shuts
+    the executor down, which must end the thread without an error."""
+
+    def __init__(self, executor, spin):
+        self.executor, self.died = executor, []
+
+        def run() -> None:
+            try:
+                spin(executor)
+            except BaseException as error:  # the outcome under test
+                self.died.append(error)
+
+        self.thread = threading.Thread(target=run, daemon=True)
+
+    def __enter__(self) -> "Spinning":
+        self.thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.executor.shutdown()
+        self.thread.join(10)
+        assert not self.thread.is_alive() and not self.died, self.died
+
+    def race(self, race: Race, times: int = 3, destroyable: bool = False) -> None:
+        """The race, `times` over; each time the spinning lives on."""
+        from perch_common.ros.testing import poll_until
+
+        for _ in range(times):
+            race.arm(destroyable)
+            self.executor.wake()   # it lists the node's entities again
+            poll_until(lambda: race.doomed is None or self.died, WAIT, "the executor listed the node again")
+            assert not self.died, f"the spinning died: {self.died[0]!r}"
+
+
 @pytest.mark.parametrize("threads", [1, 4])
 def test_keep_spinning_survives_the_race_and_still_delivers(node, threads):
     from std_msgs.msg import Empty
@@ -89,34 +124,15 @@ def test_keep_spinning_survives_the_race_and_still_delivers(node, threads):
     executor = make_executor(threads, node.context)
     executor.add_node(node)
     race = Race(executor, node)
-    died: list[BaseException] = []
-
-    def spin() -> None:
-        try:
-            keep_spinning(executor)
-        except BaseException as error:  # the outcome under test
-            died.append(error)
-
-    spinner = threading.Thread(target=spin, daemon=True)
-    spinner.start()
-    try:
-        for _ in range(3):   # the race, three times over
-            race.arm()
-            executor.wake()   # it lists the node's entities again
-            poll_until(lambda: race.doomed is None or died, WAIT, "the executor listed the node again")
-            assert not died, f"the spinning died: {died[0]!r}"
+    with Spinning(executor, keep_spinning) as spinning:
+        spinning.race(race)
         poll_until(lambda: publisher.get_subscription_count() >= 1, WAIT, "the live subscription matched")
         deadline = time.monotonic() + WAIT
         while not received:
-            assert not died, f"the spinning died: {died[0]!r}"
+            assert not spinning.died, f"the spinning died: {spinning.died[0]!r}"
             assert time.monotonic() < deadline, "the live subscription got nothing"
             publisher.publish(Empty())
             time.sleep(0.05)
-        assert spinner.is_alive() and not died
-    finally:
-        executor.shutdown()
-        spinner.join(10)
-    assert not spinner.is_alive() and not died, died   # shutdown ends it, without an error
 
 
 def test_an_entity_destroyed_behind_its_nodes_back_is_still_raised(node):
@@ -144,32 +160,13 @@ def test_destroyable_entities_survive_rclpys_own_spin(node, threads):
 
     from perch_common.ros.node_main import make_executor
     from perch_common.ros.spinning import destroyable_publisher
-    from perch_common.ros.testing import poll_until
 
     executor = make_executor(threads, node.context)
     executor.add_node(node)
     race = Race(executor, node)
-    died: list[BaseException] = []
-
-    def spin() -> None:
-        try:
-            executor.spin()
-        except BaseException as error:  # the outcome under test
-            died.append(error)
-
-    spinner = threading.Thread(target=spin, daemon=True)
-    spinner.start()
-    try:
+    with Spinning(executor, lambda e: e.spin()) as spinning:
+        spinning.race(race, destroyable=True)
         for _ in range(3):
-            race.arm(destroyable=True)
-            executor.wake()
-            poll_until(lambda: race.doomed is None or died, WAIT, "the executor listed the node again")
-            assert not died, f"the spinning died: {died[0]!r}"
             publisher = destroyable_publisher(node, Empty, "spinning_test_writer", 1)
             assert not publisher.event_handlers
             node.destroy_publisher(publisher)
-        assert spinner.is_alive() and not died
-    finally:
-        executor.shutdown()
-        spinner.join(10)
-    assert not died, died
