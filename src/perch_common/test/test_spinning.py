@@ -153,6 +153,31 @@ def test_an_entity_destroyed_behind_its_nodes_back_is_still_raised(node):
 
 
 @pytest.mark.parametrize("threads", [1, 4])
+def test_a_callbacks_own_invalid_handle_is_still_raised(node, threads):
+    """Only the wait set's race is spun through: a callback that used something destroyed fails its node,
+    as with rclpy's own spin."""
+    from rclpy.exceptions import InvalidHandle
+
+    from perch_common.ros.node_main import make_executor
+    from perch_common.ros.spinning import STALE_TURNS, keep_spinning
+
+    calls = []
+
+    def callback() -> None:
+        calls.append(1)
+        raise InvalidHandle("a callback's own")
+
+    node.create_timer(0.01, callback)
+    executor = make_executor(threads, node.context)
+    executor.add_node(node)
+    with pytest.raises(InvalidHandle, match="a callback's own"):
+        keep_spinning(executor)
+    executor.shutdown()
+    # At its first failure (the next turn on 4 threads), not after STALE_TURNS failed turns in a row.
+    assert len(calls) < STALE_TURNS // 2, len(calls)
+
+
+@pytest.mark.parametrize("threads", [1, 4])
 def test_destroyable_entities_survive_rclpys_own_spin(node, threads):
     """What Perch destroys on a user's node (PerchCommander's) has no event handlers: rclpy's own spin
     leaves a destroyed subscription out of its wait set, and a publisher is in none."""

@@ -26,17 +26,28 @@ STALE_TURNS = 100
 
 def keep_spinning(executor) -> None:
     """`executor.spin()` (until its context ends or it is shut down) that survives an entity destroyed while
-    the executor built its wait set."""
+    the executor built its wait set; any other error (a callback's) ends it as it ends `spin()`."""
     failed_turns = 0
     while executor.context.ok() and not executor._is_shutdown:
         try:
             executor.spin_once()
-        except InvalidHandle:
+        except InvalidHandle as error:
             failed_turns += 1
-            if failed_turns >= STALE_TURNS:
+            # A callback's own InvalidHandle (it used something destroyed) is its node's error, as before.
+            if failed_turns >= STALE_TURNS or not _building_the_wait_set(error):
                 raise
             continue
         failed_turns = 0
+
+
+def _building_the_wait_set(error: BaseException) -> bool:
+    """The error came from the executor building its wait set (rclpy's generator of ready callbacks)."""
+    frame = error.__traceback__
+    while frame is not None:
+        if frame.tb_frame.f_code.co_name == "_wait_for_ready_callbacks":
+            return True
+        frame = frame.tb_next
+    return False
 
 
 def destroyable_publisher(node, msg_type, topic: str, qos, **kwargs):
