@@ -1,4 +1,4 @@
-"""RegisteringActionClient.destroy while an executor spins the node in another thread.
+"""RegisteringActionClient.destroy, and a PerchCommander's, while an executor spins the node in another thread.
 
 rclpy Jazzy's ActionClient.destroy frees its handle before taking the client off the node: an
 executor that listed the node's clients in between adds the freed handle to its wait set and its spin
