@@ -9,6 +9,7 @@ calls from four threads never lose an answer that overtakes its request's regist
 
 from __future__ import annotations
 
+import contextlib
 import threading
 
 import pytest
@@ -282,21 +283,11 @@ class Lossy:
         return self._lossy(name, attribute) if name in self.losses else attribute
 
 
-@pytest.mark.parametrize("losses", [
-    {"send_goal_request": 1},                     # the goal request lost (issue 22: a server just started)
-    {"take_goal_response": 1},                    # the acceptance lost: the goal runs all the same
-    {"take_result_response": 1},                  # the result lost once
-    {"send_result_request": 1},                   # the result request lost
-    {"take_result_response": 3},                  # results lost for a while (a killed client's aftermath)
-    {"take_result_response": 10 ** 6},            # a result reader that never takes one again
-], ids=["goal-request", "goal-response", "result", "result-request", "results-for-a-while", "result-reader-dead"])
-def test_a_stage_call_survives_a_lost_message(losses):
-    """Each message of a goal lost in turn (and results lost several times over, as while a SIGKILLed
-    mission client was still listed in the kill soak, or for good: asked through a new client): the
-    call still ends with its reply within seconds, and the stage ran the work once (a goal sent again
-    supersedes the lost one; an adopted goal is not sent twice)."""
-    import time
-
+@contextlib.contextmanager
+def fake_filter_stage(work, losses: dict[str, int] | None = None, timeout: float = 60.0):
+    """A fake filter stage running `work(request, response)` and a StageCaller on a coordinator node (its
+    filter client's rcl handle Lossy when `losses` are given), each spun by keep_spinning in a context of
+    their own; yields (caller, the Lossy handle or None)."""
     import rclpy
     from rclpy.callback_groups import ReentrantCallbackGroup
     from rclpy.executors import MultiThreadedExecutor
@@ -313,25 +304,55 @@ def test_a_stage_call_survives_a_lost_message(losses):
     executors = []
     try:
         server = rclpy.create_node("fake_filter", namespace="stage_loss", context=context)
-        ran: list[str] = []
-
-        def work(request, response):
-            ran.append(request.request_id)
-            time.sleep(0.3)
-            response.success, response.message = True, f"done {request.request_id}"
-            return response
-
-        create_stage_action(server, action.Filter, srv.Filter, "perch/filter", work, introspection=False,
-                            result_timeout=60)
+        stage = create_stage_action(server, action.Filter, srv.Filter, "perch/filter", work, introspection=False,
+                                    result_timeout=60)
         coordinator = rclpy.create_node("loss_coordinator", namespace="stage_loss", context=context)
-        caller = StageCaller(coordinator, ReentrantCallbackGroup(), service_wait=30.0, timeout=60.0, gone_grace=5.0)
-        lossy = Lossy(caller.actions["filter"]._client_handle, losses)
-        caller.actions["filter"]._client_handle = lossy
+        caller = StageCaller(coordinator, ReentrantCallbackGroup(), service_wait=30.0, timeout=timeout, gone_grace=5.0)
+        lossy = None
+        if losses:
+            lossy = Lossy(caller.actions["filter"]._client_handle, losses)
+            caller.actions["filter"]._client_handle = lossy
         for node, threads in ((server, 2), (coordinator, 2)):
             executor = MultiThreadedExecutor(num_threads=threads, context=context)
             executor.add_node(node)
             threading.Thread(target=keep_spinning, args=(executor,), daemon=True).start()
             executors.append(executor)
+        yield caller, lossy
+        # A goal still ending (its last status) when the nodes go would fail in a task nobody reads.
+        poll_until(lambda: not any(goal.is_active for goal in list(stage._goal_handles.values())), 20,
+                   "the stage's goals to end")
+    finally:
+        for executor in executors:
+            executor.shutdown()
+        rclpy.shutdown(context=context)
+
+
+@pytest.mark.parametrize("losses", [
+    {"send_goal_request": 1},                     # the goal request lost (issue 22: a server just started)
+    {"take_goal_response": 1},                    # the acceptance lost: the goal runs all the same
+    {"take_result_response": 1},                  # the result lost once
+    {"send_result_request": 1},                   # the result request lost
+    {"take_result_response": 3},                  # results lost for a while (a killed client's aftermath)
+    {"take_result_response": 10 ** 6},            # a result reader that never takes one again
+], ids=["goal-request", "goal-response", "result", "result-request", "results-for-a-while", "result-reader-dead"])
+def test_a_stage_call_survives_a_lost_message(losses):
+    """Each message of a goal lost in turn (and results lost several times over, as while a SIGKILLed
+    mission client was still listed in the kill soak, or for good: asked through a new client): the
+    call still ends with its reply within seconds, and the stage ran the work once (a goal sent again
+    supersedes the lost one; an adopted goal is not sent twice)."""
+    import time
+
+    from perch_interfaces import srv
+
+    ran: list[str] = []
+
+    def work(request, response):
+        ran.append(request.request_id)
+        time.sleep(0.3)
+        response.success, response.message = True, f"done {request.request_id}"
+        return response
+
+    with fake_filter_stage(work, losses) as (caller, lossy):
         started = time.monotonic()
         reply = caller.call("filter", srv.Filter.Request())
         seconds = time.monotonic() - started
@@ -342,7 +363,43 @@ def test_a_stage_call_survives_a_lost_message(losses):
         # A lost goal request never ran; an adopted goal ran once: the work ran exactly once either way.
         poll_until(lambda: len(ran) >= 1, 5, "the work")
         assert len(ran) == 1, ran
-    finally:
-        for executor in executors:
-            executor.shutdown()
-        rclpy.shutdown(context=context)
+
+
+def test_a_stage_call_without_a_reply_says_what_it_heard():
+    """A call that times out names the messages that came and the one that never did: a goal accepted and
+    running (status, feedback) whose result is late; a goal whose every request was lost."""
+    import time
+
+    from perch_common.cancellation import checkpoint
+    from perch_common.work import report
+    from perch_interfaces import srv
+    from perch_operator.coordinator.stages import StageError
+
+    stopped = threading.Event()
+
+    def slow(request, response):
+        try:
+            for step in range(300):
+                report(step / 300, "waiting")
+                checkpoint("waiting")   # the caller's cancel (it gave up) stops the work here
+                time.sleep(0.1)
+            response.success = True
+            return response
+        finally:
+            stopped.set()
+
+    with fake_filter_stage(slow, timeout=4.0) as (caller, _):
+        with pytest.raises(StageError) as running:
+            caller.call("filter", srv.Filter.Request())
+        poll_until(stopped.is_set, 20, "the stage's work stopped by the cancel of the call that gave up")
+    message = str(running.value)
+    assert "no reply within 4 s (parameter stage_timeout); heard: goal sent 1 time(s); accepted after" in message
+    assert "(by its response); last status listed: executing;" in message
+    assert "feedback message(s), the last " in message and " 0 feedback" not in message
+    assert message.endswith("result asked 1 time(s), no result came")
+
+    with fake_filter_stage(slow, {"send_goal_request": 10 ** 6}, timeout=4.0) as (caller, _):
+        with pytest.raises(StageError) as lost:
+            caller.call("filter", srv.Filter.Request())
+    assert str(lost.value).endswith("heard: goal sent 1 time(s); never accepted: no goal response, and its "
+                                    "server never listed it; 0 feedback message(s)"), str(lost.value)

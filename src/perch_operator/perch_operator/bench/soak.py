@@ -216,10 +216,24 @@ class Soak:
         if problem:
             report.problems.append(f"mission {index} ({kind}): {problem}")
             self.say(f"mission {index} ({kind}): PROBLEM {problem}")
+            self.say(self.log_tails(problem))
         else:
             self.say(f"mission {index} ({kind}): ok in {report.mission_s[-1]:.1f} s")
         if kind == "kill":
             report.free_after_kill_s.append(self._wait_free())
+
+    def log_tails(self, problem: str, lines: int = 40) -> str:
+        """The end of the coordinator's log and of the log of each node the problem names (its stage's), so
+        a failed soak says what the graph saw (a test's folder is gone when CI prints its failure)."""
+        nodes = ["perch_operator"] + [node for node, services in NODE_SERVICES.items()
+                                      if node != "perch_operator" and (node in problem or any(
+                                          f"({self.node.resolve_service_name(s)})" in problem for s in services))]
+        parts = []
+        for node in nodes:
+            path = self.graph.log_path.parent / "logs" / f"{node}.log"
+            text = path.read_text(errors="replace").splitlines()[-lines:] if path.is_file() else ["(no log)"]
+            parts.append(f"--- last lines of {path}:\n" + "\n".join(text))
+        return "\n".join(parts)
 
     def _run_client(self, out: Path, scene: int, extra, kind: str, report: SoakReport) -> tuple[int, str]:
         """Start the client (again while the coordinator refuses it); interrupt or kill it when asked."""

@@ -14,6 +14,10 @@ from rclpy.action.client import ClientGoalHandle
 from unique_identifier_msgs.msg import UUID
 
 TERMINAL = (GoalStatus.STATUS_SUCCEEDED, GoalStatus.STATUS_CANCELED, GoalStatus.STATUS_ABORTED)
+STATUS_NAMES = {GoalStatus.STATUS_UNKNOWN: "none (the goal was never listed)", GoalStatus.STATUS_ACCEPTED: "accepted",
+                GoalStatus.STATUS_EXECUTING: "executing", GoalStatus.STATUS_CANCELING: "canceling",
+                GoalStatus.STATUS_SUCCEEDED: "succeeded", GoalStatus.STATUS_CANCELED: "canceled",
+                GoalStatus.STATUS_ABORTED: "aborted"}
 # s without a goal response before the status topic is asked whether the goal arrived. Longer than the
 # DDS lease + ServerWatch's grace (3 + 2 s): a dead or frozen stage fails the call first, and never gets
 # the goal (a mesh of megabytes) again, which it would hold in shared memory (the first fault soak with
@@ -135,7 +139,8 @@ class GoalCall:
         self.renew = renew
         self._result_asks = 0
         self.make_goal = make_goal
-        self.feedback = feedback
+        self._given_feedback = feedback
+        self.feedback = self._on_feedback
         self.stop = stop
         self.log = log
         self.accept_wait = accept_wait
@@ -151,6 +156,11 @@ class GoalCall:
         self._result_asked_at = 0.0
         self._ended_since: float | None = None
         self._held_back = False       # said that a lost goal is not sent again (its servers changed)
+        self._first_sent_at = time.monotonic()
+        self._accepted_after: float | None = None   # s from the first sending to the adoption
+        self._adopted_by = ""                       # "its response" or "the status list"
+        self._feedback_count = 0
+        self._feedback_at = 0.0
         self._send()
 
     @property
@@ -160,6 +170,30 @@ class GoalCall:
             if self.handle is not None:
                 return next(r for g, r, _ in self.attempts if g == self.handle.goal_id)
             return self.attempts[-1][1]
+
+    def _on_feedback(self, message) -> None:
+        self._feedback_count += 1
+        self._feedback_at = time.monotonic()
+        if self._given_feedback is not None:
+            self._given_feedback(message)
+
+    def heard(self) -> str:
+        """What the caller heard of the call so far (for an error that ends it): what was sent, accepted,
+        listed, fed back and asked, so a call that got no reply says which message never came."""
+        now = time.monotonic()
+        with self._lock:
+            parts = [f"goal sent {len(self.attempts)} time(s)"]
+            if self.handle is None:
+                parts.append("never accepted: no goal response, and its server never listed it")
+            else:
+                parts.append(f"accepted after {self._accepted_after:.1f} s (by {self._adopted_by})")
+                status = self.client.status_of(bytes(self.handle.goal_id.uuid))
+                parts.append(f"last status listed: {STATUS_NAMES.get(status, status)}")
+            parts.append(f"{self._feedback_count} feedback message(s)" +
+                         (f", the last {now - self._feedback_at:.0f} s ago" if self._feedback_count else ""))
+            if self.handle is not None:
+                parts.append(f"result asked {self._result_asks} time(s), no result came")
+        return "; ".join(parts)
 
     def _send(self) -> None:
         goal_id = UUID(uuid=list(uuid.uuid4().bytes))
@@ -184,8 +218,9 @@ class GoalCall:
                 return
             self._adopt(handle)
 
-    def _adopt(self, handle: ClientGoalHandle) -> None:
+    def _adopt(self, handle: ClientGoalHandle, by: str = "its response") -> None:
         self.handle = handle
+        self._accepted_after, self._adopted_by = time.monotonic() - self._first_sent_at, by
         self._ask_result()
         for goal_id, _, future in self.attempts:
             if goal_id != handle.goal_id and (not future.done() or
@@ -235,7 +270,7 @@ class GoalCall:
                                      "acceptance never arrived (lost): taking it as accepted")
                     self.client._remove_pending_goal_request(future)
                     response = self.client._action_type.Impl.SendGoalService.Response(accepted=True)
-                    self._adopt(ClientGoalHandle(self.client, goal_id, response))
+                    self._adopt(ClientGoalHandle(self.client, goal_id, response), "the status list")
                     return
                 if not self.may_resend():
                     if not self._held_back:

@@ -326,9 +326,10 @@ class StageCaller:
                     raise StageError(stage, servers.describe(), self.services[stage])
                 if time.monotonic() > deadline:
                     stop_reason[0] = "no reply within stage_timeout"
+                    heard = call.heard()
                     call.abandon()
-                    raise StageError(stage, f"no reply within {self.timeout:.0f} s (parameter stage_timeout)",
-                                     self.services[stage])
+                    raise StageError(stage, f"no reply within {self.timeout:.0f} s (parameter stage_timeout); "
+                                            f"heard: {heard}", self.services[stage])
         finally:
             call_over.set()
             call.close()
