@@ -34,9 +34,10 @@ SCENE_SEEDS = (1, 3)          # generated rooms: each a few seconds per mission 
 KINDS = {"complete": 0.65, "kill": 0.12, "cancel": 0.12, "bad_goal": 0.11}
 RESPAWNED_NODE = "perch_segmentation"
 OUTPUTS = ("waypoints.yaml", "run.rrd", "report.html")
-# A killed or interrupted client gets its signal once its progress shows one of these stages running
-# (chosen at random), so that it lands mid-mission even when a whole mission takes 2 s.
-INTERRUPT_AT = ("crop: running", "segment: running", "filter: running", "optimise: running")
+# A killed or interrupted client gets its signal once its progress shows one of these stages (chosen at
+# random) or a later one, so that it lands mid-mission even when a whole mission takes 2 s.
+INTERRUPT_AT = ("crop", "segment", "filter", "optimise")
+MISSION_STAGES = ("clean", "crop", "segment", "filter", "optimise", "confirm")   # as the client prints them
 INTERRUPT_JITTER = 0.3   # s, at most, after that line
 PER_MISSION = ("proposal_id", "mission_id")   # waypoint fields that differ between equal missions
 
@@ -148,7 +149,7 @@ class Soak:
                  heaptrack: "CoordinatorHeaptrack | None" = None, smaps: Path | None = None,
                  interrupt_at: tuple[str, ...] = INTERRUPT_AT):
         self.graph = graph
-        self.interrupt_at = interrupt_at   # the progress lines a killed or interrupted client waits for
+        self.interrupt_at = interrupt_at   # the stages a killed or interrupted client waits for
         self.traces = traces   # the graph's record_traced folder (--tracemalloc), else None
         self.heaptrack = heaptrack
         self.smaps = smaps   # a folder for the coordinator's /proc/PID/smaps after each mission, else None
@@ -260,12 +261,18 @@ class Soak:
         return code, output
 
     def _interrupt(self, proc: subprocess.Popen, log_path: Path, sig: int) -> None:
-        """Once the mission reaches a stage chosen at random, wait a random moment and send `sig`."""
-        line = self.rng.choice(self.interrupt_at)
+        """Once the mission reaches a stage chosen at random, wait a random moment and send `sig`.
+
+        The client prints a line when a stage starts: the stage's first feedback message, which is "running
+        <stage>" unless that message was lost (feedback keeps the last 10: a stage's own phases can push
+        it out before a lost one is sent again), so any line of the stage, or of a later one, counts."""
+        stage = self.rng.choice(self.interrupt_at)
         delay = self.rng.uniform(0.0, INTERRUPT_JITTER)
+        reached = [f"] {later}: " for later in MISSION_STAGES[MISSION_STAGES.index(stage):]]
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline and proc.poll() is None:
-            if line in log_path.read_text():
+            text = log_path.read_text()
+            if any(line in text for line in reached):
                 break
             time.sleep(0.02)
         time.sleep(delay)
