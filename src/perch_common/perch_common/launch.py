@@ -44,7 +44,7 @@ NODE_ENVIRONMENT = {"perch_operator": {"PYTHONMALLOC": "malloc"}}
 
 
 def dds_profile(network: bool = False) -> Path:
-    """config/fastdds.xml (loopback + shared memory) or config/fastdds_network.xml (all interfaces), from
+    """config/fastdds.xml (loopback UDP) or config/fastdds_network.xml (UDP on all interfaces), from
     the source tree or the installation's share/perch_operator/config."""
     from perch_common.config import config_file
 
@@ -61,7 +61,7 @@ def network_requested(env: dict | None = None) -> bool:
 def use_perch_dds(env: dict | None = None, network: bool | None = None) -> dict:
     """Apply Perch's Fast DDS settings to `env` (default: this process; call before rclpy.init).
 
-    Local (default): config/fastdds.xml (loopback UDP, shared memory, unicast peers on 127.0.0.1)
+    Local (default): config/fastdds.xml (loopback UDP, no shared memory, unicast peers on 127.0.0.1)
     with ROS_AUTOMATIC_DISCOVERY_RANGE=SYSTEM_DEFAULT, because rmw_fastrtps's LOCALHOST range would
     replace the profile's transports with ones bound to every interface. A profile of the user's
     own (FASTRTPS_DEFAULT_PROFILES_FILE already set) is kept, with the user's range (else LOCALHOST).

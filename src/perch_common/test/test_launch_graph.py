@@ -97,6 +97,12 @@ def _udp_addresses(pid: int) -> set[str]:
     return {c.laddr.ip for c in proc.net_connections(kind="udp") if c.laddr}
 
 
+def _shared_memory_ports(pid: int) -> set[str]:
+    """The Fast DDS shared-memory transport's port segments the process maps (/dev/shm/fastrtps_port*)."""
+    maps = Path(f"/proc/{pid}/maps").read_text()
+    return {line.split()[-1] for line in maps.splitlines() if "/dev/shm/fastrtps_port" in line}
+
+
 def _wait_for_log(path: Path, text: str, timeout: float = 60.0) -> None:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -121,7 +127,10 @@ def test_nodes_bind_loopback_only_unless_the_network_is_opened(tmp_path, network
         _wait_for_log(tmp_path / "logs" / "perch_mesh_tools.log", "serving /perch/inspect_mesh")
         time.sleep(1.0)
         addresses = _udp_addresses(graph.processes["perch_mesh_tools"].pid)
+        ports = _shared_memory_ports(graph.processes["perch_mesh_tools"].pid)
     assert addresses, "the node bound no UDP socket at all"
+    # No shared-memory transport in either profile (config/fastdds.xml says why): no port segment mapped.
+    assert not ports, f"the node mapped Fast DDS shared-memory ports {ports}"
     # 239.255.0.1 is the SPDP multicast group; the whitelist joins it on loopback only.
     external = {a for a in addresses if not a.startswith("127.") and not a.startswith("239.")}
     if network:
