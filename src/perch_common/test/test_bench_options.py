@@ -41,6 +41,7 @@ REFUSED = [
     ("segment", "--scene", ["-1"], ">= 0"),
     ("transport", "--faces", ["0", "-5"], ">= 1"),
     ("transport", "--repeats", ["0"], ">= 1"),
+    ("transport", "--respawns", ["-1", "x"], ">= 0"),
     ("up", "--repeats", ["-1", "0"], ">= 1"),
     ("memory", "--faces", ["-1", "0"], ">= 1"),
     ("memory", "--mesh-cache-mb", ["-3", "nan", "inf"], ">= 0"),
