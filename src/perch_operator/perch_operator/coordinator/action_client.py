@@ -20,8 +20,9 @@ STATUS_NAMES = {GoalStatus.STATUS_UNKNOWN: "none (the goal was never listed)", G
                 GoalStatus.STATUS_ABORTED: "aborted"}
 # s without a goal response before the status topic is asked whether the goal arrived. Longer than the
 # DDS lease + ServerWatch's grace (3 + 2 s): a dead or frozen stage fails the call first, and never gets
-# the goal (a mesh of megabytes) again, which it would hold in shared memory (the first fault soak with
-# 3 s: after a frozen-then-killed filter node, the soak's client lost sight of the coordinator).
+# the goal (a mesh of megabytes) again, which it would hold (the first fault soak with 3 s, when the
+# profile still used shared memory: after a frozen-then-killed filter node, the soak's client lost sight
+# of the coordinator).
 ACCEPT_WAIT = 8.0
 RESULT_WAIT = 3.0   # s the status may say "ended" without the result arriving before it is asked for again
 RESULT_WAIT_MAX = 6.0   # s at most between asks
