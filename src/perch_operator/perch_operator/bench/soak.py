@@ -263,9 +263,9 @@ class Soak:
     def _interrupt(self, proc: subprocess.Popen, log_path: Path, sig: int) -> None:
         """Once the mission reaches a stage chosen at random, wait a random moment and send `sig`.
 
-        The client prints a line when a stage starts: the stage's first feedback message, which is "running
-        <stage>" unless that message was lost (feedback keeps the last 10: a stage's own phases can push
-        it out before a lost one is sent again), so any line of the stage, or of a later one, counts."""
+        The client prints a line when a stage starts: the first feedback message of the stage it gets,
+        "running <stage>" as a rule, but once in 11 local runs "segment: prepare" (the stage's first
+        message never reached that client), so any line of the stage, or of a later one, counts."""
         stage = self.rng.choice(self.interrupt_at)
         delay = self.rng.uniform(0.0, INTERRUPT_JITTER)
         reached = [f"] {later}: " for later in MISSION_STAGES[MISSION_STAGES.index(stage):]]
