@@ -285,14 +285,15 @@ class Lossy:
 
 @contextlib.contextmanager
 def fake_filter_stage(work, losses: dict[str, int] | None = None, timeout: float = 60.0):
-    """A fake filter stage running `work(request, response)` and a StageCaller on a coordinator node (its
+    """A fake filter stage running `work(request, response)` (and a clean stage, called as a service, running
+    it too) and a StageCaller on a coordinator node (its
     filter client's rcl handle Lossy when `losses` are given), each spun by keep_spinning in a context of
     their own; yields (caller, the Lossy handle or None)."""
     import rclpy
     from rclpy.callback_groups import ReentrantCallbackGroup
     from rclpy.executors import MultiThreadedExecutor
 
-    from perch_common.ros.service import create_stage_action
+    from perch_common.ros.service import create_stage_action, create_stage_service
     from perch_common.ros.spinning import keep_spinning
     from perch_common.ros.testing import use_isolated_ros_env
     from perch_interfaces import action, srv
@@ -306,6 +307,7 @@ def fake_filter_stage(work, losses: dict[str, int] | None = None, timeout: float
         server = rclpy.create_node("fake_filter", namespace="stage_loss", context=context)
         stage = create_stage_action(server, action.Filter, srv.Filter, "perch/filter", work, introspection=False,
                                     result_timeout=60)
+        create_stage_service(server, srv.CleanMesh, "perch/clean_mesh", work, introspection=False)   # a service stage
         coordinator = rclpy.create_node("loss_coordinator", namespace="stage_loss", context=context)
         caller = StageCaller(coordinator, ReentrantCallbackGroup(), service_wait=30.0, timeout=timeout, gone_grace=5.0)
         lossy = None
@@ -367,10 +369,11 @@ def test_a_stage_call_survives_a_lost_message(losses):
 
 def test_a_stage_call_without_a_reply_says_what_it_heard():
     """A call that times out names the messages that came and the one that never did: a goal accepted and
-    running (status, feedback) whose result is late; a goal whose every request was lost."""
+    running (status, feedback) whose result is late; a service call the stage announced; a goal whose every
+    request was lost."""
     import time
 
-    from perch_common.cancellation import checkpoint
+    from perch_common.cancellation import Cancelled, checkpoint
     from perch_common.work import report
     from perch_interfaces import srv
     from perch_operator.coordinator.stages import StageError
@@ -384,9 +387,11 @@ def test_a_stage_call_without_a_reply_says_what_it_heard():
                 checkpoint("waiting")   # the caller's cancel (it gave up) stops the work here
                 time.sleep(0.1)
             response.success = True
-            return response
+        except Cancelled as exc:   # answered as a stage answers it (perch_common.ros.service.answering)
+            response.success, response.message = False, str(exc)
         finally:
             stopped.set()
+        return response
 
     with fake_filter_stage(slow, timeout=4.0) as (caller, _):
         with pytest.raises(StageError) as running:
@@ -397,6 +402,14 @@ def test_a_stage_call_without_a_reply_says_what_it_heard():
     assert "(by its response); last status listed: executing;" in message
     assert "feedback message(s), the last " in message and " 0 feedback" not in message
     assert message.endswith("result asked 1 time(s), no result came")
+
+    stopped.clear()
+    with fake_filter_stage(slow, timeout=4.0) as (caller, _):
+        with pytest.raises(StageError) as service:
+            caller.call("clean", srv.CleanMesh.Request())
+        poll_until(stopped.is_set, 20, "the service stage's work stopped by the cancel of the call that gave up")
+    assert str(service.value).endswith("no reply within 4 s (parameter stage_timeout); sent 1 time(s), heard: "
+                                       "the stage announced the call"), str(service.value)
 
     with fake_filter_stage(slow, {"send_goal_request": 10 ** 6}, timeout=4.0) as (caller, _):
         with pytest.raises(StageError) as lost:

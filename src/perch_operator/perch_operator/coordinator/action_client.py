@@ -162,6 +162,7 @@ class GoalCall:
         self._adopted_by = ""                       # "its response" or "the status list"
         self._feedback_count = 0
         self._feedback_at = 0.0
+        self._unknown_answers = 0   # result answers from a server that did not know the goal
         self._send()
 
     @property
@@ -193,7 +194,9 @@ class GoalCall:
             parts.append(f"{self._feedback_count} feedback message(s)" +
                          (f", the last {now - self._feedback_at:.0f} s ago" if self._feedback_count else ""))
             if self.handle is not None:
-                parts.append(f"result asked {self._result_asks} time(s), no result came")
+                parts.append(f"result asked {self._result_asks} time(s), no result came" +
+                             (f" ({self._unknown_answers} answer(s) said the server does not know the goal)"
+                              if self._unknown_answers else ""))
         return "; ".join(parts)
 
     def _send(self) -> None:
@@ -246,6 +249,7 @@ class GoalCall:
     def _on_result(self, future) -> None:
         answer = None if future.exception() is not None else future.result()
         if answer is not None and answer.status == GoalStatus.STATUS_UNKNOWN:
+            self._unknown_answers += 1
             return   # a server that does not know the goal (another one): ServerWatch or the timeout ends the call
         if answer is not None and not self.done.is_set():
             self.answer = answer

@@ -269,8 +269,10 @@ class StageCaller:
                     raise StageError(stage, servers.describe(), self.services[stage])
                 if now > deadline:
                     self._signed_cancel(stage, call_id, "no reply within stage_timeout")
-                    raise StageError(stage, f"no reply within {self.timeout:.0f} s (parameter stage_timeout)",
-                                     self.services[stage])
+                    heard = ("the stage announced the call" if self._heard_of(call_id) else
+                             "nothing: the stage never announced the call")
+                    raise StageError(stage, f"no reply within {self.timeout:.0f} s (parameter stage_timeout); sent "
+                                            f"{1 + resends} time(s), heard: {heard}", self.services[stage])
                 # Resent only to the servers it went to: a node that replaced them (respawned) must not take
                 # up a call its dead predecessor may have been running (ServerWatch fails that call).
                 if resends < RESENDS and now > resend_at and not self._heard_of(call_id) and servers.unchanged():
