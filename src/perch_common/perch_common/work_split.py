@@ -20,6 +20,7 @@ those before the split. It never touches ROS; it ends with os._exit (multiproces
 from __future__ import annotations
 
 import contextvars
+import mmap
 import multiprocessing
 import os
 import signal
@@ -28,7 +29,9 @@ import time
 import traceback
 import warnings
 from dataclasses import dataclass
-from typing import Callable, Generic, TypeVar
+from typing import Callable, Generic, Iterator, Sequence, TypeVar
+
+import numpy as np
 
 from perch_common.cancellation import checkpoint
 from perch_common.processes import signal_at_parent_death
@@ -80,13 +83,15 @@ def _exit_status(child) -> str:
 
 
 def in_two_processes(run: Callable[[object], T], mine, theirs, patience: Callable[[float], float],
-                     send: Callable | None = None, run_theirs: Callable | None = None) -> SplitRun[T]:
+                     send: Callable | None = None, run_theirs: Callable | None = None,
+                     lost: Callable[[], object] | None = None) -> SplitRun[T]:
     """`run(mine)` here and `run(theirs)` in a forked child, at the same time, each on one thread.
 
     `patience(s)` is how long the caller waits for the child once its own share took `s` seconds;
     past it the child is killed and its share computed here. `send(result)` is what the child sends
     of its result (all of it by default): `theirs` is that when `child` is "done", else run(theirs).
     `run_theirs`, when given, runs the child's share instead of `run` (in the child, or here in its place).
+    `lost()`, when given, is the share computed here in place of a child's that never came (default `theirs`).
     """
     theirs_run = run_theirs if run_theirs is not None else run
     if work_threads() < 2:  # one core: the child would only take turns with the caller
@@ -132,10 +137,82 @@ def in_two_processes(run: Callable[[object], T], mine, theirs, patience: Callabl
         if status == "done":
             return SplitRun(result, payload, "done")
         with one_thread():
-            return SplitRun(result, theirs_run(theirs), f"{status}: {payload}".strip())
+            return SplitRun(result, theirs_run(lost() if lost is not None else theirs), f"{status}: {payload}".strip())
     finally:
         receiver.close()
         if child is not None:
             if child.is_alive():
                 child.kill()
             child.join()
+
+
+class Claims:
+    """Items taken from both ends of one order by two processes, each item as a process is ready for it:
+    the caller from the front, a forked child from the back, until they meet. Each share then ends
+    when the other's does, however fast either runs (a first call's imports, a busy core).
+
+    Each process writes only its own count (one aligned 8-byte store, in a page shared across the
+    fork) and reads the other's: neither ever waits for the other, and a child that dies mid-way
+    holds nothing up. Two processes reading at once may both take the item they meet on (the same
+    answer, computed twice); none is left out, as the counts only grow."""
+
+    def __init__(self, order: Sequence[int]):
+        self.order = list(order)
+        self._counts = np.frombuffer(mmap.mmap(-1, 16), np.int64)  # anonymous mmap: MAP_SHARED
+
+    def end(self, side: int) -> "ClaimEnd":
+        """The front (0, the caller's) or the back (1, the child's)."""
+        return ClaimEnd(self, side)
+
+    def left(self, taken: Sequence[int]) -> list[int]:
+        """The items of the order not in `taken`: the child's share, when the caller computes it."""
+        done = set(taken)
+        return [item for item in self.order if item not in done]
+
+    def _take(self, side: int) -> Iterator[int]:
+        total, counts = len(self.order), self._counts
+        while True:
+            own = int(counts[side])
+            if own + int(counts[1 - side]) >= total:
+                return
+            counts[side] = own + 1
+            yield self.order[own if side == 0 else total - 1 - own]
+
+
+class ClaimEnd:
+    """One end of Claims: iterating takes its items one by one and records them in `taken`. Its length is
+    the whole order's (what progress counts against: a share's size is known when it ends)."""
+
+    def __init__(self, claims: Claims, side: int):
+        self.claims, self.side = claims, side
+        self.taken: list[int] = []
+
+    def __len__(self) -> int:
+        return len(self.claims.order)
+
+    def __iter__(self) -> Iterator[int]:
+        for item in self.claims._take(self.side):
+            self.taken.append(item)
+            yield item
+
+
+def claimed_in_two_processes(run: Callable[[object], list], order: Sequence[int], patience: Callable[[float], float],
+                             run_theirs: Callable | None = None, send: Callable | None = None) -> SplitRun[dict]:
+    """in_two_processes over the items of `order` claimed from both its ends (Claims): `run(items)`
+    takes an iterable of items (sized by the whole order) and returns one result per item it took,
+    in its order. `mine` and `theirs` of the answer map each item to its result; a lost child's items
+    are computed here. `send(result)` is what the child sends of one item's result."""
+    claims = Claims(order)
+    front, back = claims.end(0), claims.end(1)
+    theirs_run = run_theirs if run_theirs is not None else run
+
+    def recorded(function: Callable) -> Callable[[object], dict]:
+        def by_item(items) -> dict:
+            results = function(items)
+            taken = items.taken if isinstance(items, ClaimEnd) else list(items)
+            return dict(zip(taken, results))
+        return by_item
+
+    return in_two_processes(recorded(run), front, back, patience, run_theirs=recorded(theirs_run),
+                            send=None if send is None else lambda by_item: {k: send(v) for k, v in by_item.items()},
+                            lost=lambda: claims.left(front.taken))

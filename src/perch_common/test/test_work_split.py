@@ -9,7 +9,7 @@ import pytest
 
 from perch_common.cancellation import Cancelled, CancelToken, cancellable, current_token
 from perch_common.threads import one_thread, work_threads
-from perch_common.work_split import in_two_processes
+from perch_common.work_split import Claims, claimed_in_two_processes, in_two_processes
 
 CALLER = os.getpid()
 
@@ -142,7 +142,7 @@ def test_output_the_caller_buffered_before_the_fork_is_written_once(tmp_path):
     import sys
 
     out = tmp_path / "out.txt"
-    script = ("import sys\nfrom perch_common.work_split import in_two_processes\n"
+    script = ("import sys\nfrom perch_common.work_split import Claims, claimed_in_two_processes, in_two_processes\n"
               "print('written before the split')\n"
               "split = in_two_processes(lambda share: share, [1], [2], lambda own: 60.0)\n"
               "print('after', split.child)\n")
@@ -162,7 +162,7 @@ def test_the_child_dies_with_a_caller_that_is_killed(tmp_path):
     pid_file = tmp_path / "child.pid"
     script = f"""
 import os, pathlib, threading, time
-from perch_common.work_split import in_two_processes
+from perch_common.work_split import Claims, claimed_in_two_processes, in_two_processes
 pid_file = pathlib.Path({str(pid_file)!r})
 def run(share):
     if share == [2]:  # the child: say who it is, then compute forever
@@ -180,3 +180,74 @@ in_two_processes(run, [1], [2], lambda own: 60.0)
     child = psutil.Process(int(pid_file.read_text()))
     gone, alive = psutil.wait_procs([child], timeout=30)
     assert not alive, "the child outlived its killed caller"
+
+
+def test_claims_hand_out_every_item_once_from_both_ends():
+    claims = Claims([5, 3, 8, 1, 9, 2])
+    front, back = claims.end(0), claims.end(1)
+    taking_front, taking_back = iter(front), iter(back)
+    assert [next(taking_front), next(taking_back), next(taking_back), next(taking_front)] == [5, 2, 9, 3]
+    assert list(taking_back) == [1, 8] and list(taking_front) == []   # the back went on to meet the front
+    assert len(front) == len(back) == 6   # progress counts against the whole order
+    assert front.taken == [5, 3] and back.taken == [2, 9, 1, 8]
+    assert claims.left(front.taken) == [8, 1, 9, 2]
+
+
+def squares_claimed(items):
+    return [(x * x, os.getpid()) for x in items]
+
+
+def test_claimed_items_go_to_whichever_process_takes_them_each_computed_once():
+    """The child takes its first two items from the back and waits; the caller then takes all the rest
+    from the front (the child, faster or slower, would have taken more or fewer)."""
+    context = multiprocessing.get_context("fork")
+    child_took, caller_done = context.Event(), context.Event()
+
+    def run(items):
+        if os.getpid() == CALLER:
+            assert child_took.wait(60)
+            out = squares_claimed(items)
+            caller_done.set()
+            return out
+        out = []
+        for x in items:
+            out.append((x * x, os.getpid()))
+            if len(out) == 2:
+                child_took.set()
+                assert caller_done.wait(60)   # nothing is left once the caller is done
+        return out
+
+    split = claimed_in_two_processes(run, [1, 2, 3, 4, 5, 6, 7], patient)
+    assert split.child == "done"
+    assert {x: value for x, (value, _) in (split.mine | split.theirs).items()} == {x: x * x for x in range(1, 8)}
+    assert sorted(split.theirs) == [6, 7] and sorted(split.mine) == [1, 2, 3, 4, 5]
+    assert {pid for _, pid in split.mine.values()} == {CALLER} and CALLER not in {pid for _, pid in split.theirs.values()}
+
+
+def test_the_items_a_lost_child_took_are_computed_by_the_caller():
+    """A child that dies after taking items computed nothing the caller can use: the caller computes
+    them, and every other item (taken by itself) once."""
+    context = multiprocessing.get_context("fork")
+    child_took = context.Event()
+
+    def run(items):
+        if os.getpid() != CALLER:
+            for count, _ in enumerate(items, 1):
+                if count == 3:
+                    child_took.set()
+                    os._exit(4)
+        assert child_took.wait(60)
+        return squares_claimed(items)
+
+    split = claimed_in_two_processes(run, list(range(10)), patient)
+    assert split.child.startswith("died: exit code 4")
+    assert sorted(split.mine) == list(range(7)) and sorted(split.theirs) == [7, 8, 9]
+    assert {x: value for x, (value, pid) in (split.mine | split.theirs).items() if pid == CALLER} == \
+        {x: x * x for x in range(10)}
+
+
+def test_one_allowed_thread_takes_every_claimed_item_here():
+    with one_thread():
+        split = claimed_in_two_processes(squares_claimed, [3, 1, 2], patient)
+    assert split.child == "one thread allowed" and split.theirs == {}
+    assert split.mine == {3: (9, CALLER), 1: (1, CALLER), 2: (4, CALLER)}

@@ -39,12 +39,12 @@ from perch_common.target import TargetVolume
 from perch_common.threads import work_threads
 from perch_common.timing import Laps
 from perch_common.types import NOT_MEASURED, FilterRemoval, PerchEvidence, PerchRegion, Surface, SurfaceClass
-from perch_common.work import report, steps
-from perch_common.work_split import in_two_processes
+from perch_common.work import report, span, steps
+from perch_common.work_split import claimed_in_two_processes
 from perch_filtering.checks import approach_clearance, free_fall, geometry_in_front
 from perch_filtering.config import FilterConfig
 from perch_filtering.holes import hole_patches
-from perch_filtering.observed import unobserved_share
+from perch_filtering.observed import unobserved_share, unobserved_shares
 from perch_filtering.orientation import class_enabled, find_floor, orient, oriented_copy, visibility_scores, winding_votes
 from perch_filtering.raster import (
     SurfaceRaster,
@@ -77,7 +77,8 @@ SUPPORT_BIN = 0.1  # depth bins of the support statistics, as a share of plane_t
 ANY_YAW_COST = 1.85
 SPLIT_MIN_CELLS = 200_000  # raster cells (m^2 of enabled surface / cell^2) from which a second process judges half
 SPLIT_MIN_OBSERVED_CELLS = 100_000  # cells alive after line of sight from which a second process checks observed space
-REACHABILITY_COST = 0.15  # the caller's reachability, as a share of the observed-space rule's cost
+JUDGING_BATCH_SHARE = 1 / 48  # of the judging cost: batches of small surfaces that two processes take one by one
+JUDGING = (0.2, 0.7)  # the call's progress while the surfaces are judged
 SPLIT_PATIENCE = 10.0  # s the second process may take beyond the caller's share before it is judged here
 
 
@@ -178,24 +179,43 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
 
     def judge(indices: list[int]) -> list[_Work]:
         """The per-surface filters up to line of sight, on the surfaces `indices` (each surface's answer
-        is its own: the same alone, with the others, or in another process)."""
+        is its own: the same alone, with the others, or in another process). Reports 0..1 of its work."""
         work = _per_surface(lambda i: _raster_filters(oriented[i], mesh, samples, index, scene, up, floor_height,
                                                       kernel, config),
-                            indices, "raster filters: surface", 0.2, 0.45)
+                            indices, "raster filters: surface", 0.0, 0.5)
         clock.lap("raster_filters")
         _per_surface(lambda w: _support(w, scene, kernel, config) if w.raster is not None else None,
-                     work, "support: surface", 0.45, 0.5)
+                     work, "support: surface", 0.5, 0.6)
         clock.lap("support")
-        report(0.5, "line of sight")
+        report(0.6, "line of sight")
         _visibility(work, scene, patch_scene, target_points, groups, config)
         clock.lap("line_of_sight")
         return work
 
+    def judge_batches(taken) -> list[list[_Work]]:
+        """judge on each batch of surfaces `taken` (indices into batches), in turn: claimed one at a time
+        when two processes share them."""
+        out = []
+        for k, b in enumerate(taken):
+            with span(JUDGING[0] + (JUDGING[1] - JUDGING[0]) * k / len(taken),
+                      JUDGING[0] + (JUDGING[1] - JUDGING[0]) * (k + 1) / len(taken)):
+                out.append(judge(batches[b]))
+        return out
+
     # Each surface's judging costs about its raster's cells, a ceiling's ANY_YAW_COST times a wall's.
     judging_cost = [s.area / config.cell ** 2 * (ANY_YAW_COST if s.surface_class in ANY_YAW_CLASSES else 1.0)
                     if class_enabled(s.surface_class, config) else 0.0 for s in oriented]
-    work, second_process = _shared_out(judge, judging_cost, SPLIT_MIN_CELLS, config, _evidence_at_alive,
-                                       _evidence_spread)
+    batches = _batches(judging_cost, JUDGING_BATCH_SHARE)
+    if _worth_a_split(judging_cost, SPLIT_MIN_CELLS, config):
+        # In batches taken from both ends of one order (largest first): whichever process runs faster
+        # judges more, and both end together.
+        judged, second_process = _claimed_out(judge_batches, [sum(judging_cost[i] for i in b) for b in batches],
+                                              send=_evidence_at_alive, receive=_evidence_spread)
+        by_surface = {i: w for batch, ws in zip(batches, judged) for i, w in zip(batch, ws)}
+        work = [by_surface[i] for i in range(len(oriented))]
+    else:
+        with span(*JUDGING):
+            work, second_process = judge(list(range(len(oriented)))), ""
     clock.lap("second_process")
     live = [w for w in work if w.raster is not None]
     reached: list[tuple[_Work, np.ndarray]] = []
@@ -224,11 +244,13 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
         return [observe_and_outline(replace(live[i], removal=replace(live[i].removal), evidence=dict(live[i].evidence)),
                                     live[i].alive.copy(), True) for i in indices]
 
-    # The caller starts with reachability: it is that much ahead when the observed space is shared out.
+    # The caller starts with reachability (a first call loads Open3D for it), then both processes take
+    # surfaces from the two ends of one order until they meet: each share ends when the other's does.
     observe_cost = [float(w.alive.sum()) for w in live]
-    observed, observed_split = _shared_out(reach_and_observe, observe_cost, SPLIT_MIN_OBSERVED_CELLS, config,
-                                           run_theirs=observe_alive,
-                                           head_start=REACHABILITY_COST * float(sum(observe_cost)))
+    if _worth_a_split(observe_cost, SPLIT_MIN_OBSERVED_CELLS, config):
+        observed, observed_split = _claimed_out(reach_and_observe, observe_cost, run_theirs=observe_alive)
+    else:
+        observed, observed_split = reach_and_observe(list(range(len(live)))), ""
     for i, (w, kept) in enumerate(reached):
         # Reachability removes next to nothing; where it removed cells of a surface judged beside it, the
         # rule is applied again to the cells it kept (the same answer as one process gives).
@@ -268,30 +290,48 @@ def _surface_threads() -> int:
     return work_threads()
 
 
-def _shared_out(run, cost: list[float], min_cost: float, config: FilterConfig, send=None,
-                receive=None, run_theirs=None, head_start: float = 0.0) -> tuple[list, str]:
-    """run(all indices) -> one result per index, in two processes when the items' `cost` (raster cells)
-    reaches `min_cost` (what pays for a fork): the items are shared out largest first, each to the
-    lighter share, the caller's `head_start` ahead (work of its own besides the items). `send`/`receive`
-    shrink what the second process returns and restore it; `run_theirs` runs the second share instead
-    of `run` (in the child, or here in its place)."""
-    cost = np.asarray(cost, np.float64)
-    if config.processes < 2 or cost.sum() < min_cost or np.count_nonzero(cost) < 2:
-        return run(list(range(len(cost)))), ""
-    shares: tuple[list[int], list[int]] = ([], [])
-    loads = [head_start, 0.0]
-    for i in np.argsort(-cost, kind="stable"):
-        lighter = int(loads[1] < loads[0])
-        shares[lighter].append(int(i))
-        loads[lighter] += cost[i]
-    mine, theirs = sorted(shares[0]), sorted(shares[1])
-    # The child's share should take about as long as the caller's: past three times that (and a
-    # floor for a loaded machine), it is taken as lost and computed here.
-    split = in_two_processes(run, mine, theirs, patience=lambda own: max(SPLIT_PATIENCE, 2.0 * own), send=send,
-                             run_theirs=run_theirs)
-    theirs_result = receive(split.theirs) if receive is not None and split.child == "done" else split.theirs
-    by_index = dict(zip(mine, split.mine)) | dict(zip(theirs, theirs_result))
+def _claimed_out(run, cost: list[float], run_theirs=None, send=None, receive=None) -> tuple[list, str]:
+    """run(indices) -> one result per index, for all indices, in two processes that take the items as each
+    is ready for the next (perch_common.work_split.Claims): the child's end of the order starts with
+    the largest item, the caller's with the second (the caller may have work of its own first).
+    `run_theirs` runs the child's items (in the child, or here in its place); `send`/`receive` shrink
+    one result the child returns and restore it."""
+    largest_first = [int(i) for i in np.argsort(-np.asarray(cost, np.float64), kind="stable")]
+    order = largest_first[1::2] + largest_first[0::2][::-1]   # the front takes odd ranks, the back even ones
+    split = claimed_in_two_processes(run, order, _patience, run_theirs=run_theirs, send=send)
+    theirs = split.theirs
+    if receive is not None and split.child == "done":
+        theirs = {item: receive(result) for item, result in theirs.items()}
+    by_index = split.mine | theirs
     return [by_index[i] for i in range(len(cost))], split.child
+
+
+def _batches(cost: list[float], share: float) -> list[list[int]]:
+    """The items largest first, in batches: an item alone, or consecutive smaller ones up to `share` of
+    the total cost (a batch's fixed costs are paid once; the last batches taken are small)."""
+    order = np.argsort(-np.asarray(cost, np.float64), kind="stable")
+    enough = share * float(sum(cost))
+    batches: list[list[int]] = [[]]
+    held = 0.0
+    for i in order:
+        if batches[-1] and held >= enough:
+            batches.append([])
+            held = 0.0
+        batches[-1].append(int(i))
+        held += cost[i]
+    return [b for b in batches if b]
+
+
+def _worth_a_split(cost: list[float], min_cost: float, config: FilterConfig) -> bool:
+    """Whether items of these costs (raster cells) pay for a second process (a fork)."""
+    return config.processes >= 2 and float(sum(cost)) >= min_cost and np.count_nonzero(cost) >= 2
+
+
+def _patience(own: float) -> float:
+    """How long the caller waits for the child once its own share took `own` s: the child's share should
+    take about as long; past three times that from the split (and a floor for a loaded machine), it is
+    taken as lost and computed here."""
+    return max(SPLIT_PATIENCE, 2.0 * own)
 
 
 def _evidence_at_alive(work: list[_Work]) -> list[_Work]:
@@ -329,7 +369,7 @@ def _per_surface(work, items: list, phase: str, low: float, high: float) -> list
     calling thread, once per surface in order; a few surfaces run ahead of the one awaited (bounded
     memory); a cancel or an error leaves the ones not started unstarted."""
     threads = _surface_threads()
-    if threads == 1 or len(items) < 2:
+    if threads == 1 or len(items) < 2 or not hasattr(items, "__getitem__"):  # claimed items: one by one
         return [work(item) for item in steps(items, phase, low, high)]
     out: list = []
     futures: list = []
@@ -501,19 +541,21 @@ def _observed(w: _Work, kept: np.ndarray, scene: RayScene, up: np.ndarray, confi
     if w.window is not None:  # any yaw: the square holding the disc every turned prism sweeps
         half_u = half_v = any_yaw_radius(half_u, half_v)
     views = viewpoints  # the cameras' evidence, when the mesh was reconstructed from posed frames
-    approach = unobserved_share(scene, w.raster, kept, (-half_u, half_u), (-half_v, half_v),
-                                (start, max(s.approach_distance, start + s.cell)), s.enclosed_escape_share,
-                                viewpoints=views)
+    prism = ((-half_u, half_u), (-half_v, half_v), (start, max(s.approach_distance, start + s.cell)))
+    column = ((-half_u, half_u), (-half_v, half_v), (start, max(s.min_recovery_height, start + s.cell)))
     if w.surface.surface_class == SurfaceClass.WALL:  # the corridor below the window, 2 radii deep
-        fall = unobserved_share(scene, w.raster, kept, (-half_u, half_u),
-                                (-(0.5 * s.window_height + s.min_recovery_height), 0.5 * s.window_height),
-                                (start, max(2 * s.drone_radius, start + s.cell)), s.enclosed_escape_share, -up,
-                                viewpoints=views)
+        corridor = ((-half_u, half_u), (-(0.5 * s.window_height + s.min_recovery_height), 0.5 * s.window_height),
+                    (start, max(2 * s.drone_radius, start + s.cell)))
+        approach, fall = (unobserved_share(scene, w.raster, kept, *volume, s.enclosed_escape_share, down,
+                                           viewpoints=views) for volume, down in ((prism, None), (corridor, -up)))
     elif float(w.surface.frame.normal @ up) < 0:  # the column below a ceiling (or a downward surface)
-        fall = unobserved_share(scene, w.raster, kept, (-half_u, half_u), (-half_v, half_v),
-                                (start, max(s.min_recovery_height, start + s.cell)), s.enclosed_escape_share, -up,
-                                viewpoints=views)
+        # With the defaults (approach_distance = min_recovery_height) one box: its enclosure rays cast once.
+        approach, fall = (unobserved_shares(scene, w.raster, kept, *prism, s.enclosed_escape_share, (None, -up),
+                                            views) if column == prism else
+                          (unobserved_share(scene, w.raster, kept, *volume, s.enclosed_escape_share, down,
+                                            viewpoints=views) for volume, down in ((prism, None), (column, -up))))
     else:  # landing: no fall
+        approach = unobserved_share(scene, w.raster, kept, *prism, s.enclosed_escape_share, viewpoints=views)
         fall = np.zeros(w.raster.shape, np.float32)
     limit = s.max_unobserved_share + 1e-6
     approach_bad = kept & (approach > limit)

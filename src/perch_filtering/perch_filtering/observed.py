@@ -82,9 +82,19 @@ def unobserved_share(scene: RayScene, raster: SurfaceRaster, alive: np.ndarray, 
     depth_range along the normal) the scan does not enclose (with `viewpoints`: no camera saw free);
     0 elsewhere. With `down` (a fall volume: the direction of gravity), a point with nothing scanned
     below it (down_cone) is unobserved too: a drone falling there would fall into space nobody saw."""
-    out = np.zeros(raster.shape, np.float32)
+    return unobserved_shares(scene, raster, alive, u_range, v_range, depth_range, enclosed_escape_share, (down,),
+                             viewpoints)[0]
+
+
+def unobserved_shares(scene: RayScene, raster: SurfaceRaster, alive: np.ndarray, u_range: tuple[float, float],
+                      v_range: tuple[float, float], depth_range: tuple[float, float],
+                      enclosed_escape_share: float, downs: tuple[np.ndarray | None, ...],
+                      viewpoints: np.ndarray | None = None) -> list[np.ndarray]:
+    """unobserved_share of one volume for each `down` in `downs` (None: an approach; gravity: a fall),
+    its nodes and their enclosure rays cast once: a ceiling's approach prism and fall column are one
+    box with the default settings, and the fall asks only the floor test more."""
     if not alive.any():
-        return out
+        return [np.zeros(raster.shape, np.float32) for _ in downs]
     step = max(1, int(round(NODE_SPACING / raster.cell)))
     spacing = step * raster.cell
     # Node offsets (in nodes) inside each volume (a node beyond it, e.g. behind the next wall of a corner,
@@ -107,19 +117,24 @@ def unobserved_share(scene: RayScene, raster: SurfaceRaster, alive: np.ndarray, 
     depths = depth_range[0] + (np.arange(DEPTH_LAYERS) + 0.5) / DEPTH_LAYERS * (depth_range[1] - depth_range[0])
     points = np.concatenate([raster.frame.to_world(uv, np.full(len(uv), d)) for d in depths])
     if viewpoints is not None and len(viewpoints):
-        escaped = ~seen_free(scene, viewpoints, points)
+        enclosed_out = ~seen_free(scene, viewpoints, points)
     else:
-        escaped = escapes(scene, points, sphere_directions(ESCAPE_DIRECTIONS), enclosed_escape_share)
-    if down is not None:  # nothing scanned below: most of a narrow downward cone escapes (a hole lets a few out)
-        rest = np.flatnonzero(~escaped)  # a point already unobserved needs no floor test
-        escaped[rest] = escapes(scene, points[rest], down_cone(down), 0.5)
-    unknown = np.zeros(shape, np.float64)
-    unknown[nr, nc] = escaped.reshape(DEPTH_LAYERS, -1).mean(axis=0)  # the nodes are distinct
-    # Box mean over each live node's volume (integral image; the grid covers every live volume).
-    total = np.pad(unknown, ((1, 0), (1, 0))).cumsum(0).cumsum(1)
+        enclosed_out = escapes(scene, points, sphere_directions(ESCAPE_DIRECTIONS), enclosed_escape_share)
     rr, cc = node_r - r0, node_c - c0
     a, b = rr + lo_v, rr + hi_v + 1
     c, d = cc + lo_u, cc + hi_u + 1
-    sums = total[b, d] - total[a, d] - total[b, c] + total[a, c]
-    out[rows, cols] = sums / ((hi_v - lo_v + 1) * (hi_u - lo_u + 1))
-    return out
+    maps = []
+    for down in downs:
+        escaped = enclosed_out
+        if down is not None:  # nothing scanned below: most of a narrow downward cone escapes (a hole lets a few out)
+            escaped = enclosed_out.copy()
+            rest = np.flatnonzero(~escaped)  # a point already unobserved needs no floor test
+            escaped[rest] = escapes(scene, points[rest], down_cone(down), 0.5)
+        unknown = np.zeros(shape, np.float64)
+        unknown[nr, nc] = escaped.reshape(DEPTH_LAYERS, -1).mean(axis=0)  # the nodes are distinct
+        # Box mean over each live node's volume (integral image; the grid covers every live volume).
+        total = np.pad(unknown, ((1, 0), (1, 0))).cumsum(0).cumsum(1)
+        out = np.zeros(raster.shape, np.float32)
+        out[rows, cols] = (total[b, d] - total[a, d] - total[b, c] + total[a, c]) / ((hi_v - lo_v + 1) * (hi_u - lo_u + 1))
+        maps.append(out)
+    return maps
