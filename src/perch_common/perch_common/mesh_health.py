@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from perch_common.mesh import FACE_BLOCK, Mesh
+from perch_common.mesh import FACE_BLOCK, ORDERED_SORT, Mesh
 
 NEEDLE_ASPECT = 1e-3        # altitude / longest edge below this: a sliver
 NEEDLE_LENGTH = 10.0        # ... and longer than this many median edge lengths: a needle across space
@@ -204,7 +204,7 @@ def _same_way_edges(faces: np.ndarray) -> int:
         part = keys[i * len(faces):(i + 1) * len(faces)]
         np.multiply(faces[:, a], count, out=part)
         part += faces[:, b]
-    keys.sort()
+    keys.sort(kind=ORDERED_SORT)
     repeated = np.flatnonzero(keys[1:] == keys[:-1])
     if not len(repeated):
         return 0

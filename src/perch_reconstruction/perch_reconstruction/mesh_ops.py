@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from perch_common.mesh import FACE_BLOCK, Mesh, column_bounds
+from perch_common.mesh import FACE_BLOCK, ORDERED_SORT, Mesh, column_bounds
 
 # Below this many vertices a face's three sorted indices fit one int64 key exactly.
 EXACT_FACE_KEY_VERTICES = 2 ** 21
@@ -71,14 +71,14 @@ def _all_distinct(faces: np.ndarray, count: int) -> bool:
         else:   # wraps modulo 2^64 (unsigned): a hash
             key[start:start + FACE_BLOCK] = ((low * count + middle).astype(np.uint64) * np.uint64(0x9E3779B97F4A7C15)
                                              + high.astype(np.uint64))
-    key.sort()
+    key.sort(kind=ORDERED_SORT)
     return not (key[1:] == key[:-1]).any()
 
 
 def _first_occurrences(key: np.ndarray) -> np.ndarray:
     """Ascending indices of the first occurrence of each distinct key: np.unique(key, return_index=True)[1]
-    sorted, from a quicksort instead of its stable sort."""
-    order = np.argsort(key)
+    sorted (each key's least index, whatever order the sort leaves equal keys in)."""
+    order = np.argsort(key, kind=ORDERED_SORT)
     ordered = key[order]
     starts = np.flatnonzero(np.concatenate([[True], ordered[1:] != ordered[:-1]]))
     first = np.minimum.reduceat(order, starts) if len(key) else order
@@ -112,8 +112,8 @@ def _cell_keys(points: np.ndarray, cell: float) -> np.ndarray:
 def _cells(points: np.ndarray, cell: float, linear: np.ndarray | None = None) -> tuple[np.ndarray, int]:
     """(cell number of each point, cells); `linear`: the points' _cell_keys when already made."""
     linear = _cell_keys(points, cell) if linear is None else linear
-    # np.unique(linear, return_index=True, return_inverse=True) from a quicksort (its stable sort is 3x slower)
-    order = np.argsort(linear)
+    # np.unique(linear, return_index=True, return_inverse=True), whatever order the sort leaves equal keys in
+    order = np.argsort(linear, kind=ORDERED_SORT)
     ordered = linear[order]
     new = np.empty(len(points), bool)
     new[:1] = True
@@ -134,7 +134,7 @@ def _cells(points: np.ndarray, cell: float, linear: np.ndarray | None = None) ->
 def weld_vertices(mesh: Mesh, distance: float) -> Mesh:
     """Merge vertices falling in the same `distance` cell (duplicates from block seams, STL soups)."""
     linear = _cell_keys(mesh.vertices, max(distance, 1e-12))
-    ordered = np.sort(linear)   # a third of _cells' time: enough to see that every vertex has its own cell
+    ordered = np.sort(linear, kind=ORDERED_SORT)   # a third of _cells' time: enough to see that every vertex has its own cell
     if not (ordered[1:] == ordered[:-1]).any():   # nothing to merge: only degenerate and duplicate faces can go
         # Same arrays: per-face geometry already computed (validation) stays valid.
         same = Mesh(mesh.vertices, mesh.faces, mesh.vertex_colors, frame_id=mesh.frame_id, _cache=mesh._cache)
