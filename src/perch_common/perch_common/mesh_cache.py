@@ -23,6 +23,7 @@ import numpy as np
 
 from perch_common.errors import PerchError
 from perch_common.mesh import Mesh
+from perch_common.threads import one_thread
 
 MESH_NOT_CACHED = "mesh not cached"
 DEFAULT_BUDGET_MB = 2048          # per process; PERCH_MESH_CACHE_MB overrides (0 disables the cache)
@@ -191,11 +192,12 @@ def _second_in_line() -> None:
 
 
 def _run_preparers(preparers: list[Callable[[Mesh], object]], mesh: Mesh) -> None:
-    for preparer in preparers:
-        try:
-            preparer(mesh)
-        except Exception as exc:   # the stage builds it again and reports a real problem itself
-            logging.getLogger(__name__).debug("preparing a held mesh failed: %s", exc)
+    with one_thread():   # beside the stages: no threads of its own (the surface samples' two halves in turn)
+        for preparer in preparers:
+            try:
+                preparer(mesh)
+            except Exception as exc:   # the stage builds it again and reports a real problem itself
+                logging.getLogger(__name__).debug("preparing a held mesh failed: %s", exc)
 
 
 class MeshBook:

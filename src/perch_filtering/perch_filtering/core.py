@@ -75,7 +75,7 @@ SUPPORT_BIN = 0.1  # depth bins of the support statistics, as a share of plane_t
 # 1.1 against 0.75 us a cell alone, its share 1.6 s against 1.3 s alone; at 1.5 its share took 1.93 s
 # and the other 1.55 s, at 1.85 1.65-1.79 s and 1.69-1.80 s).
 ANY_YAW_COST = 1.85
-SPLIT_MIN_CELLS = 200_000  # raster cells (m^2 of enabled surface / cell^2) from which a second process judges half
+SPLIT_MIN_CELLS = 200_000  # raster cells (m^2 of enabled surface / cell^2) from which a second process shares the judging
 SPLIT_MIN_OBSERVED_CELLS = 100_000  # cells alive after line of sight from which a second process checks observed space
 JUDGING_BATCH_SHARE = 1 / 48  # of the judging cost: batches of small surfaces that two processes take one by one
 JUDGING = (0.2, 0.7)  # the call's progress while the surfaces are judged
@@ -205,10 +205,10 @@ def filter_surfaces(mesh: Mesh, surfaces: list[Surface], target: TargetVolume, u
     # Each surface's judging costs about its raster's cells, a ceiling's ANY_YAW_COST times a wall's.
     judging_cost = [s.area / config.cell ** 2 * (ANY_YAW_COST if s.surface_class in ANY_YAW_CLASSES else 1.0)
                     if class_enabled(s.surface_class, config) else 0.0 for s in oriented]
-    batches = _batches(judging_cost, JUDGING_BATCH_SHARE)
     if _worth_a_split(judging_cost, SPLIT_MIN_CELLS, config):
         # In batches taken from both ends of one order (largest first): whichever process runs faster
         # judges more, and both end together.
+        batches = _batches(judging_cost, JUDGING_BATCH_SHARE)
         judged, second_process = _claimed_out(judge_batches, [sum(judging_cost[i] for i in b) for b in batches],
                                               send=_evidence_at_alive, receive=_evidence_spread)
         by_surface = {i: w for batch, ws in zip(batches, judged) for i, w in zip(batch, ws)}

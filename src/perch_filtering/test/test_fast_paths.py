@@ -264,3 +264,11 @@ def test_a_prepared_mesh_has_its_closest_point_scene_only_when_its_cells_can_rea
     # The prepared scene answers as one built by the query itself.
     points = room.vertices[:50] + 0.3
     assert np.allclose(ray_scene(large).closest_points(points)[2], ray_scene(small).closest_points(points)[2])
+
+
+def test_judging_batches_hold_one_large_surface_or_several_small_ones_largest_first():
+    from perch_filtering.core import _batches
+
+    # Total 12, a batch closes once it holds a fifth (2.4): the large ones alone, the small ones packed.
+    assert _batches([1.0, 5.0, 1.0, 0.0, 1.0, 3.0, 1.0], 0.2) == [[1], [5], [0, 2, 4], [6, 3]]
+    assert _batches([], 0.2) == []
