@@ -143,7 +143,14 @@ class Mesh:
 
     def face_centroids(self) -> np.ndarray:
         """(F,3) triangle centroids."""
-        return self.triangles().mean(axis=1)
+        # triangles().mean(axis=1)'s arithmetic ((a + b) + c) / 3, bit for bit, without its (F,3,3)
+        # gather and strided reduction: half the time (0.32 -> 0.17 s on a 2.3 M-face building).
+        corners = self.faces.T
+        centroids = self.vertices[corners[0]]
+        centroids += self.vertices[corners[1]]
+        centroids += self.vertices[corners[2]]
+        centroids /= 3
+        return centroids
 
     def face_colors(self, which: np.ndarray | None = None) -> np.ndarray | None:
         """(F,3) mean vertex colour in [0,1] of every face (or of the faces `which` indexes), or None

@@ -19,6 +19,15 @@ def test_geometry_of_unit_square():
     assert np.allclose(m.face_colors(), [[1, 0, 0], [1, 0, 0]])
 
 
+def test_face_centroids_are_the_mean_of_the_corners_bit_for_bit():
+    """face_centroids sums the corners in place: the same floats as triangles().mean(axis=1) (what
+    it computed before; the feet check, crop and filter read them)."""
+    rng = np.random.default_rng(5)
+    mesh = Mesh(rng.normal(0.0, 40.0, (500, 3)), rng.integers(0, 500, (2000, 3)))
+    assert np.array_equal(mesh.face_centroids(), mesh.triangles().mean(axis=1))
+    assert np.array_equal(square().face_centroids(), [[2 / 3, 1 / 3, 0], [1 / 3, 2 / 3, 0]])
+
+
 def test_submesh_matches_the_sorted_unique_vertices_of_its_faces():
     """The vertex-mask submesh gives what np.unique of the faces' vertices gave (order included)."""
     rng = np.random.default_rng(3)

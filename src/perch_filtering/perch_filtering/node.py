@@ -63,11 +63,16 @@ class FilterNode(Node):
 
     @staticmethod
     def _warm_up() -> None:
-        """Load and initialise the ray caster (Embree) before the first request."""
+        """Load and initialise the ray caster (Embree) before the first request, and import Open3D (a
+        large mesh's closest-point scene): ~0.5 s of interpreter work that otherwise ran during a
+        mission, in the preparer beside segmentation (holding the interpreter lock it needs) or in the
+        filter's reachability."""
         from perch_common.mesh import Mesh
+        from perch_common.open3d_loader import open3d
         from perch_common.raycast import RayScene
 
         RayScene(Mesh(np.eye(3), np.array([[0, 1, 2]]))).occluded(np.zeros((1, 3)), np.ones((1, 3)))
+        open3d()
 
     def _prepare_mesh(self, mesh) -> None:
         """What the filter derives from a mesh before knowing its request: the ray scene, the surface
