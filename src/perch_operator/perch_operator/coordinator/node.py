@@ -31,6 +31,8 @@ from perch_common.mesh import MeshError, validate_mesh
 from perch_common.ros.conversions import (
     cached_mesh_to_msg,
     id_only_msg,
+    is_id_only,
+    mesh_from_msg,
     mesh_from_request,
     target_from_msg,
     target_to_msg,
@@ -494,7 +496,8 @@ class OperatorNode(Node):
     def _publish_scan(self, mesh_msg: pm.TriangleMesh, to_input: np.ndarray, frame_id: str) -> None:
         """The mission's scan for viewers (perch/scan_marker, decimated, on the view thread), in the input frame."""
         try:
-            mesh = mesh_from_request(mesh_msg, "mission mesh")
+            # A picture: a mesh that travels with its arrays is decoded, not hashed and kept in the stages' cache.
+            mesh = mesh_from_request(mesh_msg, "mission mesh") if is_id_only(mesh_msg) else mesh_from_msg(mesh_msg)
             parts = scan_marker(mesh, to_input, frame_id, self.get_clock().now().to_msg())
             marker = serialized_marker(*parts) if parts is not None else None
         except Exception as exc:  # noqa: BLE001 - a picture: the mission goes on, the log says why
