@@ -103,6 +103,25 @@ def test_stages_run_in_order_with_rising_feedback_and_times(meshes, goal):
     assert [(s.id, s.surface_class) for s in operators[0].surfaces] == [(0, pm.Surface.CLASS_WALL)]
 
 
+def test_a_given_meshs_input_frame_is_told_before_it_is_cleaned_and_its_alignment_after(goal):
+    """The coordinator draws a given scan (on its view thread) while the clean stage runs: the mission
+    tells the input frame once the up axis is settled, before the clean call; the alignment, which
+    the clean corrects, after it."""
+    events = []
+
+    class Recording(ScriptedStages):
+        def call(self, stage, request, cancelled=lambda: False, progress=None):
+            events.append(stage)
+            return super().call(stage, request, cancelled, progress)
+
+    goal.mesh.header.frame_id = "scan"
+    mission = Mission(Recording(goal.mesh), options(), 1, lambda *f: None, lambda: False, lambda *ps: None,
+                      lambda o: None, on_alignment=lambda a: events.append(("aligned", a.input_frame)),
+                      on_input_frame=lambda frame: events.append(("input frame", frame)))
+    assert mission.run(goal).success
+    assert events[:4] == [("input frame", "scan"), "clean", ("aligned", "scan"), "crop"]
+
+
 def test_a_failing_stage_ends_the_mission_with_its_name(goal):
     stages = ScriptedStages(goal.mesh, fail="segment")
     mission = Mission(stages, options(), 1, lambda *f: None, lambda: False, lambda *ps: None, lambda o: None)

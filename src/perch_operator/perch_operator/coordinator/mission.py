@@ -125,7 +125,8 @@ class Mission:
                  feedback: Callable[[str, float, str], None], cancelled: Callable[[], bool],
                  on_proposal: Callable[..., None], on_operator: Callable[[Operator], None],
                  review: Callable[[list], ReviewDecision | set[int]] | None = None,
-                 on_alignment: Callable[[Alignment], None] | None = None):
+                 on_alignment: Callable[[Alignment], None] | None = None,
+                 on_input_frame: Callable[[str], None] | None = None):
         self.caller = caller
         self.options = options
         self.first_proposal_id = first_proposal_id
@@ -137,6 +138,10 @@ class Mission:
         # they are out, returns the decision (rejected, crops)
         self.review = review
         self.on_alignment = on_alignment  # told the input frame -> gravity-aligned frame once known
+        # told a given mesh's input frame once its up axis is settled, before it is cleaned: the view
+        # thread draws the given scan while the clean stage runs (alone on a core) instead of beside
+        # segmentation and the filter, which take both
+        self.on_input_frame = on_input_frame
         self.alignment = Alignment(options.frame_id, np.eye(3), "none", 0.0)
         self.notes: list[str] = []  # warnings for the result message (e.g. an up axis from the file's convention)
         self.clean_warnings: list[str] = []  # what the clean stage warned of, for a failure's message
@@ -267,6 +272,8 @@ class Mission:
         self.alignment = self._given_mesh_alignment(goal, mesh_msg.header.frame_id, given)
         aligned = given.transformed(self.alignment.to_aligned())
         _refuse_target_outside(goal.target, given, aligned, self.alignment)
+        if self.on_input_frame is not None:
+            self.on_input_frame(self.alignment.input_frame)
         aligned.frame_id = self.alignment.aligned_frame
         aligned_msg = mesh_to_msg(aligned, stamp=mesh_msg.header.stamp)
         if not self.options.clean_given_mesh:

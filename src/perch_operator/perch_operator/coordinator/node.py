@@ -298,13 +298,15 @@ class OperatorNode(Node):
 
         def aligned(alignment) -> None:  # the input frame -> gravity-aligned frame, for tf users
             self.static_transforms.send(alignment_to_msg(alignment))
+
+        def input_frame(frame_id: str) -> None:
             given = goal_handle.request.mesh   # the scan for viewers, early: it is in the input frame already
             if len(given.triangles) and not self._scan_shown:
                 self._scan_shown = True
-                self._submit_view(self._publish_scan, given, np.eye(4), alignment.input_frame)
+                self._submit_view(self._publish_scan, given, np.eye(4), frame_id)
 
         mission = Mission(self.stages, options, self._next_proposal_id, feedback, cancelled,
-                          self._publish_proposal, adopt, review, aligned)
+                          self._publish_proposal, adopt, review, aligned, input_frame)
         self._running_mission, self._running_goal = mission, goal_handle
         try:
             result = mission.run(goal_handle.request)
