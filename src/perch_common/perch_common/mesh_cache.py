@@ -41,8 +41,13 @@ class MeshNotCached(PerchError):
 def content_id(vertices: np.ndarray, faces: np.ndarray, colors: np.ndarray | None = None,
                normals: np.ndarray | None = None, viewpoints: np.ndarray | None = None) -> str:
     """A 128-bit hash of the mesh as it travels (float32 vertices, uint32 faces, colours, normals, and
-    the float64 viewpoints when it has any: a bare mesh keeps the id it had before they existed)."""
-    digest = hashlib.blake2b(digest_size=16)
+    the float64 viewpoints when it has any: a bare mesh keeps the id it had before they existed).
+
+    SHA-256 cut to 128 bits: CPUs with SHA instructions (x86 since 2017-2019, ARMv8) hash 3x faster
+    than with BLAKE2b, which hashlib runs without SIMD (a 2.3 M-face building's 42 MB: 44 against
+    135 ms, hashed twice a mission). Ids name arrays for the caches only: `perch replay --check`
+    compares the arrays, not the ids, so recordings made with the earlier hash still check."""
+    digest = hashlib.sha256()
     arrays = [(vertices, np.float32), (faces, np.uint32), (colors, np.uint8), (normals, np.float32)]
     if viewpoints is not None and np.size(viewpoints):
         arrays.append((viewpoints, np.float64))
@@ -50,7 +55,7 @@ def content_id(vertices: np.ndarray, faces: np.ndarray, colors: np.ndarray | Non
         data = np.ascontiguousarray(np.zeros(0) if array is None else array, dtype)
         digest.update(np.int64(data.size).tobytes())
         digest.update(memoryview(data).cast("B"))
-    return digest.hexdigest()
+    return digest.digest()[:16].hex()
 
 
 def mesh_content_id(mesh: Mesh) -> str:

@@ -25,6 +25,16 @@ def test_equal_replies_match_ignoring_time_and_message():
     assert diff_messages(a, b) == []
 
 
+def test_a_meshs_content_id_is_not_compared_its_arrays_are():
+    """A recording made when content ids were another hash still checks: the id is a cache key for the
+    arrays, and the arrays themselves are compared."""
+    a = srv.Crop.Response(success=True, mesh=pm.TriangleMesh(content_id="0" * 32, vertices=[0.0, 1.0, 2.0]))
+    b = srv.Crop.Response(success=True, mesh=pm.TriangleMesh(content_id="f" * 32, vertices=[0.0, 1.0, 2.0]))
+    assert diff_messages(a, b) == []
+    b.mesh.vertices = array.array("f", [0.0, 1.0, 2.5])
+    assert diff_messages(a, b) == ["mesh.vertices: 1 of 3 values differ (worst at [2]: recorded 2, replayed 2.5)"]
+
+
 def test_numbers_within_tolerance_match_and_outside_are_reported_with_path():
     a, b = optimise_reply(1.0), optimise_reply(1.0 + 1e-7)
     assert diff_messages(a, b) == []

@@ -1,7 +1,8 @@
 """Compare two ROS messages field by field: numbers within tolerance, everything else equal.
 
 Used by `perch replay --check`: a recorded stage reply against the live graph's reply to the
-same request. Timing and free-text fields are ignored (they differ from run to run).
+same request. Timing and free-text fields are ignored (they differ from run to run), and a mesh's
+content id (a cache key; the arrays it names are compared).
 """
 
 from __future__ import annotations
@@ -11,7 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-IGNORED_FIELDS = frozenset({"seconds", "message", "stamp"})
+# content_id names a mesh's arrays for the caches (perch_common.mesh_cache), which are compared themselves
+IGNORED_FIELDS = frozenset({"seconds", "message", "stamp", "content_id"})
 
 
 @dataclass(frozen=True)
