@@ -370,7 +370,14 @@ def feet_problem(mesh: Mesh, up: np.ndarray, what: str = "mesh") -> str | None:
     from perch_common.up_axis import height_levels, in_levels
 
     up = np.asarray(up, np.float64) / np.linalg.norm(up)
-    height = mesh.face_centroids() @ up
+    # Each face's centroid height from its corners' heights: three gathers of one float each instead of
+    # three points' (the floats of face_centroids() @ up to the last bit or two; a given building's
+    # 2.3 M faces 0.17 -> 0.05 s, before every mission).
+    corner = mesh.vertices @ up
+    height = corner[mesh.faces[:, 0]]
+    height += corner[mesh.faces[:, 1]]
+    height += corner[mesh.faces[:, 2]]
+    height /= 3
     floor, ceiling = np.percentile(height, [1, 99])
     tall = float(ceiling - floor)
     if tall < FEET_HEIGHT:

@@ -21,7 +21,7 @@ def test_geometry_of_unit_square():
 
 def test_face_centroids_are_the_mean_of_the_corners_bit_for_bit():
     """face_centroids sums the corners in place: the same floats as triangles().mean(axis=1) (what
-    it computed before; the feet check, crop and filter read them)."""
+    it computed before; crop, segmentation and the filter read them)."""
     rng = np.random.default_rng(5)
     mesh = Mesh(rng.normal(0.0, 40.0, (500, 3)), rng.integers(0, 500, (2000, 3)))
     assert np.array_equal(mesh.face_centroids(), mesh.triangles().mean(axis=1))
