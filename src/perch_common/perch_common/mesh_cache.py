@@ -43,10 +43,11 @@ def content_id(vertices: np.ndarray, faces: np.ndarray, colors: np.ndarray | Non
     """A 128-bit hash of the mesh as it travels (float32 vertices, uint32 faces, colours, normals, and
     the float64 viewpoints when it has any: a bare mesh keeps the id it had before they existed).
 
-    SHA-256 cut to 128 bits: CPUs with SHA instructions (x86 since 2017-2019, ARMv8) hash 3x faster
-    than with BLAKE2b, which hashlib runs without SIMD (a 2.3 M-face building's 42 MB: 44 against
-    135 ms, hashed twice a mission). Ids name arrays for the caches only: `perch replay --check`
-    compares the arrays, not the ids, so recordings made with the earlier hash still check."""
+    SHA-256 cut to 128 bits: hashlib's SHA-256 runs on the CPU's SHA instructions where it has them
+    (x86 since 2017-2019, most ARMv8) and hashed a 2.3 M-face building's 42 MB in 44 ms against
+    BLAKE2b's 135 ms (two cores of a cloud VM; hashed twice a mission). Ids name arrays for the caches
+    only: `perch replay --check` compares the arrays, not the ids, so recordings made with the
+    earlier hash still check."""
     digest = hashlib.sha256()
     arrays = [(vertices, np.float32), (faces, np.uint32), (colors, np.uint8), (normals, np.float32)]
     if viewpoints is not None and np.size(viewpoints):
