@@ -66,7 +66,7 @@ def work_threads() -> int:
 def behind_the_stages() -> None:
     """Lower the calling thread's priority to BACKGROUND_NICENESS (Linux niceness is per thread), as a
     pool's initializer: for work beside the stages that nothing waits for, which then takes the cores
-    the stages leave (the mesh preparer; the coordinator's pictures for viewers). A thread already
+    the stages leave (the mesh preparer). A thread already
     nicer keeps its own; where per-thread niceness is not available it runs as the stages do."""
     try:
         thread = threading.get_native_id()

@@ -41,36 +41,6 @@ def test_a_new_mission_drops_the_view_work_still_queued():
         rclpy.try_shutdown()
 
 
-def test_views_are_drawn_behind_the_stages():
-    """The view thread (the scan marker of every face of a given mesh, the proposals' views) yields the
-    cores to the stages: it runs at BACKGROUND_NICENESS (Linux niceness is per thread), the node's
-    other threads at their own."""
-    import os
-
-    from perch_common.ros import testing
-
-    testing.use_isolated_ros_env()
-    import rclpy
-
-    from perch_common.threads import BACKGROUND_NICENESS
-    from perch_operator.coordinator.node import OperatorNode
-
-    def niceness() -> int:
-        return os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
-
-    own = niceness()
-    rclpy.init()
-    try:
-        node = OperatorNode()
-        try:
-            assert node._view_worker.submit(niceness).result(60) == max(BACKGROUND_NICENESS, own)
-            assert niceness() == own
-        finally:
-            node.destroy_node()
-    finally:
-        rclpy.try_shutdown()
-
-
 def test_the_scan_marker_of_a_given_mesh_leaves_the_stages_cache_alone():
     """A given mesh's scan marker decodes the goal's arrays for the picture only: it neither hashes
     them nor keeps the mesh in the process cache the stages share (a building's 2.3 M faces stayed

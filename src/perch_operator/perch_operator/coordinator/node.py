@@ -43,7 +43,6 @@ from perch_common.ros.node_main import run_node
 from perch_common.ros.params import declare_config, read_config
 from perch_common.ros.service import answering, create_stage_service
 from perch_common.ros.static_transforms import StaticTransformPublisher, alignment_to_msg, transform_msg
-from perch_common.threads import behind_the_stages
 from perch_common.transforms import parse_up_axis, pose_to_matrix
 from perch_interfaces import msg as pm
 from perch_interfaces import srv
@@ -110,10 +109,9 @@ class OperatorNode(Node):
         self._scan_shown = False  # this mission's scan marker has gone to the view thread
         self._drone_view_pubs: dict[int, tuple] = {}
         # Views are rendered in order on their own thread: a view is a picture for the operator, and
-        # no decision (nor an auto-accepted mission's result) waits for it, so that thread yields the
-        # cores to the stages (the scan marker of a building's 2.3 M faces ran beside its cleaning).
-        self._view_worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="perch-views",
-                                               initializer=behind_the_stages)
+        # no decision (nor an auto-accepted mission's result) waits for it. It runs at the stages' own
+        # priority: at niceness 15 a loaded machine drew a mission's views after its recording had ended.
+        self._view_worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="perch-views")
         # The current mission's view work not yet done: a new mission drops what is still queued, which
         # otherwise held every earlier mission's meshes while the views lagged behind the missions (the
         # coordinator's RSS grew ~2 meshes a mission on a loaded machine).
