@@ -23,10 +23,11 @@ import numpy as np
 
 from perch_common.errors import PerchError
 from perch_common.mesh import Mesh
-from perch_common.threads import behind_the_stages, one_thread
+from perch_common.threads import one_thread
 
 MESH_NOT_CACHED = "mesh not cached"
 DEFAULT_BUDGET_MB = 2048          # per process; PERCH_MESH_CACHE_MB overrides (0 disables the cache)
+PREPARE_NICENESS = 15             # the preparing thread's (Linux, per thread): behind the stages
 
 
 class MeshNotCached(PerchError):
@@ -151,10 +152,7 @@ PROCESS_CACHE = MeshCache(_budget_from_env())
 # work on. A node that derives costly data from it (the filter: its ray-cast BVH and surface samples,
 # ~2 s on a 2.3 M-face building) registers a preparer; the data is then built on a background thread
 # while the stages before it run (segmentation uses one core), and the stage finds it built, or waits
-# for the build under way (Mesh.derived). That thread yields the cores to the stages
-# (threads.behind_the_stages): at nice 15 the building's mission took 7.9-8.1 s against 8.2 s, the
-# preparation moving into segmentation's one-thread spells and the filter's start. A failed
-# preparation is left for the stage to meet itself.
+# for the build under way (Mesh.derived). A failed preparation is left for the stage to meet itself.
 
 _preparers: list[Callable[[Mesh], object]] = []
 _preparers_lock = threading.Lock()
@@ -184,8 +182,19 @@ def prepare(mesh: Mesh) -> Future | None:
             return None
         if _prepare_pool is None:
             _prepare_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="perch-prepare",
-                                               initializer=behind_the_stages)
+                                               initializer=_second_in_line)
     return _prepare_pool.submit(_run_preparers, preparers, mesh)
+
+
+def _second_in_line() -> None:
+    """The preparing thread yields the cores to the stages (Linux niceness is per thread): it runs
+    beside segmentation, which uses both; at nice 15 the building's mission took 7.9-8.1 s against
+    8.2 s, the preparation moving into segmentation's one-thread spells and the filter's start."""
+    try:
+        thread = threading.get_native_id()
+        os.setpriority(os.PRIO_PROCESS, thread, max(PREPARE_NICENESS, os.getpriority(os.PRIO_PROCESS, thread)))
+    except (AttributeError, OSError):   # no per-thread niceness here: it runs as the stages do
+        pass
 
 
 def _run_preparers(preparers: list[Callable[[Mesh], object]], mesh: Mesh) -> None:

@@ -12,14 +12,12 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import os
-import threading
 from concurrent.futures import ThreadPoolExecutor
 from typing import Callable, Iterator, TypeVar
 
 T = TypeVar("T")
 
 BLAS_THREADS = 1
-BACKGROUND_NICENESS = 15   # a background thread's (Linux, per thread): behind the stages
 OPENMP_THREADS = min(os.cpu_count() or 1, 2)
 
 
@@ -61,18 +59,6 @@ def work_threads() -> int:
         return max(1, int(thread_environment()["OMP_NUM_THREADS"]))
     except ValueError:
         return OPENMP_THREADS
-
-
-def behind_the_stages() -> None:
-    """Lower the calling thread's priority to BACKGROUND_NICENESS (Linux niceness is per thread), as a
-    pool's initializer: for work beside the stages that nothing waits for, which then takes the cores
-    the stages leave (the mesh preparer). A thread already
-    nicer keeps its own; where per-thread niceness is not available it runs as the stages do."""
-    try:
-        thread = threading.get_native_id()
-        os.setpriority(os.PRIO_PROCESS, thread, max(BACKGROUND_NICENESS, os.getpriority(os.PRIO_PROCESS, thread)))
-    except (AttributeError, OSError):
-        pass
 
 
 @contextlib.contextmanager

@@ -155,7 +155,6 @@ def test_a_reply_mesh_is_prepared_in_the_background_for_the_stages_that_get_it_b
     import threading
 
     import perch_common.mesh_cache
-    import perch_common.threads
     from perch_common.mesh_cache import add_preparer, remove_preparer
     from perch_common.ros.conversions import cached_mesh_to_msg, id_only_msg, mesh_from_request
 
@@ -177,7 +176,7 @@ def test_a_reply_mesh_is_prepared_in_the_background_for_the_stages_that_get_it_b
         assert done.wait(30) and prepared == [600]
         # Behind the stages (Linux: niceness per thread); the test's own thread keeps its own.
         own = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
-        assert niceness == [max(perch_common.threads.BACKGROUND_NICENESS, own)]
+        assert niceness == [max(perch_common.mesh_cache.PREPARE_NICENESS, own)]
         stage_mesh = mesh_from_request(id_only_msg(reply))
         assert stage_mesh.derived("prepared", lambda: -1) == 600   # built by the preparer, shared
     finally:
