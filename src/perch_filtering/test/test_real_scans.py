@@ -5,6 +5,8 @@ engineer's up estimate does this for missions). Every filtered region is sampled
 are placed on the regions: no placement may fail the checker.
 """
 
+import re
+
 import numpy as np
 import pytest
 from filtering_accuracy import spec_from
@@ -64,10 +66,15 @@ def test_regions_and_placements_pass_the_scan_checker(name, up):
         assert oracle.failures(p.drone_pose[:3, 3], p.drone_pose[:3, 2]) == [], p.drone_index
     if name != "apartment.ply":  # the ICL rooms hold 5 safe perches 1 m apart
         assert len(placed.placements) == 5, placed.message
-    else:  # the apartment's regions (whole scan segmented) hold 4 drones 1 m apart, and 4 are placed
-        assert len(placed.placements) == 4, placed.message
-        assert placed.message.startswith("4 of 5 cameras: the "), placed.message
-        assert "hold 4 drone(s) 1 m apart" in placed.message, placed.message
+    else:
+        # The apartment's regions (whole scan segmented) hold fewer than 5 drones 1 m apart, as many are
+        # placed and the shortfall says so. How many depends on the CPU (2026-12-07): numpy's SIMD level
+        # changes segmentation's last bits and with them a surface: 4 on the AVX-512 (X86_V4) machines
+        # this was written on, 3 on an AVX2 (X86_V3) EPYC, 3 with NPY_DISABLE_CPU_FEATURES=X86_V3.
+        held = re.search(r"hold (\d+) drone\(s\) 1 m apart", placed.message)
+        assert held, placed.message
+        assert len(placed.placements) == int(held.group(1)) >= 3, placed.message
+        assert placed.message.startswith(f"{len(placed.placements)} of 5 cameras: the "), placed.message
 
 
 @pytest.mark.slow
