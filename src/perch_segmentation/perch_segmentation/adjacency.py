@@ -20,7 +20,9 @@ def face_adjacency(faces: np.ndarray, num_vertices: int) -> np.ndarray:
     keep = lo != hi  # edges of degenerate faces with a repeated vertex
     keys = lo[keep] * np.int64(num_vertices) + hi[keep]
     owner = np.repeat(np.arange(f, dtype=np.int64), 3)[keep]
-    order = np.argsort(keys)
+    # Stable: the faces of a non-manifold edge chain in mesh order. numpy's default sort leaves equal keys
+    # in an order that follows the CPU's SIMD level, and real scans segmented differently on two machines.
+    order = np.argsort(keys, kind="stable")
     keys, owner = keys[order], owner[order]
     same = keys[1:] == keys[:-1]
     pairs = np.stack([owner[:-1][same], owner[1:][same]], axis=1)

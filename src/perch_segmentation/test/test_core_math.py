@@ -52,6 +52,26 @@ def test_face_adjacency_and_unique_edges():
     np.testing.assert_array_equal(unique_edges(np.array([0, 1, 2, 2]), np.array([1, 0, 2, 0]), 3), [[0, 1], [0, 2]])
 
 
+def test_a_non_manifold_edge_chains_its_faces_in_face_order_on_every_cpu():
+    """Faces sharing an edge are chained in their order in the mesh, whatever order the sort leaves equal
+    keys in: numpy's unstable argsort orders ties by the CPU's SIMD level, and a real scan's segmentation
+    differed between two machines by it (the apartment 21 against 20 surfaces, the ICL office)."""
+    rng = np.random.default_rng(0)
+    fans, blades = 5000, 4   # many ties, so a SIMD sort has room to reorder them
+    hub = np.arange(fans)[:, None]
+    tips = 2 * fans + np.arange(fans * blades).reshape(fans, blades)
+    # Fan k: `blades` faces sharing the edge (2k, 2k+1); the faces listed in a shuffled order.
+    faces = np.stack([2 * np.repeat(hub, blades, 1), 2 * np.repeat(hub, blades, 1) + 1, tips], -1).reshape(-1, 3)
+    faces = faces[rng.permutation(len(faces))]
+    pairs = face_adjacency(faces, 2 * fans + fans * blades)
+    fan_of = faces[:, 0] // 2
+    expected = []
+    for k in range(fans):   # consecutive faces of a fan in face order: a chain
+        members = np.flatnonzero(fan_of == k)
+        expected += list(zip(members[:-1].tolist(), members[1:].tolist()))
+    assert sorted(map(tuple, pairs.tolist())) == sorted(expected)
+
+
 def test_lab_of_reference_colours():
     lab = rgb_to_lab(np.array([[255, 255, 255], [255, 0, 0], [0, 0, 0]], np.uint8))
     np.testing.assert_allclose(lab, [[100, 0, 0], [53.24, 80.09, 67.20], [0, 0, 0]], atol=0.02)
